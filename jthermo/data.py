@@ -1,0 +1,421 @@
+"""Input/output data: loading, validation, pre-processing and splitting.
+
+Files follow the contract of DESIGN.md: a header row, `t` in seconds, inputs `u_<name>`,
+outputs `y_<name>`, other measured signals `w_<name>`. Data are checked once, here, and
+every problem is a `DataError` with a one-line reason naming the column and row.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import numpy as np
+
+from .errors import DataError
+
+#: jitter allowed in logged time stamps before re-gridding is refused (fraction of Ts)
+JITTER_TOLERANCE = 0.2
+#: longest gap (in samples) that re-gridding may bridge by interpolation
+MAX_GAP_SAMPLES = 3
+#: values larger than this in magnitude are refused as corrupt
+MAX_ABS_VALUE = 1e9
+MIN_SAMPLES = 10
+
+
+class IOData(eqx.Module):
+    """One experiment: inputs, outputs and optional measured signals on a uniform time grid.
+
+    **Fields:**
+    - `u`: inputs, `(T, nu)`; on the printer a heater power fraction in [0, 1].
+    - `y`: outputs, `(T, ny)`; on the printer sensor temperatures in °C.
+    - `w`: other measured signals, `(T, nw)` (surroundings °C, set points, fan), possibly `nw = 0`.
+    - `ts`: sample time in s. `t0`: time of the first sample in s.
+    - names of each column (without the `u_`/`y_`/`w_` prefix) and free-text `notes` that say what
+      the loader or a pre-processing step did (re-gridding, detrending, ...).
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    w: np.ndarray
+    ts: float = eqx.field(static=True)
+    t0: float = eqx.field(static=True, default=0.0)
+    input_names: tuple[str, ...] = eqx.field(static=True, default=())
+    output_names: tuple[str, ...] = eqx.field(static=True, default=())
+    signal_names: tuple[str, ...] = eqx.field(static=True, default=())
+    notes: tuple[str, ...] = eqx.field(static=True, default=())
+
+    def __check_init__(self):
+        for name, arr in (("u", self.u), ("y", self.y), ("w", self.w)):
+            if np.ndim(arr) != 2:
+                raise DataError(f"IOData: `{name}` must be a 2-D (T, n) array, got shape {np.shape(arr)}")
+        if not (len(self.u) == len(self.y) == len(self.w)):
+            raise DataError(
+                f"IOData: unequal lengths u={len(self.u)}, y={len(self.y)}, w={len(self.w)}")
+        if len(self.input_names) != self.u.shape[1] or len(self.output_names) != self.y.shape[1] \
+                or len(self.signal_names) != self.w.shape[1]:
+            raise DataError("IOData: the number of names does not match the number of columns")
+        if not (math.isfinite(self.ts) and self.ts > 0):
+            raise DataError(f"IOData: sample time must be positive, got {self.ts}")
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.y.shape[0])
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.u.shape[1])
+
+    @property
+    def n_outputs(self) -> int:
+        return int(self.y.shape[1])
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time stamps in s, `(T,)`."""
+        return self.t0 + self.ts * np.arange(self.n_samples)
+
+    def replace(self, **changes: Any) -> "IOData":
+        fields = {f: getattr(self, f) for f in ("u", "y", "w", "ts", "t0", "input_names",
+                                                "output_names", "signal_names", "notes")}
+        fields.update(changes)
+        return IOData(**fields)
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+
+# ---------------------------------------------------------------- construction
+
+
+def from_arrays(u, y, ts: float = 1.0, w=None, *, input_names=None, output_names=None,
+                signal_names=None, t0: float = 0.0, notes=()) -> IOData:
+    """Build validated `IOData` from arrays `u (T, nu)`, `y (T, ny)` and optional `w (T, nw)`.
+
+    1-D arrays are taken as a single column. Raises `DataError` on NaN/inf, unequal lengths,
+    fewer than `MIN_SAMPLES` samples or absurd magnitudes.
+    """
+    cols = {}
+    for name, arr in (("u", u), ("y", y), ("w", w)):
+        if arr is None:
+            continue
+        try:
+            a = np.asarray(arr, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"IOData: `{name}` is not numeric ({exc})") from None
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.ndim != 2:
+            raise DataError(f"IOData: `{name}` must be 1-D or 2-D, got {a.ndim}-D")
+        cols[name] = a
+    if "u" not in cols or "y" not in cols:
+        raise DataError("IOData: both inputs `u` and outputs `y` are required")
+    T = cols["y"].shape[0]
+    if "w" not in cols:
+        cols["w"] = np.zeros((T, 0))
+    lengths = {k: v.shape[0] for k, v in cols.items() if v.shape[1] > 0 or k != "w"}
+    if len(set(lengths.values())) > 1:
+        raise DataError(f"IOData: unequal lengths {lengths}")
+    names = {
+        "u": tuple(input_names) if input_names is not None else tuple(f"{i + 1}" for i in range(cols["u"].shape[1])),
+        "y": tuple(output_names) if output_names is not None else tuple(f"{i + 1}" for i in range(cols["y"].shape[1])),
+        "w": tuple(signal_names) if signal_names is not None else tuple(f"{i + 1}" for i in range(cols["w"].shape[1])),
+    }
+    for k, a in cols.items():
+        if a.shape[1] != len(names[k]):
+            raise DataError(f"IOData: {a.shape[1]} columns in `{k}` but {len(names[k])} names")
+        _check_finite(a, [f"{k}_{n}" for n in names[k]])
+    if T < MIN_SAMPLES:
+        raise DataError(f"IOData: only {T} samples; at least {MIN_SAMPLES} are needed")
+    return IOData(u=cols["u"], y=cols["y"], w=cols["w"], ts=float(ts), t0=float(t0),
+                  input_names=names["u"], output_names=names["y"], signal_names=names["w"],
+                  notes=tuple(notes))
+
+
+def _check_finite(a: np.ndarray, colnames: list[str], row_offset: int = 0) -> None:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        what = "NaN" if np.isnan(a[r, c]) else "inf"
+        raise DataError(f"IOData: column `{colnames[c]}` has {what} at row {r + 1 + row_offset}")
+    big = np.abs(a) > MAX_ABS_VALUE
+    if big.any():
+        r, c = np.argwhere(big)[0]
+        raise DataError(
+            f"IOData: column `{colnames[c]}` has an implausible value {a[r, c]:.3g} at row {r + 1 + row_offset}")
+
+
+def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
+                 jitter_tolerance: float = JITTER_TOLERANCE) -> IOData:
+    """Build `IOData` from named columns (`t`, `u_*`, `y_*`, `w_*`), checking the time axis.
+
+    Logged time stamps with jitter (steps within `jitter_tolerance`·Ts of the median step) or a
+    dropped sample (a gap of up to `MAX_GAP_SAMPLES` steps) are re-gridded onto a uniform grid by
+    linear interpolation, and the returned `notes` say so. Anything else is refused.
+    """
+    if "t" not in columns:
+        raise DataError(f"{source}: missing column `t` (time in seconds)")
+    unknown = [c for c in columns if c != "t" and not c.startswith(("u_", "y_", "w_"))]
+    if unknown:
+        raise DataError(f"{source}: unknown column `{unknown[0]}` (expected t, u_*, y_*, w_*)")
+    ucols = [c for c in columns if c.startswith("u_")]
+    ycols = [c for c in columns if c.startswith("y_")]
+    wcols = [c for c in columns if c.startswith("w_")]
+    if not ucols:
+        raise DataError(f"{source}: no input column (u_<name>)")
+    if not ycols:
+        raise DataError(f"{source}: no output column (y_<name>)")
+    for c in columns:
+        if c in ("u_", "y_", "w_"):
+            raise DataError(f"{source}: column `{c}` has no name after its prefix")
+    t = np.asarray(columns["t"], dtype=np.float64)
+    order = ["t"] + ucols + ycols + wcols
+    mat = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in order])
+    _check_finite(mat, order)
+    if len(t) < MIN_SAMPLES:
+        raise DataError(f"{source}: only {len(t)} samples; at least {MIN_SAMPLES} are needed")
+    t, mat, notes = _uniform_time(t, mat, source, jitter_tolerance)
+    nu, ny = len(ucols), len(ycols)
+    ts = float(t[1] - t[0])
+    return IOData(u=mat[:, 1:1 + nu], y=mat[:, 1 + nu:1 + nu + ny], w=mat[:, 1 + nu + ny:],
+                  ts=ts, t0=float(t[0]), input_names=tuple(c[2:] for c in ucols),
+                  output_names=tuple(c[2:] for c in ycols), signal_names=tuple(c[2:] for c in wcols),
+                  notes=tuple(notes))
+
+
+def _uniform_time(t: np.ndarray, mat: np.ndarray, source: str, tol: float):
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        r = int(bad[0]) + 2
+        kind = "duplicated" if dt[bad[0]] == 0 else "decreasing"
+        raise DataError(f"{source}: time `t` is {kind} at row {r} (t={t[bad[0] + 1]:g})")
+    step = float(np.median(dt))
+    dev = np.abs(dt - step) / step
+    if dev.max() <= 1e-6:
+        n = len(t)
+        t_uniform = t[0] + step * np.arange(n)
+        return t_uniform, np.column_stack([t_uniform, mat[:, 1:]]), []
+    # Jitter or dropped samples: each step must be close to a whole number of sample times.
+    ratio = dt / step
+    whole = np.round(ratio)
+    off = np.abs(ratio - whole)
+    worst = int(np.argmax(np.where(whole >= 1, off, np.inf) if (whole < 1).any() else off))
+    if (whole < 1).any() or off.max() > tol or whole.max() > MAX_GAP_SAMPLES:
+        i = int(np.flatnonzero((whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES))[0]) if (
+            (whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES)).any() else worst
+        raise DataError(
+            f"{source}: time `t` is not uniform: step {dt[i]:g} s at row {i + 2} against a median "
+            f"of {step:g} s (more than {tol:.0%} jitter or a gap over {MAX_GAP_SAMPLES} samples)")
+    n = int(round((t[-1] - t[0]) / step)) + 1
+    grid = t[0] + step * np.arange(n)
+    grid = grid[grid <= t[-1] + 1e-9 * step]
+    out = np.column_stack([grid] + [np.interp(grid, t, mat[:, j]) for j in range(1, mat.shape[1])])
+    gaps = int((whole > 1).sum())
+    msg = (f"re-gridded onto a uniform Ts = {step:g} s by linear interpolation "
+           f"(time-step jitter up to {dev.max():.0%}")
+    msg += f", {gaps} dropped sample(s) filled)" if gaps else ")"
+    return grid, out, [msg]
+
+
+def _parse_csv_text(text: str, source: str) -> dict[str, np.ndarray]:
+    if "\x00" in text:
+        raise DataError(f"{source}: not a text CSV file (binary content)")
+    rows = list(csv.reader(io.StringIO(text)))
+    rows = [r for r in rows if r and any(cell.strip() for cell in r)]
+    if not rows:
+        raise DataError(f"{source}: empty file")
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise DataError(f"{source}: column `{dup}` appears twice in the header")
+    if any(h == "" for h in header):
+        raise DataError(f"{source}: empty column name in the header")
+    if "t" not in header:
+        raise DataError(f"{source}: header has no `t` column (expected t, u_*, y_*, w_*): {','.join(header)[:80]}")
+    body = rows[1:]
+    if not body:
+        raise DataError(f"{source}: header only, no data rows")
+    values = np.empty((len(body), len(header)))
+    for i, row in enumerate(body):
+        if len(row) != len(header):
+            raise DataError(f"{source}: row {i + 2} has {len(row)} fields, the header has {len(header)}")
+        for j, cell in enumerate(row):
+            try:
+                values[i, j] = float(cell)
+            except ValueError:
+                raise DataError(
+                    f"{source}: column `{header[j]}` has non-numeric value {cell.strip()[:20]!r} at row {i + 2}"
+                ) from None
+    return {h: values[:, j] for j, h in enumerate(header)}
+
+
+def load_csv(path: str | os.PathLike, **kwargs) -> IOData:
+    """Load a CSV file with columns `t`, `u_*`, `y_*`, `w_*` into validated `IOData`."""
+    p = Path(path)
+    if not p.exists():
+        raise DataError(f"{p}: no such file")
+    if p.is_dir():
+        raise DataError(f"{p}: is a directory, not a data file")
+    raw = p.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise DataError(f"{p}: not a text CSV file (binary or non-UTF-8 content)") from None
+    return from_columns(_parse_csv_text(text, str(p)), source=str(p), **kwargs)
+
+
+def from_dataframe(df, *, source: str = "DataFrame", **kwargs) -> IOData:
+    """Build `IOData` from a pandas DataFrame whose columns follow the file contract."""
+    cols = {}
+    for c in df.columns:
+        try:
+            cols[str(c)] = np.asarray(df[c], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise DataError(f"{source}: column `{c}` is not numeric") from None
+    return from_columns(cols, source=source, **kwargs)
+
+
+def load(path: str | os.PathLike, **kwargs) -> IOData:
+    """Load `.csv`, `.parquet` or `.npz` (arrays named by column) into validated `IOData`."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".parquet":
+        if not p.exists():
+            raise DataError(f"{p}: no such file")
+        import pandas as pd
+        try:
+            df = pd.read_parquet(p)
+        except Exception as exc:  # pyarrow raises many types on corrupt files
+            raise DataError(f"{p}: not a readable Parquet file ({type(exc).__name__})") from None
+        return from_dataframe(df, source=str(p), **kwargs)
+    if suffix == ".npz":
+        if not p.exists():
+            raise DataError(f"{p}: no such file")
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                cols = {k: z[k] for k in z.files}
+        except Exception as exc:
+            raise DataError(f"{p}: not a readable .npz file ({type(exc).__name__})") from None
+        return from_columns(cols, source=str(p), **kwargs)
+    return load_csv(p, **kwargs)
+
+
+def to_columns(data: IOData) -> dict[str, np.ndarray]:
+    cols = {"t": data.t}
+    for prefix, names, arr in (("u_", data.input_names, data.u), ("y_", data.output_names, data.y),
+                               ("w_", data.signal_names, data.w)):
+        for j, n in enumerate(names):
+            cols[prefix + n] = arr[:, j]
+    return cols
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write a file through a temporary file and a rename: no partial file is ever left behind."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_csv(data: IOData, path: str | os.PathLike) -> None:
+    """Write `data` in the CSV contract (atomically)."""
+    cols = to_columns(data)
+    header = ",".join(cols)
+    mat = np.column_stack(list(cols.values()))
+    buf = io.StringIO()
+    buf.write(header + "\n")
+    np.savetxt(buf, mat, delimiter=",", fmt="%.10g")
+    atomic_write_text(path, buf.getvalue())
+
+
+# ---------------------------------------------------------------- checks
+
+
+def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
+    """Raise `DataError` if an input column is constant: it cannot excite the system."""
+    for j, name in enumerate(data.input_names):
+        col = data.u[:, j]
+        if np.ptp(col) <= rel_tol * max(1.0, float(np.abs(col).max())):
+            raise DataError(f"IOData: input `u_{name}` is constant ({col[0]:g}): it cannot excite the system")
+
+
+def require_samples(data: IOData, n_params: int, what: str = "model") -> None:
+    """Raise `DataError` if there are fewer samples (per output) than parameters to estimate."""
+    if data.n_samples <= n_params:
+        raise DataError(
+            f"IOData: {data.n_samples} samples are too few for a {what} with {n_params} parameters per output")
+
+
+# ---------------------------------------------------------------- pre-processing
+
+
+def crop(data: IOData, start: float | None = None, stop: float | None = None, *,
+         unit: str = "samples") -> IOData:
+    """Keep samples `start <= k < stop` (or times in s with `unit="s"`)."""
+    if unit == "s":
+        start = None if start is None else int(round((start - data.t0) / data.ts))
+        stop = None if stop is None else int(round((stop - data.t0) / data.ts))
+    sl = slice(start, stop)
+    k0 = range(data.n_samples)[sl]
+    if len(k0) < MIN_SAMPLES:
+        raise DataError(f"crop: only {len(k0)} samples left; at least {MIN_SAMPLES} are needed")
+    return data.replace(u=data.u[sl], y=data.y[sl], w=data.w[sl], t0=data.t0 + data.ts * k0.start,
+                        notes=data.notes + (f"cropped to samples {k0.start}..{k0.stop - 1}",))
+
+
+def detrend(data: IOData, kind: str = "mean", *, inputs: bool = True) -> IOData:
+    """Remove the mean (`kind="mean"`) or a least-squares line (`"linear"`) from y (and u)."""
+    if kind not in ("mean", "linear"):
+        raise DataError(f"detrend: kind must be 'mean' or 'linear', got {kind!r}")
+
+    def _do(a):
+        if kind == "mean":
+            return a - a.mean(axis=0)
+        k = np.arange(len(a), dtype=np.float64)
+        X = np.column_stack([np.ones_like(k), k])
+        coef, *_ = np.linalg.lstsq(X, a, rcond=None)
+        return a - X @ coef
+
+    return data.replace(y=_do(data.y), u=_do(data.u) if inputs else data.u,
+                        notes=data.notes + (f"detrended ({kind})",))
+
+
+def highpass(data: IOData, cutoff_hz: float, order: int = 2, *, inputs: bool = True) -> IOData:
+    """Zero-phase Butterworth high-pass (forward-backward filtering) of y (and u).
+
+    $H(s)$ of the given order with corner `cutoff_hz`; applied with `scipy.signal.sosfiltfilt`
+    so the pass band has no phase shift (the thesis removed slow drift this way, §3.1).
+    """
+    from scipy import signal
+
+    nyq = 0.5 / data.ts
+    if not (0 < cutoff_hz < nyq):
+        raise DataError(f"highpass: cutoff {cutoff_hz:g} Hz must lie in (0, {nyq:g}) Hz")
+    sos = signal.butter(order, cutoff_hz / nyq, btype="highpass", output="sos")
+    if data.n_samples <= 3 * (2 * len(sos) + 1):
+        raise DataError("highpass: too few samples for zero-phase filtering")
+    f = lambda a: signal.sosfiltfilt(sos, a, axis=0)  # noqa: E731
+    return data.replace(y=f(data.y), u=f(data.u) if inputs else data.u,
+                        notes=data.notes + (f"high-pass {cutoff_hz:g} Hz (order {order}, zero-phase)",))
+
+
+def split(data: IOData, fraction: float = 0.5) -> tuple[IOData, IOData]:
+    """Estimation/validation split: the first `fraction` of the samples, then the rest."""
+    if not 0 < fraction < 1:
+        raise DataError(f"split: fraction must lie in (0, 1), got {fraction}")
+    k = int(round(fraction * data.n_samples))
+    return crop(data, 0, k), crop(data, k, None)

@@ -1,0 +1,3 @@
+"""Model families: polynomial (ARX, ARMAX, OE, BJ), innovations state space, grey-box bed."""
+
+from ._base import AbstractModel as AbstractModel, StateSpace as StateSpace, is_stable as is_stable
