@@ -1,0 +1,1 @@
+"""Mismatch diagnosis: locate, name the missing physics, refit, report."""

@@ -1,0 +1,1 @@
+"""Estimation: PEM, ARX least squares, subspace initialisation, orders, covariance."""
