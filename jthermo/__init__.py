@@ -13,3 +13,9 @@ from .errors import (
     ModelError as ModelError,
 )
 from .models import AbstractModel as AbstractModel, StateSpace as StateSpace
+from . import inputs as inputs
+from . import validate as validate
+from .inputs import prbs as prbs
+from .validate import compare as compare
+from .validate import fit_percent as fit_percent
+from .validate import residual_tests as residual_tests

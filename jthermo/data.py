@@ -27,6 +27,8 @@ MAX_GAP_SAMPLES = 3
 #: values larger than this in magnitude are refused as corrupt
 MAX_ABS_VALUE = 1e9
 MIN_SAMPLES = 10
+#: time stamps larger than this (s) are refused (allows Unix epoch times, in s or ms)
+MAX_ABS_TIME = 1e15
 
 
 class IOData(eqx.Module):
@@ -138,26 +140,28 @@ def from_arrays(u, y, ts: float = 1.0, w=None, *, input_names=None, output_names
                   notes=tuple(notes))
 
 
-def _check_finite(a: np.ndarray, colnames: list[str], row_offset: int = 0) -> None:
+def _check_finite(a: np.ndarray, colnames: list[str], row_offset: int = 0,
+                  max_abs: float = MAX_ABS_VALUE, source: str = "IOData") -> None:
     bad = ~np.isfinite(a)
     if bad.any():
         r, c = np.argwhere(bad)[0]
         what = "NaN" if np.isnan(a[r, c]) else "inf"
-        raise DataError(f"IOData: column `{colnames[c]}` has {what} at row {r + 1 + row_offset}")
-    big = np.abs(a) > MAX_ABS_VALUE
+        raise DataError(f"{source}: column `{colnames[c]}` has {what} at row {r + 1 + row_offset}")
+    big = np.abs(a) > max_abs
     if big.any():
         r, c = np.argwhere(big)[0]
         raise DataError(
-            f"IOData: column `{colnames[c]}` has an implausible value {a[r, c]:.3g} at row {r + 1 + row_offset}")
+            f"{source}: column `{colnames[c]}` has an implausible value {a[r, c]:.3g} at row {r + 1 + row_offset}")
 
 
 def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
-                 jitter_tolerance: float = JITTER_TOLERANCE) -> IOData:
+                 jitter_tolerance: float = JITTER_TOLERANCE, row_offset: int = 0) -> IOData:
     """Build `IOData` from named columns (`t`, `u_*`, `y_*`, `w_*`), checking the time axis.
 
     Logged time stamps with jitter (steps within `jitter_tolerance`·Ts of the median step) or a
     dropped sample (a gap of up to `MAX_GAP_SAMPLES` steps) are re-gridded onto a uniform grid by
-    linear interpolation, and the returned `notes` say so. Anything else is refused.
+    linear interpolation, and the returned `notes` say so. Anything else is refused. Rows in
+    messages count samples from 1, plus `row_offset` (1 for a file with a header row).
     """
     if "t" not in columns:
         raise DataError(f"{source}: missing column `t` (time in seconds)")
@@ -174,13 +178,27 @@ def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
     for c in columns:
         if c in ("u_", "y_", "w_"):
             raise DataError(f"{source}: column `{c}` has no name after its prefix")
-    t = np.asarray(columns["t"], dtype=np.float64)
     order = ["t"] + ucols + ycols + wcols
-    mat = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in order])
-    _check_finite(mat, order)
+    arrays = []
+    for c in order:
+        try:
+            a = np.asarray(columns[c], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise DataError(f"{source}: column `{c}` is not numeric") from None
+        if a.ndim != 1:
+            raise DataError(f"{source}: column `{c}` must be one-dimensional, got shape {a.shape}")
+        arrays.append(a)
+    lengths = {len(a) for a in arrays}
+    if len(lengths) > 1:
+        raise DataError(f"{source}: columns have unequal lengths {sorted(lengths)}")
+    mat = np.column_stack(arrays)
+    t = mat[:, 0]
+    # time stamps may be large (Unix epoch); only the signals get the magnitude check
+    _check_finite(t[:, None], ["t"], row_offset, max_abs=MAX_ABS_TIME, source=source)
+    _check_finite(mat[:, 1:], order[1:], row_offset, source=source)
     if len(t) < MIN_SAMPLES:
         raise DataError(f"{source}: only {len(t)} samples; at least {MIN_SAMPLES} are needed")
-    t, mat, notes = _uniform_time(t, mat, source, jitter_tolerance)
+    t, mat, notes = _uniform_time(t, mat, source, jitter_tolerance, row_offset)
     nu, ny = len(ucols), len(ycols)
     ts = float(t[1] - t[0])
     return IOData(u=mat[:, 1:1 + nu], y=mat[:, 1 + nu:1 + nu + ny], w=mat[:, 1 + nu + ny:],
@@ -189,11 +207,11 @@ def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
                   notes=tuple(notes))
 
 
-def _uniform_time(t: np.ndarray, mat: np.ndarray, source: str, tol: float):
+def _uniform_time(t: np.ndarray, mat: np.ndarray, source: str, tol: float, row_offset: int = 0):
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
-        r = int(bad[0]) + 2
+        r = int(bad[0]) + 2 + row_offset
         kind = "duplicated" if dt[bad[0]] == 0 else "decreasing"
         raise DataError(f"{source}: time `t` is {kind} at row {r} (t={t[bad[0] + 1]:g})")
     step = float(np.median(dt))
@@ -211,15 +229,15 @@ def _uniform_time(t: np.ndarray, mat: np.ndarray, source: str, tol: float):
         i = int(np.flatnonzero((whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES))[0]) if (
             (whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES)).any() else worst
         raise DataError(
-            f"{source}: time `t` is not uniform: step {dt[i]:g} s at row {i + 2} against a median "
+            f"{source}: time `t` is not uniform: step {dt[i]:g} s at row {i + 2 + row_offset} against a median "
             f"of {step:g} s (more than {tol:.0%} jitter or a gap over {MAX_GAP_SAMPLES} samples)")
     n = int(round((t[-1] - t[0]) / step)) + 1
     grid = t[0] + step * np.arange(n)
     grid = grid[grid <= t[-1] + 1e-9 * step]
     out = np.column_stack([grid] + [np.interp(grid, t, mat[:, j]) for j in range(1, mat.shape[1])])
-    gaps = int((whole > 1).sum())
+    gaps = int((whole[whole > 1] - 1).sum())
     msg = (f"re-gridded onto a uniform Ts = {step:g} s by linear interpolation "
-           f"(time-step jitter up to {dev.max():.0%}")
+           f"(time-step jitter up to {off.max():.0%}")
     msg += f", {gaps} dropped sample(s) filled)" if gaps else ")"
     return grid, out, [msg]
 
@@ -268,7 +286,8 @@ def load_csv(path: str | os.PathLike, **kwargs) -> IOData:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise DataError(f"{p}: not a text CSV file (binary or non-UTF-8 content)") from None
-    return from_columns(_parse_csv_text(text, str(p)), source=str(p), **kwargs)
+    # rows in messages are file lines (the header is row 1)
+    return from_columns(_parse_csv_text(text, str(p)), source=str(p), row_offset=1, **kwargs)
 
 
 def from_dataframe(df, *, source: str = "DataFrame", **kwargs) -> IOData:

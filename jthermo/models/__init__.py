@@ -1,3 +1,4 @@
 """Model families: polynomial (ARX, ARMAX, OE, BJ), innovations state space, grey-box bed."""
 
 from ._base import AbstractModel as AbstractModel, StateSpace as StateSpace, is_stable as is_stable
+from .greybox import BedModel as BedModel, ExtendedBedModel as ExtendedBedModel

@@ -1,0 +1,113 @@
+"""PI control with a static decoupler: $F(z) = W_1 F_{diag}(z)$ (thesis eq. 2.12–2.14).
+
+With $W_1 = I$ this is the diagonal PI. The PI law is discretised with Euler backward
+(thesis eq. 2.8): $I_k = I_{k-1} + K_p T_s/T_i\\, e_k$, $v_k = K_p e_k + I_k$,
+$u_k = u_b + W_1 v_k$. Anti-windup by back-calculation in the decoupled coordinates: after
+saturation, $I_k \\leftarrow I_k + W_1^{-1}(\\mathrm{sat}(u_k) - u_k)$, so the integrators hold
+exactly the value that keeps the input at its limit (Åström & Hägglund 2006, §3.5).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._types import Input, Output, Setpoint
+from ..errors import ControlError
+from ._base import AbstractController
+from .pi import UNTUNED_KP, UNTUNED_TI, DiagonalPI
+from .design import (_as_ss, _f, decoupling_matrix, lambda_gains, operating_point, step_models)
+
+U_MIN, U_MAX = 0.0, 1.0   # actuator limits, power fraction
+
+
+def pi_update(kp, ti, ts, integ, e, u_open, W1=None):
+    """One Euler-backward PI sample with back-calculation anti-windup.
+
+    `u_open` is everything added to $W_1 v$ (bias, feed-forward). Returns `(u_sat, integ_new)`.
+    """
+    integ_try = integ + kp * (ts / ti) * e
+    v = kp * e + integ_try
+    u_req = u_open + (v if W1 is None else W1 @ v)
+    u_sat = jnp.clip(u_req, U_MIN, U_MAX)
+    du = u_sat - u_req
+    integ_new = integ_try + (du if W1 is None else jnp.linalg.solve(W1, du))
+    return u_sat, integ_new
+
+
+class PIState(eqx.Module):
+    integ: Float[Array, " nu"]      # integrator, in decoupled input units
+
+
+class DecoupledPI(AbstractController):
+    """$u = u_b + W_1 (K_p e + I)$ with $e = r - y$, Euler-backward PI and anti-windup.
+
+    `W1 = None` (static) gives the diagonal PI.
+    """
+
+    kp: Float[Array, " nu"]          # proportional gain, 1/°C (decoupled units), tunable
+    ti: Float[Array, " nu"]          # integral time, s, tunable
+    u_bias: Float[Array, " nu"]      # input at zero integrator, power fraction
+    W1: Float[Array, "nu ny"] | None  # static decoupler, tunable when present
+    ts: float = eqx.field(static=True)
+
+    def __init__(self, kp, ti, u_bias=0.5, W1=None, *, ts: float = 1.0):
+        self.kp = jnp.asarray(kp)
+        self.ti = jnp.asarray(ti)
+        self.u_bias = jnp.broadcast_to(jnp.asarray(u_bias, self.kp.dtype), self.kp.shape)
+        self.W1 = None if W1 is None else jnp.asarray(W1)
+        self.ts = float(ts)
+
+    def __check_init__(self):
+        n = self.kp.shape
+        if self.kp.ndim != 1 or self.ti.shape != n:
+            raise ControlError(f"DecoupledPI: kp {self.kp.shape} and ti {self.ti.shape} must be "
+                               "equal 1-D shapes")
+        if self.W1 is not None and self.W1.shape != (n[0], n[0]):
+            raise ControlError(f"DecoupledPI: W1 has shape {self.W1.shape}, expected {(n[0], n[0])}")
+
+    def init(self, y0: Output, r0: Setpoint) -> PIState:
+        return PIState(integ=jnp.zeros_like(self.kp * jnp.asarray(y0)))
+
+    def step(self, state: PIState, y: Output, r: Setpoint) -> tuple[Input, PIState]:
+        e = r - y
+        u, integ = pi_update(self.kp, self.ti, self.ts, state.integ, e, self.u_bias, self.W1)
+        return u, PIState(integ)
+
+
+def design_lambda_pi(model, lam=None, *, u_bias=None) -> DiagonalPI:
+    """Diagonal PI (`DiagonalPI`, clamping anti-windup), lambda-tuned per channel on the
+    three-parameter step model (eq. 2.10).
+
+    `lam`: closed-loop time constant in s (default: each channel's open-loop T).
+    `u_bias`: input at zero integrator (default: the model's operating-point input).
+    """
+    ss = _as_ss(model)
+    kp, ti = lambda_gains(step_models(model), lam)
+    u0, _ = operating_point(model)
+    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
+    return DiagonalPI(_f(kp), _f(ti), _f(ub), ts=ss.ts)
+
+
+def design_decoupled_pi(model, kind: str = "CB", lam=None, *, u_bias=None) -> DecoupledPI:
+    """Decoupled PI $W_1 F_{diag}$: $W_1 = (CB)^{-1}$ (`kind="CB"`, eq. 2.14) or $G(0)^{-1}$
+    (`kind="G0"`, eq. 2.13); $F_{diag}$ is lambda-tuned on the diagonal of $G W_1$."""
+    ss = _as_ss(model)
+    W1 = decoupling_matrix(model, kind)
+    kp, ti = lambda_gains(step_models(model, transform=W1), lam)
+    u0, _ = operating_point(model)
+    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
+    return DecoupledPI(_f(kp), _f(ti), _f(ub), _f(W1), ts=ss.ts)
+
+
+def design_untuned_pi(model, *, kp: float = UNTUNED_KP, ti: float = UNTUNED_TI,
+                      u_bias=None) -> DiagonalPI:
+    """The untuned baseline: the same PI on every zone whatever the model says
+    (`DiagonalPI.untuned` gains), biased at the model's operating-point input."""
+    ss = _as_ss(model)
+    n = ss.B.shape[1]
+    u0, _ = operating_point(model)
+    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
+    return DiagonalPI(jnp.full(n, kp), jnp.full(n, ti), _f(ub), ts=ss.ts)

@@ -1,0 +1,114 @@
+"""Diagonal (decentralised) PI control: one PI loop per zone, with anti-windup.
+
+Discretised with backward Euler (Åström & Hägglund 2006, §3.5, §13.3):
+
+$$u_k = u_0 + K_p e_k + I_k, \\qquad I_k = I_{k-1} + \\frac{K_p T_s}{T_i} e_k ,$$
+
+(or Tustin: $I_k = I_{k-1} + \\frac{K_p T_s}{2 T_i}(e_k + e_{k-1})$), saturated to
+[`u_min`, `u_max`]. Anti-windup by clamping (conditional integration: the integral is frozen
+while the output is saturated and the error would drive it further) or by back-calculation
+(the integral is pulled back by $\\frac{T_s}{T_t}(\\mathrm{sat}(v) - v)$).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ..errors import ControlError
+from ._base import AbstractController
+
+#: the original solution's PI: the same gains on every zone (thesis §1.1), untuned for the bed
+UNTUNED_KP = 0.15     # power fraction per °C
+UNTUNED_TI = 30.0     # s
+
+
+class PIState(eqx.Module):
+    integral: Float[Array, " zones"]    # power fraction
+    error: Float[Array, " zones"]       # previous error (Tustin), °C
+
+
+class DiagonalPI(AbstractController):
+    """One PI loop per zone: `kp` (1/°C), `ti` (s) and the bias `u0` (power fraction) are
+    array leaves, so `jax.grad` reaches them; `ts`, the limits and the discretisation are static.
+    """
+
+    kp: Float[Array, " zones"]
+    ti: Float[Array, " zones"]
+    u0: Float[Array, " zones"]
+    ts: float = eqx.field(static=True, default=1.0)
+    u_min: float = eqx.field(static=True, default=0.0)
+    u_max: float = eqx.field(static=True, default=1.0)
+    antiwindup: str = eqx.field(static=True, default="clamp")   # "clamp" | "backcalc" | "none"
+    method: str = eqx.field(static=True, default="euler")       # "euler" (backward) | "tustin"
+    tt: float | None = eqx.field(static=True, default=None)     # s, back-calculation time
+
+    def __init__(self, kp, ti, u0=0.5, *, ts: float = 1.0, u_min: float = 0.0,
+                 u_max: float = 1.0, antiwindup: str = "clamp", method: str = "euler",
+                 tt: float | None = None):
+        kp = jnp.asarray(kp)
+        ti = jnp.asarray(ti)
+        if kp.ndim == 0:
+            kp = kp[None]
+        n = max(kp.shape[0], ti.reshape(-1).shape[0])
+        dtype = jnp.result_type(kp.dtype, ti.dtype, float)
+        self.kp = jnp.broadcast_to(kp, (n,)).astype(dtype)
+        self.ti = jnp.broadcast_to(ti, (n,)).astype(dtype)
+        self.u0 = jnp.broadcast_to(jnp.asarray(u0, dtype), (n,))
+        self.ts = float(ts)
+        self.u_min, self.u_max = float(u_min), float(u_max)
+        self.antiwindup = antiwindup
+        self.method = method
+        self.tt = None if tt is None else float(tt)
+
+    def __check_init__(self):
+        if self.antiwindup not in ("clamp", "backcalc", "none"):
+            raise ControlError(f"DiagonalPI: antiwindup must be clamp, backcalc or none, got {self.antiwindup!r}")
+        if self.method not in ("euler", "tustin"):
+            raise ControlError(f"DiagonalPI: method must be euler or tustin, got {self.method!r}")
+        if not self.u_min < self.u_max:
+            raise ControlError("DiagonalPI: u_min must be below u_max")
+        if self.kp.ndim != 1 or self.ti.shape != self.kp.shape:
+            raise ControlError(f"DiagonalPI: kp and ti must be 1-D of one length, got "
+                               f"{self.kp.shape} and {self.ti.shape}")
+        if not (isinstance(self.ts, float) and self.ts > 0):
+            raise ControlError(f"DiagonalPI: ts must be > 0, got {self.ts}")
+
+    @classmethod
+    def untuned(cls, zones: int, *, ts: float = 1.0, kp: float = UNTUNED_KP,
+                ti: float = UNTUNED_TI, u0: float = 0.5) -> "DiagonalPI":
+        """The original solution: the same PI on every zone, tuned for no model in particular."""
+        if not (isinstance(zones, int) and zones >= 1):
+            raise ControlError(f"DiagonalPI.untuned: zones must be a positive integer, got {zones!r}")
+        return cls(jnp.full((zones,), kp), jnp.full((zones,), ti), u0, ts=ts)
+
+    @property
+    def zones(self) -> int:
+        return int(self.kp.shape[0])
+
+    def init(self, y0, r0=None) -> PIState:
+        z = jnp.zeros_like(self.kp)
+        e0 = z if r0 is None else jnp.asarray(r0, self.kp.dtype)[:self.zones] - jnp.asarray(y0)[:self.zones]
+        return PIState(integral=z, error=e0)
+
+    def step(self, state: PIState, y, r) -> tuple[Array, PIState]:
+        e = jnp.asarray(r)[:self.zones] - jnp.asarray(y)[:self.zones]
+        ki = self.kp * self.ts / self.ti
+        if self.method == "tustin":
+            inc = 0.5 * ki * (e + state.error)
+        else:
+            inc = ki * e
+        i_try = state.integral + inc
+        v = self.u0 + self.kp * e + i_try
+        u = jnp.clip(v, self.u_min, self.u_max)
+        if self.antiwindup == "clamp":
+            wind = ((v > self.u_max) & (inc > 0)) | ((v < self.u_min) & (inc < 0))
+            integral = jnp.where(wind, state.integral, i_try)
+        elif self.antiwindup == "backcalc":
+            tt = self.tt if self.tt is not None else None
+            tt = jnp.sqrt(self.ti * self.ts) if tt is None else tt
+            integral = i_try + (self.ts / tt) * (u - v)
+        else:
+            integral = i_try
+        return u, PIState(integral=integral, error=e)

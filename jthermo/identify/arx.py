@@ -1,0 +1,140 @@
+"""Closed-form ARX least squares for MIMO data, and ARX-based start points for ARMAX/OE/BJ.
+
+Each output row is a linear regression (Ljung 1999, §7.3, eq. 7.34):
+
+$$y_i(t) = -\\sum_{k=1}^{n_a}\\sum_{l} a_{ilk}\\, y_l(t-k)
+          + \\sum_j \\sum_{k=0}^{n_b-1} b_{ijk}\\, u_j(t - n_{k,ij} - k) + e_i(t),$$
+
+with $l$ ranging over all outputs for a full A and over $l = i$ for a diagonal A. Signals are
+zero before $t = 0$ in the regressors, and the first $\max(n_a, \max n_k + n_b - 1)$ rows, whose
+regressors reach before the record, are left out (as MATLAB's `arx` does). With `offset=True` a
+constant column estimates the operating point: $A(q)(y - y_0) = B(q) u + e$ gives the constant
+$\kappa = A(1) y_0$.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..errors import ModelError
+from ..models.polynomial import Polynomial, _as_nk, _delay_onehot, lagged
+
+
+class ARXResult(eqx.Module):
+    """Least-squares ARX estimate: the model and, per output, the coefficient covariance in the
+    layout of `Polynomial.flat_coefficients` (`[a (m·na), b (nu·nb)]`)."""
+
+    model: Polynomial
+    covariance: Float[Array, "ny p p"]
+    std: Float[Array, "ny p"]
+    cost: Float[Array, ""]             # mean squared one-step prediction error
+
+
+def arx_regressors(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int,
+                   nk=1, *, full_a: bool = False) -> Float[Array, "ny T p"]:
+    """Regressor matrices $\\Phi_i$ of every output row, `(ny, T, m·na + nu·nb)`."""
+    y = jnp.asarray(y)
+    u = jnp.asarray(u)
+    ny, nu = y.shape[1], u.shape[1]
+    nkt = _as_nk(nk, ny, nu)
+    L = max(max(r) for r in nkt) + max(nb, 1) - 1
+    sel = jnp.asarray(_delay_onehot(nkt, nb, L), y.dtype)              # (ny, nu, nb, L+1)
+    return _regressors(y, u, sel, na, bool(full_a))
+
+
+@partial(jax.jit, static_argnums=(3, 4))
+def _regressors(y, u, sel, na, full_a):
+    T, ny = y.shape
+    Yl = -lagged(y, na)[:, :, 1:]                                        # (T, ny, na)
+    Ul = lagged(u, sel.shape[-1] - 1)                                    # (T, nu, L+1)
+    Ub = jnp.einsum("tjl,ijkl->itjk", Ul, sel).reshape(ny, T, -1)        # (ny, T, nu*nb)
+    if full_a or ny == 1:
+        Ya = jnp.broadcast_to(Yl.reshape(T, ny * na)[None], (ny, T, ny * na))
+    else:
+        Ya = jnp.moveaxis(Yl, 1, 0)                                      # (ny, T, na)
+    return jnp.concatenate([Ya, Ub], axis=2)
+
+
+@partial(jax.jit, static_argnums=(2,))
+def _solve(Phi, Y, n0):
+    def one(P, yi):
+        P, yi = P[n0:], yi[n0:]
+        theta, *_ = jnp.linalg.lstsq(P, yi)
+        r = yi - P @ theta
+        T, p = P.shape
+        sigma2 = jnp.sum(r**2) / max(T - p, 1)
+        cov = sigma2 * jnp.linalg.pinv(P.T @ P, hermitian=True)
+        return theta, cov, jnp.sum(r**2)
+
+    return jax.vmap(one)(Phi, Y.T)
+
+
+def first_row(na: int, nb: int, nk) -> int:
+    """First sample whose ARX regressors all lie inside the record."""
+    L = int(np.max(np.asarray(nk))) + max(nb, 1) - 1
+    return max(na, L)
+
+
+def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, nk=1, *,
+           full_a: bool = False, offset: bool = False, ts: float = 1.0, u0=None,
+           y0=None) -> ARXResult:
+    """Least-squares ARX fit of deviation data `y`, `u` (subtract the operating point first).
+
+    **Arguments:**
+    - `na`, `nb`, `nk`: orders in MATLAB's meaning (`nk` an int or a `(ny, nu)` array).
+    - `full_a`: regress each output on the past of every output (matrix A polynomial).
+    - `offset`: also estimate a constant; the model's `y0` is then `y0 + A(1)^{-1} kappa`.
+    - `u0`, `y0`: operating point stored in the returned model (the one `y`, `u` are relative to).
+
+    **Returns:** `ARXResult` with the `Polynomial` model and per-output covariance.
+    """
+    y = jnp.asarray(y)
+    u = jnp.asarray(u)
+    if y.ndim != 2 or u.ndim != 2 or y.shape[0] != u.shape[0]:
+        raise ModelError(f"arx_ls: y (T, ny) and u (T, nu) must share T, got {y.shape} and {u.shape}")
+    if na < 0 or nb < 0 or (na == 0 and nb == 0):
+        raise ModelError(f"arx_ls: impossible orders na={na}, nb={nb}")
+    ny, nu = y.shape[1], u.shape[1]
+    m = ny if (full_a and ny > 1) else 1
+    Phi = arx_regressors(y, u, na, nb, nk, full_a=full_a)
+    if offset:
+        Phi = jnp.concatenate([Phi, jnp.ones(Phi.shape[:2] + (1,), Phi.dtype)], axis=2)
+    n0 = first_row(na, nb, _as_nk(nk, ny, nu))
+    if y.shape[0] - n0 <= Phi.shape[2]:
+        raise ModelError(f"arx_ls: {y.shape[0]} samples are too few for {Phi.shape[2]} parameters "
+                         "per output")
+    theta, cov, rss = _solve(Phi, y, n0)
+    p = m * na + nu * nb
+    a = theta[:, :m * na].reshape(ny, m, na)
+    b = theta[:, m * na:p].reshape(ny, nu, nb)
+    y0 = jnp.zeros(ny, y.dtype) if y0 is None else jnp.asarray(y0, y.dtype)
+    model = Polynomial(a=a, b=b, nk=nk, ts=ts, u0=u0, y0=y0)
+    if offset:
+        A1 = jnp.eye(ny, dtype=y.dtype) + jnp.sum(model.a_matrices(), axis=0)
+        model = eqx.tree_at(lambda mm: mm.y0, model, y0 + jnp.linalg.solve(A1, theta[:, p]))
+        cov = cov[:, :p, :p]
+    std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
+    return ARXResult(model=model, covariance=cov, std=std, cost=jnp.sum(rss) / (ny * (y.shape[0] - n0)))
+
+
+def perturb_starts(theta0: np.ndarray, n_starts: int, seed: int, scale: float = 0.2) -> np.ndarray:
+    """`(..., K, p)` start points: `theta0` itself first, then K-1 copies with relative Gaussian
+    perturbations $\\theta (1 + s\\,\\xi) + 0.1 s\\, \\xi'$, deterministic from `seed`."""
+    theta0 = np.asarray(theta0, dtype=np.float64)
+    key = jax.random.key(int(seed))
+    k1, k2 = jax.random.split(key)
+    shape = theta0.shape[:-1] + (max(n_starts, 1) - 1, theta0.shape[-1])
+    xi = np.asarray(jax.random.normal(k1, shape, dtype=jnp.float32), dtype=np.float64)
+    xi2 = np.asarray(jax.random.normal(k2, shape, dtype=jnp.float32), dtype=np.float64)
+    base = theta0[..., None, :]
+    pert = base * (1.0 + scale * xi) + 0.1 * scale * xi2
+    return np.concatenate([base, pert], axis=-2)
+
+
+__all__ = ["ARXResult", "arx_ls", "arx_regressors", "first_row", "perturb_starts"]

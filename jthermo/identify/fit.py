@@ -1,0 +1,350 @@
+"""`fit()`: one entry point for every model family, and the polynomial-family PEM fit.
+
+Orders follow MATLAB's System Identification Toolbox: arx `(na, nb, nk)`, armax
+`(na, nb, nc, nk)`, oe `(nb, nf, nk)`, bj `(nb, nc, nd, nf, nk)`, ss `(n,)`, greybox `()`.
+
+Polynomial families are fitted on deviations from the estimation data's means (stored as the
+model's operating point `u0`, `y0`, so `model.simulate(u)` is in absolute units): ARX by linear
+least squares, ARMAX/OE/BJ by prediction-error minimisation (Levenberg–Marquardt, one MISO
+problem per output, all outputs and all start points solved together under `vmap`) started
+from the ARX estimate and `n_starts - 1` perturbed copies of it. C, D and F are parametrised by
+reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are stable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..data import IOData, require_excitation, require_samples
+from ..errors import ConfigError, DataError, FitError, ModelError
+from ..models.polynomial import (
+    Polynomial, _as_nk, _delay_onehot, ar_filter, fir_monic, lagged, poly_from_reflection,
+    reflection_from_poly,
+)
+from .arx import arx_ls, perturb_starts
+from .pem import minimize_many
+
+FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
+ORDER_NAMES = {
+    "arx": ("na", "nb", "nk"),
+    "armax": ("na", "nb", "nc", "nk"),
+    "oe": ("nb", "nf", "nk"),
+    "bj": ("nb", "nc", "nd", "nf", "nk"),
+    "ss": ("n",),
+    "greybox": (),
+}
+CRITERIA = ("aic", "bic", "fpe")
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """Outcome of `fit`.
+
+    **Fields:**
+    - `model`: the fitted model (an `AbstractModel`, absolute units).
+    - `family`, `orders`: the family name and its orders (`{"na": 2, "nb": 2, "nk": 1}`).
+    - `converged`: every PEM problem reported success (always True for ARX least squares).
+    - `cost`: mean squared one-step prediction error (simulation error for OE) on the
+      estimation data. `seconds`: wall time of the fit, compilation included.
+    - `criterion_table`: when orders were chosen automatically, one dict per candidate.
+    - `covariance`, `std`: parameter covariance and standard deviations; for polynomial
+      families per output, `(ny, p, p)` / `(ny, p)` in the layout of
+      `Polynomial.flat_coefficients`.
+    - `x0`: an estimated initial state where the family estimates one; `extra`: anything else.
+    """
+
+    model: Any
+    family: str = ""
+    orders: dict = dataclasses.field(default_factory=dict)
+    converged: bool = True
+    cost: float = float("nan")
+    seconds: float = float("nan")
+    criterion_table: list | None = None
+    covariance: Any = None
+    std: Any = None
+    x0: Any = None
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_pem(cls, model, res, *, seconds: float = float("nan"), data: IOData | None = None,
+                 info: dict | None = None, family: str = "greybox",
+                 orders: dict | None = None) -> "FitResult":
+        """Wrap a model and its `PEMResult` (used by families fitted outside this module)."""
+        del data
+        return cls(model=model, family=family, orders=dict(orders or {}),
+                   converged=bool(res.converged), cost=float(res.cost), seconds=float(seconds),
+                   covariance=res.covariance, std=res.std, extra=dict(info or {}))
+
+
+# ----------------------------------------------------------------- polynomial PEM
+
+
+class _Spec(NamedTuple):
+    """Static structure of one output row's parameter vector."""
+
+    m: int    # number of outputs in the A row (1 diagonal, ny full)
+    na: int
+    nb: int
+    nc: int
+    nd: int
+    nf: int
+    nu: int
+    L: int    # largest input lag
+
+    @property
+    def n_params(self) -> int:
+        return self.m * self.na + self.nu * self.nb + self.nc + self.nd + self.nu * self.nf
+
+
+def _unpack(theta, s: _Spec):
+    k = 0
+    a = theta[k:k + s.m * s.na].reshape(s.m, s.na); k += s.m * s.na
+    b = theta[k:k + s.nu * s.nb].reshape(s.nu, s.nb); k += s.nu * s.nb
+    c = poly_from_reflection(jnp.tanh(theta[k:k + s.nc])); k += s.nc
+    d = poly_from_reflection(jnp.tanh(theta[k:k + s.nd])); k += s.nd
+    f = poly_from_reflection(jnp.tanh(theta[k:k + s.nu * s.nf].reshape(s.nu, s.nf)))
+    return a, b, c, d, f
+
+
+def _coefficients(theta, s: _Spec):
+    """Flat model coefficients `[a, b, c, d, f]` of one output row (the layout of `std`)."""
+    a, b, c, d, f = _unpack(theta, s)
+    return jnp.concatenate([a.ravel(), b.ravel(), c, d, f.ravel()])
+
+
+def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
+    """One output row's prediction error $\\varepsilon_i = \\frac{D_i}{C_i}\\big((A y)_i -
+    \\sum_j \\frac{B_{ij}}{F_{ij}} u_j\\big)$ for `args = (y_i, y_src, u, sel, spec)`.
+
+    `y_i (T,)` this output, `y_src (T, m)` the outputs in its A row, `u (T, nu)` inputs (all
+    deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `_Spec`.
+    """
+    yi, ysrc, u, sel, s = args
+    a, b, c, d, f = _unpack(theta, s)
+    bl = jnp.einsum("jkl,jk->jl", sel, b)
+    pairs = jnp.einsum("tjl,jl->tj", lagged(u, s.L), bl)
+    w = ar_filter(pairs, f).sum(axis=1)
+    v = yi
+    if s.na:
+        v = v + jnp.einsum("tjk,jk->t", lagged(ysrc, s.na)[:, :, 1:], a)
+    return ar_filter(fir_monic(v - w, d), c)[:, None]
+
+
+def poly_cost(theta: Float[Array, " p"], args) -> Float[Array, ""]:
+    """Mean squared prediction error of one output row (what PEM minimises)."""
+    return jnp.mean(poly_residual(theta, args) ** 2)
+
+
+def _atanh_reflection(a: np.ndarray) -> np.ndarray:
+    return np.arctanh(reflection_from_poly(a, clip=0.995))
+
+
+def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
+    T, ny = dy.shape
+    nkt = _as_nk(nk, ny, du.shape[1])
+    sel = jnp.asarray(_delay_onehot(nkt, spec.nb, spec.L), dy.dtype)
+    yi = jnp.moveaxis(dy, 1, 0)                                       # (ny, T)
+    if spec.m > 1:
+        ysrc = jnp.broadcast_to(dy[None], (ny,) + dy.shape)
+    else:
+        ysrc = yi[:, :, None]
+    ub = jnp.broadcast_to(du[None], (ny,) + du.shape)
+    return (yi, ysrc, ub, sel, spec)
+
+
+def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
+                   nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
+                   seed: int = 0, n_starts: int = 8, solver: str = "lm", max_steps: int = 200,
+                   ts: float = 1.0, covariance: bool = True, progress: Callable | None = None):
+    """PEM fit of the polynomial structure to absolute data `y`, `u` (means removed inside).
+
+    ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
+    the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
+    and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added.
+
+    **Returns:** `(model, info)` where `info` has `converged`, `cost`, `covariance`, `std`,
+    `start_costs`, `n_steps`.
+    """
+    y = jnp.asarray(y)
+    u = jnp.asarray(u, y.dtype)
+    ny, nu = y.shape[1], u.shape[1]
+    y0 = jnp.mean(y, axis=0)
+    u0 = jnp.mean(u, axis=0)
+    dy, du = y - y0, u - u0
+    nkt = _as_nk(nk, ny, nu)
+    if nc == 0 and nd == 0 and nf == 0:
+        r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, ts=ts, u0=u0, y0=y0)
+        return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
+                             std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
+                             n_steps=0)
+    if full_a and ny > 1 and (nd or nf):
+        raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
+    n_den = na if (nf == 0) else nf
+    if progress:
+        progress(f"ARX start (na={n_den}, nb={nb})")
+    start = arx_ls(dy, du, max(n_den, 1), nb, nkt, full_a=full_a and nf == 0).model
+    m = ny if (full_a and ny > 1 and nf == 0) else 1
+    L = max(max(r) for r in nkt) + max(nb, 1) - 1
+    spec = _Spec(m=m, na=na, nb=nb, nc=nc, nd=nd, nf=nf, nu=nu, L=L)
+    a_arx = np.asarray(start.a)                                       # (ny, m', n_den)
+    parts = []
+    if na:
+        parts.append(a_arx[:, :, :na].reshape(ny, -1) if nf == 0 else np.zeros((ny, m * na)))
+    parts.append(np.asarray(start.b).reshape(ny, -1))
+    parts.append(np.zeros((ny, nc)))
+    parts.append(np.zeros((ny, nd)))
+    if nf:
+        own = a_arx[:, 0, :nf] if a_arx.shape[1] == 1 else a_arx[np.arange(ny), np.arange(ny), :nf]
+        rho = _atanh_reflection(own)                                     # (ny, nf)
+        parts.append(np.repeat(rho[:, None, :], nu, axis=1).reshape(ny, -1))
+    theta0 = np.concatenate(parts, axis=1)
+    starts = perturb_starts(theta0, n_starts, seed)                   # (ny, K, p)
+    args = _poly_args(dy, du, spec, nkt, m > 1)
+    if progress:
+        progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
+    res = minimize_many(poly_residual, jnp.asarray(starts, y.dtype), args, solver=solver,
+                        max_steps=max_steps, covariance=covariance, throw=False)
+    if not bool(jnp.all(jnp.isfinite(res.cost))):
+        bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
+        raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
+    a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(res.theta)
+    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=y0)
+    cov = std = None
+    if covariance:
+        Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(res.theta)
+        cov = jnp.einsum("iab,ibc,idc->iad", Jt, res.covariance, Jt)
+        std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
+    return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
+                       covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
+                       n_steps=np.asarray(res.n_steps))
+
+
+# ----------------------------------------------------------------------- dispatcher
+
+
+def _check_orders(family: str, orders) -> dict[str, int]:
+    names = ORDER_NAMES[family]
+    if isinstance(orders, (int, np.integer)) and not isinstance(orders, bool):
+        orders = (int(orders),)
+    try:
+        vals = tuple(orders)
+    except TypeError:
+        raise ModelError(f"fit: orders for {family} must be a tuple {names}, got {orders!r}") from None
+    if len(vals) != len(names):
+        raise ModelError(f"fit: {family} takes {len(names)} orders ({','.join(names) or 'none'}), "
+                         f"got {len(vals)}")
+    out = {}
+    for n, v in zip(names, vals):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ModelError(f"fit: order {n} must be an integer >= 0, got {v!r}")
+        out[n] = int(v)
+    if family == "arx" and out["na"] == 0 and out["nb"] == 0:
+        raise ModelError("fit: arx with na = nb = 0 has no parameters")
+    if family in ("armax", "oe", "bj") and out["nb"] == 0:
+        raise ModelError(f"fit: {family} needs nb >= 1")
+    if family == "ss" and out["n"] < 1:
+        raise ModelError("fit: state order n must be >= 1")
+    return out
+
+
+def _poly_kwargs(family: str, o: dict) -> dict:
+    full = {"na": 0, "nb": 0, "nc": 0, "nd": 0, "nf": 0, "nk": 1}
+    full.update(o)
+    return full
+
+
+def n_params_per_output(family: str, o: dict, nu: int, ny: int = 1, full_a: bool = False) -> int:
+    """Number of parameters of one output row of a polynomial model."""
+    k = _poly_kwargs(family, o)
+    m = ny if full_a else 1
+    return m * k["na"] + nu * k["nb"] + k["nc"] + k["nd"] + nu * k["nf"]
+
+
+def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, seed: int = 0,
+        n_starts: int = 8, criterion: str = "aic", progress: Callable | None = None,
+        **kw) -> FitResult:
+    """Fit a model of `family` to estimation data.
+
+    **Arguments:**
+    - `data`: estimation `IOData` (absolute units).
+    - `family`: one of `arx`, `armax`, `oe`, `bj`, `ss`, `greybox`.
+    - `orders`: MATLAB's order tuple for the family (see module docstring); `None` chooses the
+      orders over a grid by `criterion` (and the delay from an FIR estimate).
+    - `seed`, `n_starts`: multi-start (start points solved together with `vmap`).
+    - `criterion`: `aic`, `bic` or `fpe` for automatic orders.
+    - `progress`: optional callable receiving one-line status strings.
+    - `**kw`: passed on (`full_a`, `solver`, `max_steps`, `covariance` for polynomial families;
+      whatever `fit_statespace` / `fit_greybox` accept otherwise).
+
+    **Returns:** a `FitResult`.
+    """
+    t0 = time.perf_counter()
+    if not isinstance(family, str) or family.lower() not in FAMILIES:
+        raise ModelError(f"fit: unknown model family {family!r} (expected one of {', '.join(FAMILIES)})")
+    family = family.lower()
+    if criterion not in CRITERIA:
+        raise ConfigError(f"fit: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    if isinstance(n_starts, bool) or not isinstance(n_starts, (int, np.integer)) or n_starts < 1:
+        raise ConfigError(f"fit: n_starts must be an integer >= 1, got {n_starts!r}")
+    if not isinstance(data, IOData):
+        raise DataError(f"fit: expected IOData, got {type(data).__name__}")
+    o = _check_orders(family, orders) if orders is not None else None
+    require_excitation(data)
+    if family == "greybox":
+        from ..models.greybox import fit_greybox
+        res = fit_greybox(data, seed=seed, **kw)
+        return _wrap_external(res, "greybox", {}, t0)
+    if family == "ss":
+        from .statespace import fit_statespace
+        res = fit_statespace(data, None if o is None else o["n"], seed=seed, n_starts=n_starts,
+                             **kw)
+        return _wrap_external(res, "ss", getattr(res, "orders", o or {}), t0)
+    full_a = bool(kw.get("full_a", False))
+    table = None
+    if o is None:
+        from .orders import select_orders
+        if progress:
+            progress(f"choosing {family} orders by {criterion}")
+        o, table = select_orders(data, family, criterion=criterion, full_a=full_a, seed=seed,
+                                 n_starts=1)
+    require_samples(data, n_params_per_output(family, o, data.n_inputs, data.n_outputs, full_a),
+                    what=f"{family} model")
+    allowed = {"full_a", "solver", "max_steps", "covariance"}
+    unknown = set(kw) - allowed
+    if unknown:
+        raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")
+    pk = _poly_kwargs(family, o)
+    model, info = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
+                                 progress=progress, **pk, **kw)
+    return FitResult(model=model, family=family, orders=o, converged=info["converged"],
+                     cost=info["cost"], seconds=time.perf_counter() - t0, criterion_table=table,
+                     covariance=info["covariance"], std=info["std"],
+                     extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"]})
+
+
+def _wrap_external(res, family, orders, t0) -> FitResult:
+    if isinstance(res, FitResult):
+        if not res.family or not np.isfinite(res.seconds):
+            res = dataclasses.replace(res, family=family,
+                                      seconds=time.perf_counter() - t0 if not np.isfinite(res.seconds)
+                                      else res.seconds)
+        return res
+    model = getattr(res, "model", res)
+    return FitResult(model=model, family=family, orders=dict(getattr(res, "orders", orders) or {}),
+                     converged=bool(getattr(res, "converged", True)),
+                     cost=float(getattr(res, "cost", float("nan"))),
+                     seconds=time.perf_counter() - t0,
+                     criterion_table=getattr(res, "criterion_table", None),
+                     covariance=getattr(res, "covariance", None), std=getattr(res, "std", None),
+                     x0=getattr(res, "x0", None), extra=dict(getattr(res, "info", {}) or {}))
+
+
+__all__ = ["FitResult", "fit", "fit_polynomial", "poly_residual", "poly_cost", "FAMILIES",
+           "ORDER_NAMES", "n_params_per_output"]

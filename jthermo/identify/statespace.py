@@ -1,0 +1,184 @@
+"""State-space estimation: N4SID start, then prediction-error refinement.
+
+The MATLAB `ssest` recipe (Ljung 1999, §10.6): a subspace estimate (`n4sid`, several weightings
+and horizons as multi-start points) is moved to the basis $C = [I\\;0]$ and refined by
+minimising the mean squared one-step prediction error (`focus="prediction"`, K estimated) or the
+simulation error (`focus="simulation"`, K = 0) with Levenberg–Marquardt
+(`jthermo.identify.pem.minimize`). The initial state is estimated with the other parameters.
+The returned model is stable (A's eigenvalues are projected inside the unit circle if the
+optimum lies outside it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..data import IOData, require_excitation
+from ..errors import FitError, ModelError
+from ..models.statespace import InnovationsSS, innovations, pack, unpack
+from .pem import minimize
+from .subspace import choose_order, default_horizon, n4sid
+
+FOCUS = ("prediction", "simulation")
+
+
+def ss_residuals(theta: Float[Array, " p"], args: Any) -> Float[Array, "T ny"]:
+    """PEM residuals of an innovations state space: theta = [pack(model), x0].
+
+    `args = (template, y, du, dw)`: `template` an `InnovationsSS` fixing the structure and the
+    operating point, `y` absolute outputs, `du`, `dw` input and signal deviations.
+    """
+    template, y, du, dw = args
+    p = template.n_params()
+    model = unpack(theta[:p], template)
+    return innovations(model, y, du, dw, theta[p:])
+
+
+def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
+    """Mean squared residual $V(\\theta) = \\frac{1}{T n_y}\\sum \\|\\varepsilon\\|^2$."""
+    return jnp.mean(ss_residuals(theta, args) ** 2)
+
+
+@dataclasses.dataclass(frozen=True)
+class _SSFit:
+    """Stand-in with the attributes of `jthermo.identify.fit.FitResult` (used until it exists)."""
+
+    model: Any
+    orders: dict
+    converged: bool
+    cost: float
+    covariance: Any = None
+    std: Any = None
+    criterion_table: list | None = None
+    x0: Any = None
+    family: str = "ss"
+    seconds: float = float("nan")
+    extra: dict = dataclasses.field(default_factory=dict)
+
+
+def _result(**kw):
+    try:
+        from .fit import FitResult
+    except ImportError:
+        return _SSFit(**kw)
+    fields = {f.name for f in dataclasses.fields(FitResult)} if dataclasses.is_dataclass(FitResult) \
+        else set(getattr(FitResult, "__annotations__", {}))
+    if not {"model", "orders", "converged", "cost"} <= fields:
+        return _SSFit(**kw)
+    return FitResult(**{k: v for k, v in kw.items() if k in fields})
+
+
+def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
+            horizon: int | None):
+    """Distinct N4SID estimates (weighting × horizon), in the common canonical structure."""
+    i0 = default_horizon(n, data.n_outputs, data.n_samples) if horizon is None else int(horizon)
+    plan = [("cva", i0), ("moesp", i0), ("cva", 2 * i0), ("moesp", 2 * i0),
+            ("cva", max(2, i0 // 2)), ("moesp", max(2, i0 // 2))]
+    models = []
+    for wt, i in plan[:max(1, n_starts)]:
+        try:
+            ss, _ = n4sid(data, n, horizon=i, weighting=wt)
+        except Exception:  # a longer horizon may not fit the data: just fewer starts
+            if not models:
+                raise
+            continue
+        models.append(InnovationsSS.from_statespace(ss, output_error=output_error))
+    ref = models[0]
+    models = [m for m in models if m.fixed_c == ref.fixed_c]
+    thetas = [np.asarray(pack(m)) for m in models]
+    rng = np.random.default_rng(seed)
+    while len(thetas) < n_starts:   # perturbations of the first start fill the batch
+        t = thetas[0] * (1.0 + 0.02 * rng.standard_normal(thetas[0].shape))
+        thetas.append(t)
+    return ref, np.stack(thetas[:max(1, n_starts)])
+
+
+def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_starts: int = 4,
+                   focus: str = "prediction", horizon: int | None = None, max_steps: int = 100,
+                   solver: str = "lm", covariance: bool = True, estimate_x0: bool = True,
+                   max_order: int | None = None):
+    """Estimate an innovations state space of order `n` by N4SID + PEM.
+
+    $\\hat\\theta = \\arg\\min \\frac{1}{T n_y}\\sum_t \\|y_t - \\hat y(t|t-1;\\theta)\\|^2$
+    over A, B, (C), K, Bw and $x_0$ (Ljung 1999, §7.3 and §10.6).
+
+    **Arguments:**
+    - `data`: estimation data (inputs, outputs, optional measured signals).
+    - `n`: state order; `None` picks it from the Hankel singular values (`choose_order`).
+    - `seed`: seeds the perturbed start points that fill the batch beyond the N4SID variants.
+    - `n_starts`: start points solved together (N4SID with CVA/MOESP weighting and several
+      horizons, then perturbations).
+    - `focus`: `"prediction"` (one-step error, K estimated) or `"simulation"` (K = 0).
+    - `horizon`, `max_steps`, `solver`, `covariance`: passed to `n4sid` / `minimize`.
+    - `estimate_x0`: estimate the initial state (otherwise x0 = 0, the operating point).
+
+    **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
+    `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
+    `[pack(InnovationsSS), x0]`, and `criterion_table` (the Hankel singular values when `n` was
+    chosen automatically).
+    """
+    import time
+
+    t_start = time.perf_counter()
+    if focus not in FOCUS:
+        raise ModelError(f"fit_statespace: focus must be one of {', '.join(FOCUS)}, got {focus!r}")
+    if int(n_starts) < 1:
+        raise ModelError(f"fit_statespace: n_starts must be >= 1, got {n_starts}")
+    require_excitation(data)
+    table = None
+    if n is None:
+        _, svals = n4sid(data, None, horizon=horizon, max_order=max_order)
+        n = choose_order(svals, max_order=max_order if max_order is not None
+                         else min(len(svals) - 1, 4 * data.n_outputs + 8))
+        table = [{"n": k + 1, "hankel_sv": float(s), "chosen": k + 1 == n}
+                 for k, s in enumerate(svals)]
+    if int(n) != n or n < 1:
+        raise ModelError(f"fit_statespace: order n must be a positive integer, got {n!r}")
+    n = int(n)
+    output_error = focus == "simulation"
+    template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon)
+    n_par = template.n_params() + (n if estimate_x0 else 0)
+    if data.n_samples * data.n_outputs <= n_par:
+        raise FitError(f"fit_statespace: {data.n_samples} samples are too few for "
+                       f"{n_par} parameters")
+    dtype = template.A.dtype
+    y = jnp.asarray(data.y, dtype)
+    du = jnp.asarray(data.u, dtype) - template.u0
+    dw = jnp.asarray(data.w, dtype) - template.w0
+    if estimate_x0:
+        theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], n))], axis=1)
+        args = (template, y, du, dw)
+        res = minimize(ss_residuals, jnp.asarray(theta0, dtype), args, solver=solver,
+                       max_steps=max_steps, covariance=covariance)
+        theta = res.theta
+        x0 = theta[template.n_params():]
+    else:
+        args = (template, y, du, dw)
+        res = minimize(_ss_residuals_x0zero, jnp.asarray(theta_m, dtype), args, solver=solver,
+                       max_steps=max_steps, covariance=covariance)
+        theta = res.theta
+        x0 = jnp.zeros(n, dtype)
+    model = unpack(theta[:template.n_params()], template)
+    if not bool(jnp.all(jnp.isfinite(theta))):
+        raise FitError("fit_statespace: the estimate is not finite")
+    model = model.stabilized()
+    ss = model.to_statespace()
+    return _result(model=ss, orders={"n": n}, converged=bool(res.converged),
+                   cost=float(res.cost), covariance=res.covariance, std=res.std,
+                   criterion_table=table, x0=x0, family="ss",
+                   seconds=time.perf_counter() - t_start,
+                   extra={"start_costs": np.asarray(res.start_costs), "n_steps": int(res.n_steps),
+                          "parametrised": model})
+
+
+def _ss_residuals_x0zero(theta, args):
+    template, y, du, dw = args
+    return innovations(unpack(theta, template), y, du, dw, None)
+
+
+__all__ = ["fit_statespace", "ss_residuals", "ss_cost", "FOCUS"]

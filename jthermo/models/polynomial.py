@@ -1,0 +1,478 @@
+"""The general polynomial family $A y = \\frac{B}{F} u(t-n_k) + \\frac{C}{D} e$: ARX, ARMAX, OE, BJ.
+
+MIMO structure, one MISO row per output $i$ (Ljung 1999, §4.2):
+
+$$A_i(q)\\,y(t) = \\sum_j \\frac{B_{ij}(q)}{F_{ij}(q)} u_j(t) + \\frac{C_i(q)}{D_i(q)} e_i(t)$$
+
+with $A_i(q) y = y_i(t) + \\sum_{k=1}^{n_a} \\sum_l a_{i,l,k}\\, y_l(t-k)$ (a diagonal A uses only
+$l = i$; a full matrix polynomial A is allowed when $n_d = n_f = 0$), $B_{ij}(q) =
+\\sum_{k=0}^{n_b-1} b_{ijk} q^{-(n_{k,ij}+k)}$ (MATLAB's meaning: $n_b$ coefficients after a delay
+of $n_k$ samples), and monic $C_i$, $D_i$, $F_{ij}$. Signals are deviations from the operating
+point `(u0, y0)` and zero before $t = 0$; `simulate(u)` returns absolute outputs.
+
+Stability: the fitting code (`jthermo.identify.fit`) parametrises every monic C, D and F
+polynomial by reflection coefficients $\\kappa = \\tanh\\rho$ (Schur–Cohn step-up recursion,
+`poly_from_reflection`), so returned C, D and F are stable by construction; A (ARX, ARMAX) is
+free and its stability is not enforced.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..errors import ModelError
+from ._base import AbstractModel, StateSpace
+
+# ----------------------------------------------------------------------------- filters
+
+
+def lagged(x: Float[Array, "T m"], L: int) -> Float[Array, "T m L1"]:
+    """`out[t, j, l] = x[t - l, j]` for `l = 0..L`, zero before `t = 0`."""
+    T = x.shape[0]
+    xp = jnp.concatenate([jnp.zeros((L,) + x.shape[1:], x.dtype), x], axis=0)
+    return jnp.stack([xp[L - l:L - l + T] for l in range(L + 1)], axis=-1)
+
+
+def _doubling_recursion(M: Array, drive: Array) -> Array:
+    """States of $s_t = M s_{t-1} + d_t$ (zero before t = 0) for all t at once.
+
+    Time-invariant recursions need no sequential loop: with $S^{(0)}_t = d_t$ and
+    $S^{(k+1)}_t = S^{(k)}_t + M^{2^k} S^{(k)}_{t-2^k}$, $S^{(K)}_t = \sum_{j<2^K} M^j d_{t-j}$, exact
+    once $2^K \ge T$ (a Hillis–Steele prefix scan: ceil(log2 T) vectorised steps).
+    `M` is `(*batch, n, n)`, `drive` `(T, *batch, n)`.
+    """
+    T = drive.shape[0]
+    S = drive
+    P = M
+    shift = 1
+    while shift < T:
+        prev = jnp.concatenate([jnp.zeros((shift,) + S.shape[1:], S.dtype), S[:T - shift]], axis=0)
+        S = S + jnp.matmul(P, prev[..., None])[..., 0]
+        shift *= 2
+        if shift < T:
+            P = P @ P
+    return S
+
+
+def ar_filter(x: Array, den: Array) -> Array:
+    """All-pole filter $y(t) = x(t) - \sum_{k=1}^{n} den_k\, y(t-k)$, zero initial conditions.
+
+    `x` is `(T, *batch)`, `den` is `(*batch, n)` (the monic polynomial without its leading 1).
+    Evaluated in ceil(log2 T) vectorised steps (`_doubling_recursion`), not a sequential scan.
+    """
+    n = den.shape[-1]
+    if n == 0:
+        return x
+    dt = jnp.result_type(x, den)
+    batch = jnp.broadcast_shapes(x.shape[1:], den.shape[:-1])
+    M = jnp.zeros(batch + (n, n), dt)
+    M = M.at[..., 0, :].set(-jnp.broadcast_to(den, batch + (n,)).astype(dt))
+    if n > 1:
+        M = M.at[..., 1:, :-1].set(jnp.eye(n - 1, dtype=dt))
+    drive = jnp.zeros((x.shape[0],) + batch + (n,), dt)
+    drive = drive.at[..., 0].set(jnp.broadcast_to(x, (x.shape[0],) + batch).astype(dt))
+    return _doubling_recursion(M, drive)[..., 0]
+
+
+def ar_filter_scan(x: Array, den: Array) -> Array:
+    """Reference sequential version of `ar_filter` (lax.scan), for tests."""
+    n = den.shape[-1]
+    if n == 0:
+        return x
+    denT = jnp.moveaxis(den, -1, 0)                    # (n, *batch)
+
+    def body(past, xt):                                 # past[k-1] = y(t-k)
+        yt = xt - jnp.sum(denT * past, axis=0)
+        return jnp.concatenate([yt[None], past[:-1]], axis=0), yt
+
+    past0 = jnp.zeros((n,) + x.shape[1:], jnp.result_type(x, den))
+    _, y = jax.lax.scan(body, past0, x.astype(past0.dtype))
+    return y
+
+
+def fir_monic(x: Array, num: Array) -> Array:
+    """$y(t) = x(t) + \\sum_{k=1}^{n} num_k\\, x(t-k)$ for `x (T, *batch)`, `num (*batch, n)`."""
+    n = num.shape[-1]
+    if n == 0:
+        return x
+    T = x.shape[0]
+    xp = jnp.concatenate([jnp.zeros((n,) + x.shape[1:], x.dtype), x], axis=0)
+    out = x
+    for k in range(1, n + 1):
+        out = out + num[..., k - 1] * xp[n - k:n - k + T]
+    return out
+
+
+def ar_matrix_filter(w: Float[Array, "T ny"], a: Float[Array, "na ny ny"]) -> Float[Array, "T ny"]:
+    """$y(t) = w(t) - \sum_k a_k\, y(t-k)$ with matrix coefficients (a full A polynomial)."""
+    na, ny = a.shape[0], w.shape[1]
+    if na == 0:
+        return w
+    dt = jnp.result_type(w, a)
+    n = na * ny
+    M = jnp.zeros((n, n), dt).at[:ny, :].set(-jnp.moveaxis(a, 0, 1).reshape(ny, n).astype(dt))
+    if na > 1:
+        M = M.at[ny:, :-ny].set(jnp.eye(n - ny, dtype=dt))
+    drive = jnp.zeros((w.shape[0], n), dt).at[:, :ny].set(w.astype(dt))
+    return _doubling_recursion(M, drive)[:, :ny]
+
+
+# ------------------------------------------------------------- reflection coefficients
+
+
+def poly_from_reflection(kappa: Array) -> Array:
+    """Monic polynomial coefficients $(a_1..a_n)$ from reflection coefficients (step-up).
+
+    Every root lies inside the unit circle iff all $|\\kappa_m| < 1$ (Schur–Cohn). Works on the
+    last axis; leading axes are batch.
+    """
+    n = kappa.shape[-1]
+    a = jnp.zeros(kappa.shape[:-1] + (0,), kappa.dtype)
+    for m in range(n):
+        k = kappa[..., m:m + 1]
+        a = jnp.concatenate([a + k * a[..., ::-1], k], axis=-1)
+    return a
+
+
+def reflection_from_poly(a: Array, clip: float = 0.995) -> Array:
+    """Reflection coefficients of the monic polynomial `(a_1..a_n)` (step-down), clipped to
+    `|kappa| <= clip` so an unstable or marginal start maps to a nearby stable one (NumPy)."""
+    a = np.array(a, dtype=np.float64)
+    n = a.shape[-1]
+    kap = np.zeros_like(a)
+    for m in range(n, 0, -1):
+        k = np.clip(a[..., m - 1], -clip, clip)
+        kap[..., m - 1] = k
+        prev = a[..., :m - 1]
+        a = (prev - k[..., None] * prev[..., ::-1]) / (1.0 - k[..., None] ** 2)
+    return kap
+
+
+def stabilize(a: Array) -> np.ndarray:
+    """Reflect the roots of the monic polynomial `(a_1..a_n)` outside the unit circle into it
+    ($z \\to 1/\\bar z$), last axis, NumPy. Used for start points, not on fitted models."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.shape[-1] == 0:
+        return a.copy()
+    flat = a.reshape(-1, a.shape[-1])
+    out = np.empty_like(flat)
+    for r, coeffs in enumerate(flat):
+        roots = np.roots(np.concatenate([[1.0], coeffs]))
+        big = np.abs(roots) >= 1.0
+        roots[big] = 0.995 / np.conj(roots[big])
+        out[r] = np.real(np.poly(roots))[1:]
+    return out.reshape(a.shape)
+
+
+def _polymul(p: Array, q: Array) -> Array:
+    """Product of polynomials in $q^{-1}$ (coefficient vectors starting at $q^0$), last axis."""
+    n, m = p.shape[-1], q.shape[-1]
+    out = jnp.zeros(jnp.broadcast_shapes(p.shape[:-1], q.shape[:-1]) + (n + m - 1,),
+                    jnp.result_type(p, q))
+    for k in range(m):
+        out = out.at[..., k:k + n].add(p * q[..., k:k + 1])
+    return out
+
+
+# ------------------------------------------------------------------------------ model
+
+
+def _delay_onehot(nk: tuple[tuple[int, ...], ...], nb: int, L: int) -> np.ndarray:
+    """`(ny, nu, nb, L+1)` selector: coefficient k of pair (i, j) sits at lag nk_ij + k."""
+    ny, nu = len(nk), len(nk[0]) if nk else 0
+    sel = np.zeros((ny, nu, nb, L + 1))
+    for i in range(ny):
+        for j in range(nu):
+            for k in range(nb):
+                sel[i, j, k, nk[i][j] + k] = 1.0
+    return sel
+
+
+def _as_nk(nk, ny: int, nu: int) -> tuple[tuple[int, ...], ...]:
+    arr = np.asarray(nk)
+    if arr.ndim == 0:
+        arr = np.full((ny, nu), int(arr))
+    if arr.shape != (ny, nu):
+        raise ModelError(f"Polynomial: nk must be an int or a ({ny}, {nu}) array, got shape {arr.shape}")
+    if np.any(arr < 0) or np.any(arr != np.round(arr)):
+        raise ModelError(f"Polynomial: input delays nk must be integers >= 0, got {arr.tolist()}")
+    return tuple(tuple(int(v) for v in row) for row in arr)
+
+
+class Polynomial(AbstractModel):
+    """MIMO polynomial model $A y = \\frac{B}{F} u(t-n_k) + \\frac{C}{D} e$ (ARX, ARMAX, OE, BJ).
+
+    **Fields** (coefficients exclude the leading 1 of monic polynomials):
+    - `a`: `(ny, m, na)` with m = ny for a full A, m = 1 for a diagonal A (own output only).
+    - `b`: `(ny, nu, nb)`; `c`: `(ny, nc)`; `d`: `(ny, nd)`; `f`: `(ny, nu, nf)`.
+    - `u0`, `y0`: the operating point (power fraction, °C); `nk` `(ny, nu)` delays in samples.
+    """
+
+    a: Float[Array, "ny m na"]
+    b: Float[Array, "ny nu nb"]
+    c: Float[Array, "ny nc"]
+    d: Float[Array, "ny nd"]
+    f: Float[Array, "ny nu nf"]
+    u0: Float[Array, " nu"]
+    y0: Float[Array, " ny"]
+    nk: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    ts_: float = eqx.field(static=True)
+
+    def __init__(self, a=None, b=None, c=None, d=None, f=None, *, nk=1, ts: float = 1.0,
+                 u0=None, y0=None, ny: int | None = None, nu: int | None = None):
+        if b is None:
+            if ny is None or nu is None:
+                raise ModelError("Polynomial: give `b` (ny, nu, nb) or both `ny` and `nu`")
+            b = jnp.zeros((ny, nu, 0))
+        b = jnp.asarray(b)
+        if b.ndim != 3:
+            raise ModelError(f"Polynomial: `b` must be (ny, nu, nb), got shape {b.shape}")
+        ny, nu = b.shape[0], b.shape[1]
+        dt = b.dtype if jnp.issubdtype(b.dtype, jnp.floating) else jnp.result_type(float)
+        b = b.astype(dt)
+        self.b = b
+        self.a = jnp.zeros((ny, 1, 0), dt) if a is None else jnp.asarray(a, dt)
+        if self.a.ndim == 2:          # (ny, na): diagonal A
+            self.a = self.a[:, None, :]
+        self.c = jnp.zeros((ny, 0), dt) if c is None else jnp.asarray(c, dt)
+        self.d = jnp.zeros((ny, 0), dt) if d is None else jnp.asarray(d, dt)
+        self.f = jnp.zeros((ny, nu, 0), dt) if f is None else jnp.asarray(f, dt)
+        self.u0 = jnp.zeros(nu, dt) if u0 is None else jnp.asarray(u0, dt)
+        self.y0 = jnp.zeros(ny, dt) if y0 is None else jnp.asarray(y0, dt)
+        self.nk = _as_nk(nk, ny, nu)
+        self.ts_ = float(ts)
+
+    def __check_init__(self):
+        ny, nu = self.b.shape[0], self.b.shape[1]
+        want = {"a": (self.a.shape[:2], [(ny, 1), (ny, ny)]), "c": (self.c.shape[:1], [(ny,)]),
+                "d": (self.d.shape[:1], [(ny,)]), "f": (self.f.shape[:2], [(ny, nu)]),
+                "u0": (self.u0.shape, [(nu,)]), "y0": (self.y0.shape, [(ny,)])}
+        for name, (got, ok) in want.items():
+            if tuple(got) not in ok:
+                raise ModelError(f"Polynomial: `{name}` has shape {getattr(self, name).shape}, "
+                                 f"which does not match b {self.b.shape}")
+        if self.full_a and ny > 1 and (self.nd or self.nf):
+            raise ModelError("Polynomial: a full A matrix polynomial needs nd = nf = 0")
+        if self.nb == 0 and nu > 0 and self.na == 0 and self.nc == 0 and self.nd == 0:
+            raise ModelError("Polynomial: the model has no parameters (all orders zero)")
+
+    # -- orders ------------------------------------------------------------------------
+    @property
+    def na(self) -> int:
+        return self.a.shape[2]
+
+    @property
+    def nb(self) -> int:
+        return self.b.shape[2]
+
+    @property
+    def nc(self) -> int:
+        return self.c.shape[1]
+
+    @property
+    def nd(self) -> int:
+        return self.d.shape[1]
+
+    @property
+    def nf(self) -> int:
+        return self.f.shape[2]
+
+    @property
+    def full_a(self) -> bool:
+        return self.a.shape[1] > 1 or self.b.shape[0] == 1
+
+    @property
+    def orders(self) -> dict[str, int]:
+        nk = np.asarray(self.nk)
+        return {"na": self.na, "nb": self.nb, "nc": self.nc, "nd": self.nd, "nf": self.nf,
+                "nk": int(nk.min()) if nk.size else 0}
+
+    @property
+    def ts(self) -> float:
+        return self.ts_
+
+    @property
+    def n_inputs(self) -> int:
+        return self.b.shape[1]
+
+    @property
+    def n_outputs(self) -> int:
+        return self.b.shape[0]
+
+    @property
+    def n_signals(self) -> int:
+        return 0
+
+    def a_matrices(self) -> Float[Array, "na ny ny"]:
+        """The A polynomial as matrices: $A(q) = I + \\sum_k A_k q^{-k}$, `(na, ny, ny)`."""
+        ny = self.n_outputs
+        if self.a.shape[1] == ny:
+            return jnp.moveaxis(self.a, 2, 0)
+        return jnp.einsum("ik,ij->kij", self.a[:, 0, :], jnp.eye(ny, dtype=self.a.dtype))
+
+    def flat_coefficients(self) -> Float[Array, "ny p"]:
+        """Per-output coefficient vector `[a (m·na), b (nu·nb), c, d, f (nu·nf)]`; the layout of
+        `FitResult.std`."""
+        ny = self.n_outputs
+        return jnp.concatenate([self.a.reshape(ny, -1), self.b.reshape(ny, -1), self.c, self.d,
+                                self.f.reshape(ny, -1)], axis=1)
+
+    # -- filters ------------------------------------------------------------------------
+    def _max_lag(self) -> int:
+        return max(max(row) for row in self.nk) + max(self.nb, 1) - 1
+
+    def _b_lags(self) -> Float[Array, "ny nu L1"]:
+        L = self._max_lag()
+        sel = _delay_onehot(self.nk, self.nb, L)
+        return jnp.einsum("ijk,ijkl->ijl", self.b, jnp.asarray(sel, self.b.dtype))
+
+    def _input_part(self, du: Float[Array, "T nu"]) -> Float[Array, "T ny"]:
+        """$\\sum_j B_{ij}/F_{ij}\\, \\tilde u_j$ per output."""
+        Ul = lagged(du, self._max_lag())                           # (T, nu, L+1)
+        pairs = jnp.einsum("tjl,ijl->tij", Ul, self._b_lags())      # (T, ny, nu)
+        return ar_filter(pairs, self.f).sum(axis=2)
+
+    def _as2d(self, x, n, what):
+        x = jnp.asarray(x)
+        if x.ndim == 1:
+            x = x[:, None]
+        if x.ndim != 2 or x.shape[1] != n:
+            raise ModelError(f"Polynomial: `{what}` must be (T, {n}), got shape {x.shape}")
+        return x
+
+    def simulate(self, u, w=None, x0=None):
+        """Noise-free simulated outputs (°C) from inputs `u (T, nu)`, at rest at the operating
+        point before t = 0 (`x0` is not supported: use `to_statespace().simulate`)."""
+        if x0 is not None:
+            return self.to_statespace().simulate(u, w, x0)
+        du = self._as2d(u, self.n_inputs, "u") - self.u0
+        return self.y0 + ar_matrix_filter(self._input_part(du), self.a_matrices())
+
+    def residuals(self, y, u, w=None, x0=None):
+        """One-step prediction errors $\\varepsilon_i = \\frac{D_i}{C_i}\\big((A y)_i - \\sum_j
+        \\frac{B_{ij}}{F_{ij}} u_j\\big)$ (eq. 2.3 of the thesis), zero initial conditions."""
+        if x0 is not None:
+            return super().residuals(y, u, w, x0)
+        dy = self._as2d(y, self.n_outputs, "y") - self.y0
+        du = self._as2d(u, self.n_inputs, "u") - self.u0
+        Am = self.a_matrices()
+        Ay = dy
+        if self.na:
+            Yl = lagged(dy, self.na)[:, :, 1:]                    # (T, ny, na): lags 1..na
+            Ay = dy + jnp.einsum("kij,tjk->ti", Am, Yl)
+        v = Ay - self._input_part(du)
+        return ar_filter(fir_monic(v, self.d), self.c)
+
+    def predict(self, y, u, w=None, k: int = 1, x0=None):
+        if k == 1 and x0 is None:
+            return jnp.asarray(y) - self.residuals(y, u)
+        return self.to_statespace().predict(y, u, w, k, x0)
+
+    # -- exact state-space realisation -----------------------------------------------------
+    def to_statespace(self) -> StateSpace:
+        """Exact innovations realisation (observer canonical form per output for a diagonal A;
+        input/noise block plus output-shift states for a full A)."""
+        ny, nu = self.n_outputs, self.n_inputs
+        dt = self.b.dtype
+        L = self._max_lag()
+        bl = self._b_lags()                                               # (ny, nu, L+1)
+        one = jnp.ones((ny, 1), dt)
+        if not self.full_a or ny == 1:
+            # per output: den = A_i D_i prod_j F_ij ; num_j = B_ij D_i prod_{l!=j} F_il ;
+            # num_e = C_i prod_j F_ij
+            Ai = jnp.concatenate([one, self.a[:, 0, :]], axis=1)
+            Di = jnp.concatenate([one, self.d], axis=1)
+            Ci = jnp.concatenate([one, self.c], axis=1)
+            Fij = jnp.concatenate([jnp.ones((ny, nu, 1), dt), self.f], axis=2)
+            Fall = jnp.ones((ny, 1), dt)
+            for j in range(nu):
+                Fall = _polymul(Fall, Fij[:, j])
+            den = _polymul(_polymul(Ai, Di), Fall)
+            nums = []
+            for j in range(nu):
+                pj = _polymul(bl[:, j], Di)
+                for l in range(nu):
+                    if l != j:
+                        pj = _polymul(pj, Fij[:, l])
+                nums.append(pj)
+            ne = _polymul(Ci, Fall)
+            n = max(den.shape[1], ne.shape[1], *(p.shape[1] for p in nums)) - 1
+            pad = lambda p: jnp.pad(p, ((0, 0), (0, n + 1 - p.shape[1])))  # noqa: E731
+            den, ne = pad(den), pad(ne)
+            num = jnp.stack([pad(p) for p in nums], axis=1)                 # (ny, nu, n+1)
+            if n == 0:
+                A = jnp.zeros((0, 0), dt)
+                return StateSpace(A, jnp.zeros((0, nu), dt), jnp.zeros((ny, 0), dt),
+                                  num[:, :, 0], jnp.zeros((0, ny), dt), ts=self.ts_,
+                                  u0=self.u0, y0=self.y0)
+            # observer canonical form of each MISO row
+            shift = jnp.eye(n, k=1, dtype=dt)
+            Ablk = shift[None] - den[:, 1:, None] * jnp.eye(n, dtype=dt)[0][None, None, :]
+            Bblk = num[:, :, 1:] - den[:, None, 1:] * num[:, :, :1]          # (ny, nu, n)
+            Kblk = ne[:, 1:] - den[:, 1:]                                     # (ny, n)
+            eye = jnp.eye(ny, dtype=dt)
+            A = jnp.einsum("ij,ikl->ikjl", eye, Ablk).reshape(ny * n, ny * n)
+            B = jnp.swapaxes(Bblk, 1, 2).reshape(ny * n, nu)
+            K = jnp.einsum("ij,ik->ikj", eye, Kblk).reshape(ny * n, ny)
+            C = jnp.einsum("ij,k->ijk", eye, jnp.eye(n, dtype=dt)[0]).reshape(ny, ny * n)
+            D = num[:, :, 0]
+            return StateSpace(A, B, C, D, K, ts=self.ts_, u0=self.u0, y0=self.y0)
+        # full A (nd = nf = 0): z = B u + C e realised per output with den = 1, then
+        # y(t) = z(t) - sum_k A_k y(t-k) with states s = [y(t-1); ...; y(t-na)]
+        m = max(L, self.nc)
+        na = self.na
+        if m > 0:
+            num = jnp.pad(bl, ((0, 0), (0, 0), (0, m - L)))                  # (ny, nu, m+1)
+            ce = jnp.pad(self.c, ((0, 0), (0, m - self.nc)))                 # (ny, m)
+            shift = jnp.eye(m, k=1, dtype=dt)
+            eye = jnp.eye(ny, dtype=dt)
+            Aw = jnp.kron(eye, shift)
+            Bwu = jnp.swapaxes(num[:, :, 1:], 1, 2).reshape(ny * m, nu)
+            Kw = jnp.einsum("ij,ik->ikj", eye, ce).reshape(ny * m, ny)
+            Cw = jnp.einsum("ij,k->ijk", eye, jnp.eye(m, dtype=dt)[0]).reshape(ny, ny * m)
+        else:
+            Aw = jnp.zeros((0, 0), dt)
+            Bwu = jnp.zeros((0, nu), dt)
+            Kw = jnp.zeros((0, ny), dt)
+            Cw = jnp.zeros((ny, 0), dt)
+        Dwu = bl[:, :, 0]
+        nw = Aw.shape[0]
+        ns = ny * na
+        Abar = jnp.moveaxis(self.a_matrices(), 0, 1).reshape(ny, ns)        # [A_1 ... A_na]
+        E = jnp.zeros((ns, ny), dt).at[:ny].set(jnp.eye(ny, dtype=dt))
+        S = jnp.eye(ns, k=-ny, dtype=dt)
+        A = jnp.block([[Aw, jnp.zeros((nw, ns), dt)], [E @ Cw, S - E @ Abar]])
+        B = jnp.concatenate([Bwu, E @ Dwu], axis=0)
+        K = jnp.concatenate([Kw, E], axis=0)
+        C = jnp.concatenate([Cw, -Abar], axis=1)
+        return StateSpace(A, B, C, Dwu, K, ts=self.ts_, u0=self.u0, y0=self.y0)
+
+
+def ARX(a, b, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polynomial:
+    """$A(q) y = B(q) u(t-n_k) + e$; `a` `(ny, na)` diagonal or `(ny, ny, na)` full."""
+    return Polynomial(a=a, b=b, nk=nk, ts=ts, u0=u0, y0=y0)
+
+
+def ARMAX(a, b, c, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polynomial:
+    """$A(q) y = B(q) u(t-n_k) + C(q) e$."""
+    return Polynomial(a=a, b=b, c=c, nk=nk, ts=ts, u0=u0, y0=y0)
+
+
+def OE(b, f, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polynomial:
+    """$y = \\frac{B(q)}{F(q)} u(t-n_k) + e$; `f` `(ny, nu, nf)`."""
+    return Polynomial(b=b, f=f, nk=nk, ts=ts, u0=u0, y0=y0)
+
+
+def BoxJenkins(b, c, d, f, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polynomial:
+    """$y = \\frac{B(q)}{F(q)} u(t-n_k) + \\frac{C(q)}{D(q)} e$."""
+    return Polynomial(b=b, c=c, d=d, f=f, nk=nk, ts=ts, u0=u0, y0=y0)
+
+
+BJ = BoxJenkins
+
+__all__ = ["Polynomial", "ARX", "ARMAX", "OE", "BoxJenkins", "BJ", "poly_from_reflection",
+           "reflection_from_poly", "stabilize", "ar_filter", "ar_filter_scan", "ar_matrix_filter", "fir_monic", "lagged"]

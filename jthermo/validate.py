@@ -1,0 +1,503 @@
+"""Model validation: fit %, residual tests, spectral estimates, responses, poles/zeros, RGA.
+
+Works with any `AbstractModel`; everything linear goes through the model's own `simulate`,
+`predict`, `frequency_response`, `step_response` and `dcgain`, and the state space only where
+a structural property (transmission zeros) needs it. Mirrors MATLAB's `compare`, `resid`,
+`spa`, `bode`, `pzmap` and `stepinfo` (Ljung 1999, ch. 16).
+
+Array results of the reporting functions are NumPy (host side, for JSON and plots);
+`fit_percent`, `rga` and `information_criteria` are plain `jnp` and work under `jit`.
+"""
+
+from __future__ import annotations
+
+import math
+from statistics import NormalDist
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+from jaxtyping import Array, ArrayLike, Float
+
+from .data import IOData
+from .errors import DataError, ModelError
+from .models._base import AbstractModel
+
+__all__ = [
+    "bode",
+    "compare",
+    "correlations",
+    "estimate_initial_state",
+    "fit_percent",
+    "information_criteria",
+    "poles_zeros",
+    "residual_tests",
+    "rga",
+    "spectral_estimate",
+    "steady_state_rga",
+    "step_info",
+]
+
+
+def _traced(x) -> bool:
+    return isinstance(x, jax.core.Tracer)
+
+
+# ---------------------------------------------------------------- fit
+
+
+def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Float[Array, "*ny"]:
+    """Normalised root-mean-square fit per output, in %.
+
+    $\\mathrm{fit}_i = 100 \\, (1 - \\lVert y_i - \\hat y_i \\rVert / \\lVert y_i - \\bar y_i \\rVert)$,
+    100 for a perfect model, 0 for the mean, negative for worse (MATLAB `goodnessOfFit` 'NRMSE').
+
+    **Arguments:** `y`, `yhat`: `(T, ny)` (or `(T,)`) measured and modelled outputs.
+
+    **Returns:** `(ny,)` fit per output (a 0-d array for 1-D input).
+    """
+    y = jnp.asarray(y)
+    yhat = jnp.asarray(yhat)
+    if y.shape != yhat.shape:
+        raise DataError(f"fit_percent: y has shape {y.shape} but yhat has shape {yhat.shape}")
+    if y.ndim not in (1, 2) or y.shape[0] < 2:
+        raise DataError(f"fit_percent: expected (T,) or (T, ny) with T >= 2, got shape {y.shape}")
+    num = jnp.linalg.norm(y - yhat, axis=0)
+    den = jnp.linalg.norm(y - jnp.mean(y, axis=0), axis=0)
+    if not _traced(den) and bool(jnp.any(den == 0)):
+        j = int(np.flatnonzero(np.atleast_1d(np.asarray(den)) == 0)[0])
+        raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
+    return 100.0 * (1.0 - num / den)
+
+
+# ---------------------------------------------------------------- inputs and initial state
+
+
+def _check_io(model: AbstractModel, data: IOData, what: str):
+    if not isinstance(data, IOData):
+        raise DataError(f"{what}: expected IOData, got {type(data).__name__}")
+    if not isinstance(model, AbstractModel):
+        raise ModelError(f"{what}: expected a jthermo model, got {type(model).__name__}")
+    if data.n_inputs != model.n_inputs:
+        raise DataError(f"{what}: the data have {data.n_inputs} input(s), the model {model.n_inputs}")
+    if data.n_outputs != model.n_outputs:
+        raise DataError(f"{what}: the data have {data.n_outputs} output(s), the model {model.n_outputs}")
+    nw = model.n_signals
+    if data.w.shape[1] < nw:
+        raise DataError(f"{what}: the model needs {nw} measured signal(s) w, the data have {data.w.shape[1]}")
+    u = jnp.asarray(data.u)
+    y = jnp.asarray(data.y)
+    w = jnp.asarray(data.w[:, :nw]) if nw else None
+    return y, u, w
+
+
+@eqx.filter_jit
+def _sim(model, u, w, x0):
+    return model.simulate(u, w, x0)
+
+
+@eqx.filter_jit
+def _pred(model, y, u, w, x0, k):
+    return model.predict(y, u, w, k, x0)
+
+
+def _response(model, y, u, w, x0, k):
+    return _sim(model, u, w, x0) if k is None else _pred(model, y, u, w, x0, k)
+
+
+@eqx.filter_jit
+def _ls_initial_state(model, y, u, w, x_ref, k):
+    """Least squares on $y = f(x_0)$, exact when f is affine in $x_0$ (every linear model)."""
+    f = (lambda x0: model.simulate(u, w, x0)) if k is None else \
+        (lambda x0: model.predict(y, u, w, k, x0))
+    y_ref = f(x_ref)
+    O = jax.jacfwd(f)(x_ref)                       # (n, ny, nx)
+    n, ny, nx = O.shape
+    rhs = (y - y_ref).reshape(n * ny)
+    O = O.reshape(n * ny, nx)
+    # column-scaled normal equations: a tall SVD/QR costs ~20x more on CPU, and the
+    # squared condition number is harmless in float64 for the few states of these models
+    scale = jnp.sqrt(jnp.sum(O ** 2, axis=0))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    On = O / scale
+    dx = jnp.linalg.lstsq(On.T @ On, On.T @ rhs)[0] / scale
+    return x_ref + dx
+
+
+def estimate_initial_state(model: AbstractModel, data: IOData, n: int | None = None, *,
+                           k: int | None = None) -> Float[Array, " nx"]:
+    """Least-squares initial state from the first `n` samples (default: all).
+
+    The model's output is affine in the initial state, $y = \\mathcal{O} x_0 + G u$, so
+    $\\hat x_0 = \\arg\\min \\lVert y - \\mathcal{O} x_0 - G u \\rVert$ with $\\mathcal{O}$ taken
+    as the Jacobian of the simulation (or of the k-step predictor, for `k` an int). For a
+    nonlinear model the estimate is kept only if it simulates the first `n` samples better than
+    `model.initial_state(y[0])`, the steady state consistent with the first measurement.
+    """
+    y, u, w = _check_io(model, data, "estimate_initial_state")
+    T = y.shape[0]
+    n = T if n is None else int(n)
+    if not 1 <= n <= T:
+        raise DataError(f"estimate_initial_state: n must lie in [1, {T}], got {n}")
+    ys, us = y[:n], u[:n]
+    ws = None if w is None else w[:n]
+    x_fallback = model.initial_state(y[0])
+    x_ls = _ls_initial_state(model, ys, us, ws, jnp.zeros_like(x_fallback), k)
+    if not bool(jnp.all(jnp.isfinite(x_ls))):
+        return x_fallback
+    e_ls = jnp.sum((ys - _response(model, ys, us, ws, x_ls, k)) ** 2)
+    e_fb = jnp.sum((ys - _response(model, ys, us, ws, x_fallback, k)) ** 2)
+    return x_ls if bool(e_ls <= e_fb) else x_fallback
+
+
+def _initial_state(model, data, x0, k, y):
+    if isinstance(x0, str):
+        if x0 == "estimate":
+            return estimate_initial_state(model, data, k=k)
+        if x0 == "zero":
+            return jnp.zeros_like(model.initial_state(None))
+        if x0 == "steady":
+            return model.initial_state(y[0])
+        raise DataError(f"x0 must be 'estimate', 'zero', 'steady' or an array, got {x0!r}")
+    x0 = jnp.asarray(x0)
+    want = model.initial_state(None).shape
+    if x0.shape != want:
+        raise DataError(f"x0 has shape {x0.shape}, the model's state has shape {want}")
+    return x0
+
+
+def compare(model: AbstractModel, data: IOData, *, k: int | None = None,
+            x0: str | ArrayLike = "estimate") -> dict:
+    """Simulation (`k=None`) or k-step-ahead prediction fit of `model` on `data`, like MATLAB `compare`.
+
+    **Arguments:**
+    - `model`: any `AbstractModel`; it receives `data.u` and the first `model.n_signals`
+      columns of `data.w`.
+    - `k`: prediction horizon in samples, or None for pure simulation.
+    - `x0`: `"estimate"` (least squares, see `estimate_initial_state`), `"zero"`, `"steady"`
+      (`model.initial_state(y[0])`) or an explicit state.
+
+    **Returns:** a dict with `fit_percent` (list per output), `mean_fit_percent`, `yhat`
+    (`(T, ny)` NumPy array), `x0` and `k`.
+    """
+    y, u, w = _check_io(model, data, "compare")
+    if k is not None and (not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1):
+        raise DataError(f"compare: k must be a positive integer or None, got {k!r}")
+    k = None if k is None else int(k)
+    x_init = _initial_state(model, data, x0, k, y)
+    yhat = _response(model, y, u, w, x_init, k)
+    if not bool(jnp.all(jnp.isfinite(yhat))):
+        raise ModelError("compare: the model's response is not finite on these data (unstable model?)")
+    fits = np.atleast_1d(np.asarray(fit_percent(y, yhat)))
+    return {"fit_percent": [float(f) for f in fits], "mean_fit_percent": float(np.mean(fits)),
+            "yhat": np.asarray(yhat), "x0": np.asarray(x_init), "k": k}
+
+
+# ---------------------------------------------------------------- residual analysis
+
+
+def _xcorr(a, b, max_lag):
+    """Biased cross-covariance $R_{ab}(\\tau) = \\frac1N \\sum_t a_{t+\\tau} b_t$ for
+    $\\tau = -M..M$, all column pairs: `(2M+1, na, nb)`. Inputs are mean-removed."""
+    N = a.shape[0]
+    nfft = 1 << math.ceil(math.log2(2 * N))
+    A = jnp.fft.rfft(a, n=nfft, axis=0)
+    B = jnp.fft.rfft(b, n=nfft, axis=0)
+    r = jnp.fft.irfft(A[:, :, None] * jnp.conj(B)[:, None, :], n=nfft, axis=0) / N
+    lags = jnp.arange(-max_lag, max_lag + 1)
+    return r[lags % nfft]
+
+
+@eqx.filter_jit
+def correlations(e: Float[Array, "T ny"], u: Float[Array, "T nu"], max_lag: int):
+    """Normalised residual auto-correlation `(M+1, ny)` for lags 0..M and residual–input
+    cross-correlation `(2M+1, ny, nu)` for lags −M..M ($\\rho_{eu}(\\tau)$ pairs $e_{t+\\tau}$
+    with $u_t$: positive lags test the effect of past inputs)."""
+    e = e - jnp.mean(e, axis=0)
+    u = u - jnp.mean(u, axis=0)
+    see = jnp.sqrt(jnp.mean(e ** 2, axis=0))
+    suu = jnp.sqrt(jnp.mean(u ** 2, axis=0))
+    Ree = _xcorr(e, e, max_lag)
+    auto = jnp.diagonal(Ree, axis1=1, axis2=2)[max_lag:] / see ** 2
+    cross = _xcorr(e, u, max_lag) / (see[:, None] * suu[None, :])
+    return auto, cross
+
+
+def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha: float = 0.01, *,
+                   x0: str | ArrayLike = "estimate") -> dict:
+    """Whiteness and independence tests of the one-step prediction errors (MATLAB `resid`).
+
+    For a correct model the residuals $\\varepsilon$ are white and uncorrelated with past inputs;
+    then each normalised correlation is approximately $N(0, 1/N)$, so the per-lag bound is
+    $\\pm z_{1-\\alpha/2}/\\sqrt N$ (plotted, as in MATLAB). The pass/fail decisions control the
+    false alarm rate over all lags of a test with a Bonferroni bound $z_{1-\\alpha/(2m)}/\\sqrt N$
+    (m lags). The portmanteau statistic is Ljung–Box,
+    $Q = N(N+2) \\sum_{\\tau=1}^{M} \\rho_\\varepsilon^2(\\tau)/(N-\\tau) \\sim \\chi^2_M$
+    (Ljung 1999, §16.6).
+
+    **Returns:** a dict with `lags_auto` `(M+1,)`, `auto` `(M+1, ny)`, `lags_cross` `(2M+1,)`,
+    `cross` `(2M+1, ny, nu)`, `bound`, `bound_auto_family`, `bound_cross_family`,
+    `auto_pass` (list per output), `cross_pass` (ny × nu lists), `n_outside_auto`,
+    `n_outside_cross`, `ljung_box_q`, `ljung_box_p` (per output), `residuals` `(T, ny)`,
+    `whiteness_pass`/`independence_pass` (all outputs/pairs), `n_samples`, `alpha`, `max_lag`.
+    """
+    y, u, w = _check_io(model, data, "residual_tests")
+    N = y.shape[0]
+    if not isinstance(max_lag, (int, np.integer)) or isinstance(max_lag, bool) or not 1 <= max_lag < N // 2:
+        raise DataError(f"residual_tests: max_lag must be an integer in [1, {N // 2 - 1}], got {max_lag!r}")
+    if not (isinstance(alpha, (int, float)) and 0 < alpha < 1):
+        raise DataError(f"residual_tests: alpha must lie in (0, 1), got {alpha!r}")
+    x_init = _initial_state(model, data, x0, 1, y)
+    e = y - _pred(model, y, u, w, x_init, 1)
+    if not bool(jnp.all(jnp.isfinite(e))):
+        raise ModelError("residual_tests: the residuals are not finite (unstable predictor?)")
+    if bool(jnp.any(jnp.std(e, axis=0) == 0)):
+        raise DataError("residual_tests: a residual is identically constant: correlations are undefined")
+    M = int(max_lag)
+    auto, cross = correlations(e, u, M)
+    auto = np.asarray(auto)
+    cross = np.asarray(cross)
+    nd = NormalDist()
+    bound = nd.inv_cdf(1 - alpha / 2) / math.sqrt(N)
+    b_auto = nd.inv_cdf(1 - alpha / (2 * M)) / math.sqrt(N)
+    b_cross = nd.inv_cdf(1 - alpha / (2 * (2 * M + 1))) / math.sqrt(N)
+    a_abs = np.abs(auto[1:])
+    c_abs = np.abs(cross)
+    taus = np.arange(1, M + 1)
+    q = N * (N + 2) * np.sum(auto[1:] ** 2 / (N - taus)[:, None], axis=0)
+    p = np.asarray(jax.scipy.special.gammaincc(M / 2.0, jnp.asarray(q) / 2.0))
+    auto_pass = (a_abs.max(axis=0) < b_auto)
+    cross_pass = (c_abs.max(axis=0) < b_cross)
+    return {
+        "lags_auto": np.arange(M + 1), "auto": auto,
+        "lags_cross": np.arange(-M, M + 1), "cross": cross,
+        "bound": bound, "bound_auto_family": b_auto, "bound_cross_family": b_cross,
+        "auto_pass": [bool(v) for v in auto_pass],
+        "cross_pass": [[bool(v) for v in row] for row in cross_pass],
+        "n_outside_auto": [int(v) for v in (a_abs >= bound).sum(axis=0)],
+        "n_outside_cross": [[int(v) for v in row] for row in (c_abs >= bound).sum(axis=0)],
+        "ljung_box_q": [float(v) for v in q], "ljung_box_p": [float(v) for v in p],
+        "whiteness_pass": bool(auto_pass.all()), "independence_pass": bool(cross_pass.all()),
+        "residuals": np.asarray(e), "n_samples": N, "alpha": float(alpha), "max_lag": M,
+        "input_names": tuple(data.input_names), "output_names": tuple(data.output_names),
+    }
+
+
+# ---------------------------------------------------------------- frequency domain
+
+
+@eqx.filter_jit
+def _blackman_tukey(y, u, omega, M: int, ts: float):
+    y = y - jnp.mean(y, axis=0)
+    u = u - jnp.mean(u, axis=0)
+    Ryu = _xcorr(y, u, M)                            # (2M+1, ny, nu)
+    Ruu = _xcorr(u, u, M)                            # (2M+1, nu, nu)
+    tau = jnp.arange(-M, M + 1)
+    win = 0.54 + 0.46 * jnp.cos(jnp.pi * tau / M)    # Hamming lag window, zero at |tau| = M+1
+    E = jnp.exp(-1j * jnp.outer(omega * ts, tau)) * win   # (nf, 2M+1)
+    Phi_yu = jnp.einsum("ft,tij->fij", E, Ryu.astype(E.dtype))
+    Phi_uu = jnp.einsum("ft,tij->fij", E, Ruu.astype(E.dtype))
+    # G = Phi_yu Phi_uu^{-1}  ->  solve Phi_uu^T G^T = Phi_yu^T
+    Gt = jnp.linalg.solve(jnp.swapaxes(Phi_uu, 1, 2), jnp.swapaxes(Phi_yu, 1, 2))
+    return jnp.swapaxes(Gt, 1, 2)
+
+
+def spectral_estimate(data: IOData, lag_window: int | None = None, omega: ArrayLike | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Blackman–Tukey estimate of the frequency response from data (MATLAB `spa`).
+
+    $\\hat G(e^{i\\omega T_s}) = \\hat\\Phi_{yu}(\\omega) \\hat\\Phi_u(\\omega)^{-1}$ with
+    $\\hat\\Phi_{ab}(\\omega) = \\sum_{|\\tau| \\le M} W_M(\\tau) \\hat R_{ab}(\\tau) e^{-i\\omega\\tau T_s}$,
+    Hamming lag window $W_M(\\tau) = 0.54 + 0.46 \\cos(\\pi\\tau/M)$ and by default
+    $M = \\min(N/10, 30)$ (Ljung 1999, §6.4). Means are removed first.
+
+    **Arguments:** `data`; `lag_window` M; `omega` in rad/s (default: 128 frequencies up to
+    the Nyquist frequency, as `spa`).
+
+    **Returns:** `(omega (nf,), G (nf, ny, nu))`, complex G, NumPy arrays.
+    """
+    if not isinstance(data, IOData):
+        raise DataError(f"spectral_estimate: expected IOData, got {type(data).__name__}")
+    N = data.n_samples
+    M = min(N // 10, 30) if lag_window is None else lag_window
+    if not isinstance(M, (int, np.integer)) or isinstance(M, bool) or not 1 <= M < N:
+        raise DataError(f"spectral_estimate: lag window must be an integer in [1, {N - 1}], got {M!r}")
+    if omega is None:
+        omega = np.arange(1, 129) / 128 * np.pi / data.ts
+    omega = np.asarray(omega, dtype=np.float64)
+    if omega.ndim != 1 or not np.all(np.isfinite(omega)):
+        raise DataError("spectral_estimate: omega must be a 1-D array of finite frequencies in rad/s")
+    u = jnp.asarray(data.u)
+    if bool(jnp.any(jnp.std(u, axis=0) == 0)):
+        raise DataError("spectral_estimate: an input is constant: its spectrum is zero")
+    G = _blackman_tukey(jnp.asarray(data.y), u, jnp.asarray(omega), int(M), float(data.ts))
+    return omega, np.asarray(G)
+
+
+def bode(model: AbstractModel, omega: ArrayLike) -> dict:
+    """Magnitude and phase of $G(e^{i\\omega T_s})$ from `model.frequency_response`.
+
+    **Returns:** dict with `omega` (rad/s), `response` `(nf, ny, nu)` complex, `magnitude`
+    (same units as the dc gain), `magnitude_db`, `phase_deg` (unwrapped along frequency).
+    """
+    omega = np.asarray(omega, dtype=np.float64)
+    if omega.ndim != 1 or not np.all(np.isfinite(omega)) or np.any(omega < 0):
+        raise DataError("bode: omega must be a 1-D array of non-negative frequencies in rad/s")
+    G = np.asarray(model.frequency_response(jnp.asarray(omega)))
+    mag = np.abs(G)
+    with np.errstate(divide="ignore"):
+        mag_db = 20 * np.log10(mag)
+    phase = np.degrees(np.unwrap(np.angle(G), axis=0))
+    return {"omega": omega, "response": G, "magnitude": mag, "magnitude_db": mag_db,
+            "phase_deg": phase}
+
+
+# ---------------------------------------------------------------- structure
+
+
+def _pencil_zeros(A, B, C, D):
+    """Finite generalised eigenvalues of the Rosenbrock pencil $[[A, B], [C, D]] - z [[I, 0], [0, 0]]$."""
+    nx = A.shape[0]
+    M = np.block([[A, B], [C, D]])
+    Nm = np.zeros_like(M)
+    Nm[:nx, :nx] = np.eye(nx)
+    if nx == 0:
+        return np.zeros(0, complex)
+    alpha, beta = scipy.linalg.eigvals(M, Nm, homogeneous_eigvals=True)
+    scale = max(1.0, float(np.abs(M).max()))
+    tol = 1e3 * np.finfo(float).eps * scale
+    finite = np.abs(beta) > tol * np.maximum(1.0, np.abs(alpha) / scale)
+    if np.any((np.abs(alpha) < tol) & (np.abs(beta) < tol)):
+        return None   # singular pencil: e.g. a zero transfer function
+    z = alpha[finite] / beta[finite]
+    return np.sort_complex(z)
+
+
+def poles_zeros(model: AbstractModel) -> dict:
+    """Poles and zeros of the model's state space.
+
+    Transmission zeros (square systems) are the finite generalised eigenvalues of the
+    Rosenbrock system matrix pencil $\\begin{bmatrix} A - zI & B \\\\ C & D \\end{bmatrix}$
+    (Emami-Naeini & Van Dooren 1982); for non-square systems only the zeros of each SISO
+    channel $G_{ij}$ are given. Zeros of a non-minimal realisation include its decoupling zeros.
+
+    **Returns:** dict with `poles` `(nx,)`, `zeros` (transmission zeros, or None when
+    ny != nu or the pencil is singular) and `channel_zeros` (`[i][j]` zeros of $G_{ij}$;
+    None for an identically zero channel).
+    """
+    ss = model.to_statespace()
+    A, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
+    poles = np.sort_complex(np.linalg.eigvals(A))
+    zeros = _pencil_zeros(A, B, C, D) if D.shape[0] == D.shape[1] else None
+    chan = [[_pencil_zeros(A, B[:, [j]], C[[i], :], D[[i]][:, [j]]) for j in range(D.shape[1])]
+            for i in range(D.shape[0])]
+    return {"poles": poles, "zeros": zeros, "channel_zeros": chan}
+
+
+def step_info(model: AbstractModel, n: int, *, settling: float = 0.02) -> dict:
+    """Step-response characteristics per channel (MATLAB `stepinfo`).
+
+    For a unit step on input j at k = 0: the static gain $G_{ij}(1)$ (`model.dcgain`), the
+    10–90 % rise time and the time after which the response stays within `settling` (2 %) of
+    the gain, both in s, by linear interpolation between samples, and the overshoot in %.
+    Channels with zero gain, or an unstable model, give NaN times.
+
+    **Returns:** dict with `response` `(n, ny, nu)`, `t` `(n,)` s, `gain`, `rise_time`,
+    `settling_time`, `overshoot_percent` (all `(ny, nu)`), `stable`.
+    """
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 2:
+        raise DataError(f"step_info: n must be an integer >= 2, got {n!r}")
+    s = np.asarray(model.step_response(int(n)), dtype=np.float64)      # (n, ny, nu)
+    stable = bool(np.max(np.abs(np.asarray(model.poles()))) < 1.0) if model.n_states else True
+    gain = np.asarray(model.dcgain(), dtype=np.float64) if stable else s[-1]
+    ts = model.ts
+    t = ts * np.arange(n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(gain != 0, gain, np.nan)
+        r = s / g                                      # normalised: tends to 1
+    ny, nu = gain.shape
+    rise = np.full((ny, nu), np.nan)
+    settle = np.full((ny, nu), np.nan)
+    over = np.full((ny, nu), np.nan)
+
+    def crossing(x, level):
+        idx = np.flatnonzero(x >= level)
+        if idx.size == 0:
+            return np.nan
+        k = int(idx[0])
+        if k == 0:
+            return 0.0
+        return ts * (k - 1 + (level - x[k - 1]) / (x[k] - x[k - 1]))
+
+    for i in range(ny):
+        for j in range(nu):
+            x = r[:, i, j]
+            if not stable or not np.all(np.isfinite(x)):
+                continue
+            rise[i, j] = crossing(x, 0.9) - crossing(x, 0.1)
+            out = np.flatnonzero(np.abs(x - 1.0) > settling)
+            if out.size == 0:
+                settle[i, j] = 0.0
+            elif out[-1] < n - 1:
+                settle[i, j] = t[out[-1] + 1]
+            over[i, j] = max(0.0, 100.0 * (float(np.max(x)) - 1.0))
+    return {"response": s, "t": t, "gain": gain, "rise_time": rise, "settling_time": settle,
+            "overshoot_percent": over, "stable": stable}
+
+
+def rga(G: ArrayLike) -> Float[Array, "n n"]:
+    """Relative gain array $\\Lambda = G \\circ (G^{-1})^T$ (Bristol 1966).
+
+    For a 2×2 plant $\\lambda_{11} = 1/(1 - g_{12} g_{21}/(g_{11} g_{22}))$; rows and columns
+    sum to 1. Pairings with $\\lambda_{ii}$ near 1 interact little.
+    """
+    G = jnp.asarray(G)
+    if G.ndim != 2 or G.shape[0] != G.shape[1] or G.shape[0] == 0:
+        raise ModelError(f"rga: G must be a square matrix, got shape {G.shape}")
+    if not _traced(G):
+        Gn = np.asarray(G)
+        if not np.all(np.isfinite(Gn)):
+            raise ModelError("rga: G has non-finite entries")
+        if np.linalg.cond(Gn) > 1.0 / (1e3 * np.finfo(Gn.dtype).eps):
+            raise ModelError("rga: G is singular: the relative gain array is undefined")
+    return G * jnp.linalg.inv(G).T
+
+
+def steady_state_rga(model: AbstractModel) -> Float[Array, "n n"]:
+    """RGA of the static gain `model.dcgain()` (thesis §3.4: pairing of heaters and sensors)."""
+    if model.n_inputs != model.n_outputs:
+        raise ModelError(f"steady_state_rga: needs as many inputs as outputs, got {model.n_inputs} "
+                         f"inputs and {model.n_outputs} outputs")
+    return rga(model.dcgain())
+
+
+# ---------------------------------------------------------------- order selection
+
+
+def information_criteria(cost: ArrayLike, n_params: ArrayLike, n_samples: int) -> dict:
+    """Akaike's FPE and AIC and the Bayesian IC from the loss $V$ (Ljung 1999, §16.4).
+
+    $\\mathrm{FPE} = V (1 + d/N)/(1 - d/N)$, $\\mathrm{AIC} = N \\ln V + 2d$,
+    $\\mathrm{BIC} = N \\ln V + d \\ln N$, with d parameters and N samples. For several outputs
+    pass $V = \\det \\hat\\Sigma_\\varepsilon$ (or a `(..., ny, ny)` residual covariance, whose
+    determinant is taken). Broadcasts over a grid of candidates: smaller is better.
+
+    **Returns:** dict with `fpe`, `aic`, `bic` (arrays of the broadcast shape).
+    """
+    V = jnp.asarray(cost)
+    if V.ndim >= 2 and V.shape[-1] == V.shape[-2] and V.shape[-1] > 1:
+        V = jnp.linalg.det(V)
+    d = jnp.asarray(n_params)
+    if not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise DataError(f"information_criteria: n_samples must be a positive integer, got {n_samples!r}")
+    N = float(n_samples)
+    if not _traced(V) and not _traced(d):
+        if not bool(jnp.all(V > 0)) or not bool(jnp.all(jnp.isfinite(V))):
+            raise DataError("information_criteria: the loss V must be positive and finite")
+        if bool(jnp.any(d < 0)) or bool(jnp.any(d >= N)):
+            raise DataError(f"information_criteria: the number of parameters must lie in [0, {n_samples})")
+    logV = jnp.log(V)
+    return {"fpe": V * (1 + d / N) / (1 - d / N), "aic": N * logV + 2 * d,
+            "bic": N * logV + d * math.log(N)}

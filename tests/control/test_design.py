@@ -1,0 +1,102 @@
+import numpy as np
+import pytest
+
+from jthermo.control import (FAMILIES, decoupling_matrix, design, fit_step_model, lambda_gains,
+                             needs_decoupling, rga, step_models)
+from jthermo.control.design import StepModel, zeros_stable
+from jthermo.errors import ControlError
+from jthermo.models import StateSpace
+
+from .loop import bed_plant
+
+
+def test_step_model_exact_for_first_order():
+    T, K, L = 12.0, 3.0, 0.0
+    t = np.arange(400.0)
+    s = K * (1 - np.exp(-t / T))
+    k, lag, tc = fit_step_model(s, 1.0)
+    assert k == pytest.approx(K, rel=1e-6)
+    assert tc == pytest.approx(T, rel=0.02)
+    assert lag == pytest.approx(L, abs=0.3)
+
+
+def test_step_model_with_delay():
+    t = np.arange(600.0)
+    s = 2.0 * (1 - np.exp(-np.clip(t - 5.0, 0, None) / 20.0))
+    k, lag, tc = fit_step_model(s, 1.0)
+    assert tc == pytest.approx(20.0, rel=0.03) and lag == pytest.approx(5.0, abs=0.5)
+
+
+def test_lambda_rule():
+    kp, ti = lambda_gains(StepModel(np.array([2.0]), np.array([1.0]), np.array([10.0])), lam=4.0)
+    assert kp[0] == pytest.approx(10.0 / (2.0 * 5.0)) and ti[0] == 10.0
+
+
+def test_step_models_of_discrete_first_order():
+    a = 0.9
+    ss = StateSpace(np.array([[a]]), np.array([[1 - a]]), np.eye(1))
+    sm = step_models(ss)
+    assert sm.K[0] == pytest.approx(1.0, rel=1e-6)
+    # ZOH first order: T = -Ts/ln(a) up to the half-sample lag of sampling
+    assert sm.T[0] + sm.L[0] == pytest.approx(-1 / np.log(a), rel=0.1)
+
+
+def test_rga_and_decision():
+    assert np.allclose(rga(np.eye(3)), np.eye(3))
+    G = np.array([[1.0, 0.9], [0.9, 1.0]])
+    lam = rga(G)
+    assert np.allclose(lam.sum(0), 1) and np.allclose(lam.sum(1), 1)
+    assert lam[0, 0] == pytest.approx(1 / (1 - 0.81))
+    weak = StateSpace(0.9 * np.eye(2), 0.1 * np.eye(2) + 0.001, np.eye(2))
+    strong = StateSpace(0.9 * np.eye(2), 0.1 * G, np.eye(2))
+    assert not needs_decoupling(weak) and needs_decoupling(strong)
+    with pytest.raises(ControlError, match="singular"):
+        rga(np.ones((2, 2)))
+
+
+@pytest.mark.parametrize("kind", ["CB", "G0"])
+def test_decoupling_diagonalises(kind):
+    plant = bed_plant(3)
+    W1 = decoupling_matrix(plant, kind)
+    M = np.asarray(plant.C @ plant.B) if kind == "CB" else np.asarray(plant.dcgain())
+    assert np.allclose(M @ W1, np.eye(3), atol=1e-10)
+    # the loop gain G(0) W1 Fdiag(0) at steady state is diagonal for G0 decoupling
+    if kind == "G0":
+        L = np.asarray(plant.dcgain()) @ W1 @ np.diag([2.0, 3.0, 4.0])
+        assert np.allclose(L - np.diag(np.diag(L)), 0, atol=1e-10)
+    with pytest.raises(ControlError, match="kind must be"):
+        decoupling_matrix(plant, "bad")
+
+
+def test_design_errors():
+    plant = bed_plant(2)
+    with pytest.raises(ControlError, match="unknown controller family"):
+        design("nope", plant)
+    with pytest.raises(ControlError, match="unstable"):
+        design("pi_lambda", StateSpace(1.01 * np.eye(2), np.eye(2), np.eye(2)))
+    with pytest.raises(ControlError, match="positive gain"):
+        design("pi_lambda", StateSpace(0.9 * np.eye(1), -np.eye(1), np.eye(1)))
+    with pytest.raises(ControlError, match="lambda must be positive"):
+        design("pi_lambda", plant, lam=-1.0)
+    with pytest.raises(ControlError, match="kind must be"):
+        design("feedforward", plant, kind="nope")
+    with pytest.raises(ControlError, match="design: expected a jthermo model"):
+        design("imc", np.eye(2))
+
+
+def test_zeros_check():
+    assert zeros_stable(bed_plant(3))
+    # y = C x with a non-minimum-phase zero: two first-order paths of opposite sign
+    A = np.diag([0.5, 0.95])
+    B = np.array([[1.0], [0.2]])
+    C = np.array([[1.0, -1.0]])   # zero at z = ... outside the unit circle
+    ss = StateSpace(A, B, C)
+    num_zero = (A[0, 0] * B[1, 0] * C[0, 1] + A[1, 1] * B[0, 0] * C[0, 0]) / (B[0, 0] + B[1, 0] * C[0, 1])
+    assert zeros_stable(ss) == (abs(num_zero) < 0.98)
+
+
+def test_every_family_designs():
+    plant = bed_plant(3)
+    for fam in FAMILIES:
+        c = design(fam, plant)
+        assert c is not None
