@@ -13,11 +13,11 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from jthermo import StateSpace, validate  # noqa: E402
-from jthermo.data import from_arrays  # noqa: E402
-from jthermo.inputs import prbs  # noqa: E402
+from jthermo import StateSpace, validate
+from jthermo.data import from_arrays
+from jthermo.inputs import prbs
 
 
 def main(N=4, T=6000, seed=0):

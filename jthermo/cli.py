@@ -314,10 +314,10 @@ def write_json(path: Path | None, report: dict) -> None:
     atomic_write_text(path, json.dumps(jsonable(report), indent=2, allow_nan=False) + "\n")
 
 
-def _progress(args, desc: str):
+def _progress(args, desc: str, total: int | None = None):
     from .progress import Progress
 
-    return Progress(None, desc, quiet=True if args.quiet else None)
+    return Progress(total, desc, quiet=True if args.quiet else None)
 
 
 def _plot_dir(args) -> Path | None:
@@ -476,20 +476,30 @@ def cmd_simulate(args) -> dict:
         controller = io.load_controller(args.controller_file)
     plant, plant_desc = _plant(args)
     cl = _require("jthermo.closedloop", "closed-loop simulation")
-    if isinstance(controller, str):
+    if isinstance(controller, str) and controller not in ("untuned",):
         design = _require("jthermo.control.design", "controller design")
         if controller not in design.FAMILIES:
             raise _err()(f"--controller: unknown family {controller!r}; choose one of "
-                         + ", ".join(design.FAMILIES))
-    kwargs: dict[str, Any] = dict(rollouts=args.rollouts, duration=args.duration, seed=args.seed)
-    if plant == "printer":
-        kwargs["zones"] = args.zones
-        if args.powder is not None:
-            kwargs["powder"] = args.powder
+                         + ", ".join(("untuned",) + tuple(design.FAMILIES)))
     t0 = time.perf_counter()
+    if plant == "printer":
+        from .printer import make_printer
+
+        plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
+                             powder=args.powder or "PA12", seed=args.seed)
+    if isinstance(controller, str) and controller != "untuned":
+        from .control.design import design as _design
+        from .models._base import AbstractModel
+
+        model = plant if isinstance(plant, AbstractModel) else _require(
+            "jthermo.tune", "the printer's design model").printer_model(plant)
+        controller = _design(controller, model)
+    kwargs: dict[str, Any] = dict(rollouts=args.rollouts, duration=args.duration, seed=args.seed)
     out = cl.run(args.scenario, controller, plant, **_accepted(cl.run, kwargs))
     seconds = time.perf_counter() - t0
     traj = out.pop("trajectory", None) if isinstance(out, dict) else None
+    if plot is not None and traj is None:
+        traj = _one_trajectory(cl, args.scenario, controller, plant, args.duration, args.seed)
     report = {"scenario": args.scenario,
               "controller": args.controller or str(args.controller_file),
               "plant": plant_desc, "zones": out.get("zones", args.zones), "rollouts": args.rollouts,
@@ -508,6 +518,19 @@ def cmd_simulate(args) -> dict:
     _info(args, f"{args.scenario} / {report['controller']}: "
                 + _summary_line(metrics, list(metrics)[:6]))
     return report
+
+
+def _one_trajectory(cl, kind, controller, plant, duration, seed) -> dict:
+    """The first rollout of a scenario, for figures: `t, y, u, r` as NumPy arrays."""
+    import jax
+    import numpy as np
+
+    if isinstance(controller, str):
+        controller = cl._controller_from(controller, cl._n_outputs(plant), plant.ts)
+    sc = cl.make_scenario(kind, plant, duration, jax.random.key(int(seed)))
+    tr = cl.simulate(plant, controller, sc)
+    return {"t": np.arange(sc.n_samples) * sc.ts, "y": np.asarray(tr.y), "u": np.asarray(tr.u),
+            "r": np.asarray(tr.r)}
 
 
 def _accepted(fn, kwargs: dict) -> dict:
@@ -566,7 +589,7 @@ def cmd_tune(args) -> dict:
     if args.controller not in design.FAMILIES:
         raise _err()(f"--controller: unknown family {args.controller!r}; choose one of "
                      + ", ".join(design.FAMILIES))
-    bar = _progress(args, f"tune {args.controller}")
+    bar = _progress(args, f"tune {args.controller}", total=args.steps)
     t0 = time.perf_counter()
     try:
         rep = tune.tune_report(args.controller, plant=plant, model=model, rollouts=args.rollouts,
@@ -609,6 +632,8 @@ def cmd_diagnose(args) -> dict:
     diag = _require("jthermo.diagnose", "diagnosis")
     if not hasattr(diag, "diagnose"):
         raise _err()("diagnosis is not available in this jthermo build")
+    if args.report is not None and not hasattr(diag, "write_report"):
+        raise _err()("--report: the diagnosis report writer is not available in this jthermo build")
     bar = _progress(args, "diagnose")
     t0 = time.perf_counter()
     try:
@@ -618,8 +643,11 @@ def cmd_diagnose(args) -> dict:
     result = dict(result)
     result.setdefault("seconds", time.perf_counter() - t0)
     if args.report is not None:
-        diag.write_report(result, args.report, est, val)
-        result["report"] = str(Path(args.report) / "report.md")
+        written = diag.write_report(result, args.report, est, val)
+        result["report"] = str(written) if written is not None else str(Path(args.report) / "report.md")
+    if hasattr(diag, "to_json"):
+        result = diag.to_json(result)
+    result = {k: v for k, v in result.items() if not str(k).startswith("_")}
     write_json(js, result)
     names = [f.get("mechanism") for f in result.get("findings", [])]
     _info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))

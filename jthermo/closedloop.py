@@ -297,18 +297,23 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
     if T < 2:
         raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
 
+    keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
+    r, d, v, y0 = _build_scenario(kind, printer, model, T, keys, float(noise_std),
+                                  float(step_c), n_rollouts is not None)
+    return Scenario(r=r, d=d, v=v, y0=y0, kind=kind, window=float(window),
+                    edges=grid_edges(printer.zones), ts=printer.ts,
+                    cold_start=(kind == "preheat"))
+
+
+@eqx.filter_jit
+def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched):
     def one(k):
         r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c)
         if model is not None:
             d = _model_disturbance(model, printer, d)
         return r, d, v, y0
 
-    build = eqx.filter_jit(one if n_rollouts is None else jax.vmap(one))
-    keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
-    r, d, v, y0 = build(keys)
-    return Scenario(r=r, d=d, v=v, y0=y0, kind=kind, window=float(window),
-                    edges=grid_edges(printer.zones), ts=printer.ts,
-                    cold_start=(kind == "preheat"))
+    return jax.vmap(one)(keys) if batched else one(keys)
 
 
 def _model_disturbance(model: AbstractModel, printer: Printer, d: PrinterDisturbance):
@@ -469,8 +474,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     if n_ctrl is not None and n_ctrl != ny:
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
     sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)), n_rollouts=int(rollouts))
-    sim = eqx.filter_jit(lambda pl, c, s: rollouts_and_cost(pl, c, s))
-    traj, J = sim(plant, ctrl, sc)
+    traj, J = _rollouts_and_cost(plant, ctrl, sc)
     m = metrics(traj, sc)
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
             else controller, "zones": int(getattr(plant, "zones", ny)), "rollouts": int(rollouts),
@@ -481,3 +485,6 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
     traj = rollouts(plant, controller, scenarios)
     return traj, cost(traj, scenarios, weights)
+
+
+_rollouts_and_cost = eqx.filter_jit(rollouts_and_cost)

@@ -113,9 +113,9 @@ def prbs(key_or_seed, n_samples: int, n_channels: int = 1, *,
     return _prbs(key, int(n_samples), int(n_channels), h_min, h_max, lo, hi)
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4))
+@functools.partial(jax.jit, static_argnums=(1, 2))
 def _prbs(key, T, n, h_min, h_max, lo, hi):
-    n_holds = T // h_min + 1     # enough holds to cover T samples
+    n_holds = T + 1              # enough holds to cover T samples for any h_min >= 1
 
     def one(k):
         k_start, k_hold = jax.random.split(k)

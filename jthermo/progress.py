@@ -105,12 +105,18 @@ class Progress:
     def __call__(self, i: int | str, total: int | None = None, info: dict | None = None) -> None:
         """The callback form: `i` iterations of `total` are done, with `info` to display.
 
-        A one-line status string in place of `i` is shown as the bar's description."""
+        A one-line status string in place of `i` is shown as the bar's description, and the
+        `(i, value)` form (iteration `i`, 0-based, ended with a cost `value`) is accepted too."""
         if isinstance(i, str):
             self.info["status"] = i
             if self._bar is not None:
                 self._bar.set_description_str(f"{self.desc}: {i}" if self.desc else i)
             return
+        if total is not None and (isinstance(total, bool) or not isinstance(total, int)):
+            # the `(i, value)` form (e.g. tuning's `progress(i, cost)`): iteration i, 0-based
+            info = {"cost": total, **(info or {})}
+            total = None
+            i = int(i) + 1
         if total is not None and total != self.total:
             self.total = total
             if self._bar is not None:

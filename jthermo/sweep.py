@@ -431,12 +431,31 @@ def format_summary(best: list[dict], cfg: dict, total: int | None = None) -> str
 # ---------------------------------------------------------------- execution
 
 
+def _probe(address: str, timeout: float = 5.0) -> None:
+    """Fail fast (instead of Ray's long retry loop) when nothing listens at `host:port`."""
+    import socket
+
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    try:
+        port_n = int(port)
+    except ValueError:
+        raise ConfigError(f"--ray {address}: expected host:port, 'local' or 'auto'") from None
+    try:
+        with socket.create_connection((host or "127.0.0.1", port_n), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"--ray {address}: cannot connect ({exc.strerror or type(exc).__name__})") from None
+
+
 def _ray_run(kind, todo, settings, address, on_done):
     try:
         import ray
     except ImportError:
         raise ConfigError("--ray: the `ray` package is not installed (pip install 'jthermo[ray]')") from None
     started_here = False
+    if not ray.is_initialized() and address not in (None, "", "local", "auto"):
+        _probe(address)
     if not ray.is_initialized():
         try:
             if address in (None, "", "local"):

@@ -179,19 +179,21 @@ def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float =
 
 
 def batch_cost(controller, batch, weights=None):
-    """Mean closed-loop cost (`closedloop.cost`) over every `(plant, kind, scenarios)` of a
-    batch: the quantity `tune` minimises."""
+    """Mean closed-loop cost (`closedloop.cost`) over every `(plant, kind, scenarios[, scale])`
+    of a batch, each divided by its `scale` (default 1): the quantity `tune` minimises."""
     from .closedloop import cost, rollouts
 
     total = 0.0
-    for plant, _, sc in batch:
-        total = total + cost(rollouts(plant, controller, sc), sc, weights)
+    for item in batch:
+        plant, _, sc = item[:3]
+        scale = item[3] if len(item) > 3 else 1.0
+        total = total + cost(rollouts(plant, controller, sc), sc, weights) / scale
     return total / len(batch)
 
 
 def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=None,
          rollouts: int = 8, steps: int = 100, lr: float = 0.05, weights=None, seed: int = 0,
-         plants=None, duration: float = DURATION, n_batches: int = 1,
+         plants=None, duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -207,6 +209,9 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       (as `make_batches` returns) instead.
     - `rollouts`, `duration` (s), `n_batches`: size of the training set, drawn from `seed`.
     - `steps`, `lr`: Adam iterations and learning rate; `weights`: `closedloop.cost` weights.
+    - `normalise`: divide each scenario's cost by the starting controller's cost on it, so that
+      every scenario (and plant) counts by its relative improvement: a gain in one scenario
+      cannot buy a loss in another cheaply. Costs in the result are then relative (start = 1).
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (the best finite iterate on the training batches).
@@ -216,8 +221,19 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         raise ControlError("tune: empty plant ensemble")
     batches = scenarios if scenarios is not None else make_batches(
         pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches)
+    if normalise:
+        batches = [[(p, k, sc, jax.lax.stop_gradient(_simulate_cost(p, controller, sc, weights)[1]))
+                    for p, k, sc, *_ in batch] for batch in batches]
     return minimise(lambda c, b: batch_cost(c, b, weights), controller, batches, steps=steps,
                     lr=lr, progress=progress)
+
+
+@eqx.filter_jit
+def _simulate_cost(plant, controller, scenarios, weights):
+    from .closedloop import cost, rollouts
+
+    traj = rollouts(plant, controller, scenarios)
+    return traj, cost(traj, scenarios, weights)
 
 
 def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_OUT,), *,
@@ -227,17 +243,15 @@ def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_
 
     **Returns:** `{"cost": mean over scenarios, "scenarios": {kind: {"cost", "mse", ...}}}`.
     """
-    from .closedloop import cost, make_scenario, metrics, rollouts as run_rollouts
+    from .closedloop import make_scenario, metrics
 
-    sim = eqx.filter_jit(lambda p, c, s: (lambda tr: (tr, cost(tr, s, weights)))(
-        run_rollouts(p, c, s)))
     out = {}
     for k in _kinds(kind):
         costs, mets = [], []
         for s in seeds:
             sc = make_scenario(k, plant, duration, jax.random.key(int(s)),
                                n_rollouts=int(rollouts))
-            traj, J = sim(plant, controller, sc)
+            traj, J = _simulate_cost(plant, controller, sc, weights)
             costs.append(float(J))
             mets.append(metrics(traj, sc))
         m = {name: float(np.mean([d[name] for d in mets])) for name in mets[0]}
@@ -270,3 +284,67 @@ def printer_model(printer):
     if C is None:
         raise ControlError("printer_model: printers with areas 1–3 are not supported here")
     return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=printer.output(x0))
+
+
+def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
+    from .closedloop import REALISTIC_EFFECTS
+    from .models._base import AbstractModel
+    from .printer import Printer, make_printer
+
+    if isinstance(plant, str):
+        if plant != "printer":
+            raise ControlError(f"tune: unknown plant {plant!r} (use 'printer' or pass a plant)")
+        return make_printer(zones, REALISTIC_EFFECTS, powder=powder, seed=plant_seed)
+    if isinstance(plant, (Printer, AbstractModel)):
+        return plant
+    raise ControlError(f"tune: unsupported plant {type(plant).__name__}")
+
+
+def tune_report(controller_family: str, *, plant="printer", model=None, rollouts: int = 8,
+                steps: int = 200, seed: int = 0, lr: float = 0.05, zones: int = 4,
+                powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
+                eval_rollouts: int | None = None, weights=None,
+                progress: Callable[[int, float], None] | None = None) -> dict:
+    """Tune one controller family against the virtual printer and report on held-out seeds.
+
+    Starts from the classical design of `controller_family` (see `control.design`) on `model`
+    (default: the printer linearised at the window centre, `printer_model`), tunes it on
+    disturbance seeds drawn from `seed`, and evaluates start, tuned and the lambda-tuned
+    diagonal PI on the held-out seed `seed + HELD_OUT` in the three scenarios.
+
+    **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
+    `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `scenarios`
+    (per-scenario MSE and cost before/after, and of the lambda PI), `history`, `seconds`, and
+    the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
+    """
+    from .control.design import design
+    from .models._base import AbstractModel
+
+    t0 = time.perf_counter()
+    pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
+    if model is None:
+        model = pl if isinstance(pl, AbstractModel) else printer_model(pl)
+    start = design(controller_family, model)
+    lam_pi = design("pi_lambda", model)
+    res = tune(start, pl, rollouts=rollouts, steps=steps, lr=lr, seed=seed, duration=duration,
+               weights=weights, progress=progress)
+    seeds = (int(seed) + HELD_OUT,)
+    er = eval_rollouts or rollouts
+    ev = {name: evaluate(c, pl, SCENARIOS, seeds, rollouts=er, duration=duration,
+                         weights=weights)
+          for name, c in (("start", start), ("tuned", res.controller), ("lambda_pi", lam_pi))}
+    scen = {k: {"mse_before": ev["start"]["scenarios"][k]["mse"],
+                "mse_after": ev["tuned"]["scenarios"][k]["mse"],
+                "mse_lambda_pi": ev["lambda_pi"]["scenarios"][k]["mse"],
+                "cost_before": ev["start"]["scenarios"][k]["cost"],
+                "cost_after": ev["tuned"]["scenarios"][k]["cost"],
+                "cost_lambda_pi": ev["lambda_pi"]["scenarios"][k]["cost"]} for k in SCENARIOS}
+    tuned, lam_c = ev["tuned"]["cost"], ev["lambda_pi"]["cost"]
+    return {"controller": controller_family, "start_cost": ev["start"]["cost"],
+            "tuned_cost": tuned, "lambda_pi_cost": lam_c,
+            "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen,
+            "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
+            "history": [float(h) for h in res.history], "rollouts": int(rollouts),
+            "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds),
+            "duration": float(duration), "zones": int(getattr(pl, "zones", 0) or 0),
+            "powder": powder, "seconds": time.perf_counter() - t0, "tuned": res.controller}

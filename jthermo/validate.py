@@ -123,7 +123,11 @@ def _ls_initial_state(model, y, u, w, x_ref, k):
     scale = jnp.where(scale > 0, scale, 1.0)
     On = O / scale
     dx = jnp.linalg.lstsq(On.T @ On, On.T @ rhs)[0] / scale
-    return x_ref + dx
+    y_lin = y_ref + (O @ dx).reshape(n, ny)          # the prediction of the affine model
+    return x_ref + dx, y_lin
+
+
+_GAUSS_NEWTON_STEPS = 8
 
 
 def estimate_initial_state(model: AbstractModel, data: IOData, n: int | None = None, *,
@@ -133,7 +137,8 @@ def estimate_initial_state(model: AbstractModel, data: IOData, n: int | None = N
     The model's output is affine in the initial state, $y = \\mathcal{O} x_0 + G u$, so
     $\\hat x_0 = \\arg\\min \\lVert y - \\mathcal{O} x_0 - G u \\rVert$ with $\\mathcal{O}$ taken
     as the Jacobian of the simulation (or of the k-step predictor, for `k` an int). For a
-    nonlinear model the estimate is kept only if it simulates the first `n` samples better than
+    nonlinear model (the output is not what the affine fit predicted) a few Gauss–Newton steps
+    follow, and the estimate is kept only if it simulates the first `n` samples better than
     `model.initial_state(y[0])`, the steady state consistent with the first measurement.
     """
     y, u, w = _check_io(model, data, "estimate_initial_state")
@@ -144,10 +149,22 @@ def estimate_initial_state(model: AbstractModel, data: IOData, n: int | None = N
     ys, us = y[:n], u[:n]
     ws = None if w is None else w[:n]
     x_fallback = model.initial_state(y[0])
-    x_ls = _ls_initial_state(model, ys, us, ws, jnp.zeros_like(x_fallback), k)
+    x_ls, y_lin = _ls_initial_state(model, ys, us, ws, jnp.zeros_like(x_fallback), k)
     if not bool(jnp.all(jnp.isfinite(x_ls))):
         return x_fallback
-    e_ls = jnp.sum((ys - _response(model, ys, us, ws, x_ls, k)) ** 2)
+    y_ls = _response(model, ys, us, ws, x_ls, k)
+    e_ls = jnp.sum((ys - y_ls) ** 2)
+    tol = math.sqrt(float(jnp.finfo(ys.dtype).eps)) * (1.0 + jnp.max(jnp.abs(ys)))
+    if not bool(jnp.max(jnp.abs(y_ls - y_lin)) <= tol):
+        # not affine in x0: a few Gauss-Newton steps, each kept only while it helps
+        for _ in range(_GAUSS_NEWTON_STEPS):
+            x_new, _ = _ls_initial_state(model, ys, us, ws, x_ls, k)
+            if not bool(jnp.all(jnp.isfinite(x_new))):
+                break
+            e_new = jnp.sum((ys - _response(model, ys, us, ws, x_new, k)) ** 2)
+            if not bool(e_new < e_ls):
+                break
+            x_ls, e_ls = x_new, e_new
     e_fb = jnp.sum((ys - _response(model, ys, us, ws, x_fallback, k)) ** 2)
     return x_ls if bool(e_ls <= e_fb) else x_fallback
 
@@ -255,6 +272,8 @@ def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha:
         raise ModelError("residual_tests: the residuals are not finite (unstable predictor?)")
     if bool(jnp.any(jnp.std(e, axis=0) == 0)):
         raise DataError("residual_tests: a residual is identically constant: correlations are undefined")
+    if bool(jnp.any(jnp.std(u, axis=0) == 0)):
+        raise DataError("residual_tests: an input is constant: its cross-correlation is undefined")
     M = int(max_lag)
     auto, cross = correlations(e, u, M)
     auto = np.asarray(auto)
@@ -288,14 +307,18 @@ def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha:
 # ---------------------------------------------------------------- frequency domain
 
 
+_LAG_WINDOWS = {"hamming": (0.54, 0.46), "hann": (0.5, 0.5)}
+
+
 @eqx.filter_jit
-def _blackman_tukey(y, u, omega, M: int, ts: float):
+def _blackman_tukey(y, u, omega, M: int, ts: float, window: str):
     y = y - jnp.mean(y, axis=0)
     u = u - jnp.mean(u, axis=0)
     Ryu = _xcorr(y, u, M)                            # (2M+1, ny, nu)
     Ruu = _xcorr(u, u, M)                            # (2M+1, nu, nu)
     tau = jnp.arange(-M, M + 1)
-    win = 0.54 + 0.46 * jnp.cos(jnp.pi * tau / M)    # Hamming lag window, zero at |tau| = M+1
+    a0, a1 = _LAG_WINDOWS[window]
+    win = a0 + a1 * jnp.cos(jnp.pi * tau / M)        # raised-cosine lag window over |tau| <= M
     E = jnp.exp(-1j * jnp.outer(omega * ts, tau)) * win   # (nf, 2M+1)
     Phi_yu = jnp.einsum("ft,tij->fij", E, Ryu.astype(E.dtype))
     Phi_uu = jnp.einsum("ft,tij->fij", E, Ruu.astype(E.dtype))
@@ -304,8 +327,8 @@ def _blackman_tukey(y, u, omega, M: int, ts: float):
     return jnp.swapaxes(Gt, 1, 2)
 
 
-def spectral_estimate(data: IOData, lag_window: int | None = None, omega: ArrayLike | None = None
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def spectral_estimate(data: IOData, lag_window: int | None = None, omega: ArrayLike | None = None,
+                      *, window: str = "hamming") -> tuple[np.ndarray, np.ndarray]:
     """Blackman–Tukey estimate of the frequency response from data (MATLAB `spa`).
 
     $\\hat G(e^{i\\omega T_s}) = \\hat\\Phi_{yu}(\\omega) \\hat\\Phi_u(\\omega)^{-1}$ with
@@ -314,7 +337,8 @@ def spectral_estimate(data: IOData, lag_window: int | None = None, omega: ArrayL
     $M = \\min(N/10, 30)$ (Ljung 1999, §6.4). Means are removed first.
 
     **Arguments:** `data`; `lag_window` M; `omega` in rad/s (default: 128 frequencies up to
-    the Nyquist frequency, as `spa`).
+    the Nyquist frequency, as `spa`); `window` `"hamming"` or `"hann"`
+    ($W_M = 0.5 + 0.5\\cos(\\pi\\tau/M)$, the window MATLAB's `spa` uses).
 
     **Returns:** `(omega (nf,), G (nf, ny, nu))`, complex G, NumPy arrays.
     """
@@ -332,8 +356,13 @@ def spectral_estimate(data: IOData, lag_window: int | None = None, omega: ArrayL
     u = jnp.asarray(data.u)
     if bool(jnp.any(jnp.std(u, axis=0) == 0)):
         raise DataError("spectral_estimate: an input is constant: its spectrum is zero")
-    G = _blackman_tukey(jnp.asarray(data.y), u, jnp.asarray(omega), int(M), float(data.ts))
-    return omega, np.asarray(G)
+    if window not in _LAG_WINDOWS:
+        raise DataError(f"spectral_estimate: window must be 'hamming' or 'hann', got {window!r}")
+    G = np.asarray(_blackman_tukey(jnp.asarray(data.y), u, jnp.asarray(omega), int(M),
+                                   float(data.ts), window))
+    if not np.all(np.isfinite(G)):
+        raise DataError("spectral_estimate: the input spectrum is singular (inputs linearly dependent?)")
+    return omega, G
 
 
 def bode(model: AbstractModel, omega: ArrayLike) -> dict:

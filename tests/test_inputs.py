@@ -15,31 +15,31 @@ def _runs(col):
 
 
 def test_prbs_levels_shape_and_crest():
-    u = np.asarray(prbs(0, 600, 3, levels=(0.2, 0.9)))
-    assert u.shape == (600, 3)
+    u = np.asarray(prbs(0, 1200, 2, levels=(0.2, 0.9)))
+    assert u.shape == (1200, 2)
     assert set(np.unique(u)) == {0.2, 0.9}
     np.testing.assert_allclose(np.asarray(crest_factor(u)), 1.0, rtol=1e-12)
     np.testing.assert_allclose(float(crest_factor(u[:, 0], centre=0.55)), 1.0, rtol=1e-12)
 
 
 def test_prbs_deterministic_and_independent(getkey):
-    a = np.asarray(prbs(7, 500, 2))
-    b = np.asarray(prbs(7, 500, 2))
-    c = np.asarray(prbs(8, 500, 2))
+    a = np.asarray(prbs(7, 1200, 2))
+    b = np.asarray(prbs(7, 1200, 2))
+    c = np.asarray(prbs(8, 1200, 2))
     np.testing.assert_array_equal(a, b)
     assert np.any(a != c)
     assert np.any(a[:, 0] != a[:, 1])              # channels are generated independently
     k = getkey()
-    np.testing.assert_array_equal(np.asarray(prbs(k, 100, 2)), np.asarray(prbs(k, 100, 2)))
+    np.testing.assert_array_equal(np.asarray(prbs(k, 1200, 2)), np.asarray(prbs(k, 1200, 2)))
     # channel correlation is small: independent signals
     d = a - a.mean(0)
     rho = (d[:, 0] @ d[:, 1]) / np.sqrt((d[:, 0] @ d[:, 0]) * (d[:, 1] @ d[:, 1]))
-    assert abs(rho) < 5 / np.sqrt(500 / 9)           # ~5 sigma with ~9-sample holds
+    assert abs(rho) < 5 / np.sqrt(1200 / 9)           # ~5 sigma with ~9-sample holds
 
 
 @pytest.mark.parametrize("hold", [(3, 15), (2, 2), (5, 40)])
 def test_prbs_hold_lengths(hold):
-    u = np.asarray(prbs(3, 2000, 2, hold=hold))
+    u = np.asarray(prbs(3, 1200, 2, hold=hold))
     for j in range(2):
         runs = _runs(u[:, j])[:-1]                 # the last run is cut by the record's end
         assert runs.min() >= hold[0] and runs.max() <= hold[1]
@@ -48,7 +48,7 @@ def test_prbs_hold_lengths(hold):
 def test_prbs_band_maps_to_holds():
     assert hold_from_band((0.01, 0.1), ts=1.0) == (5, 50)
     assert hold_from_band((0.02, 0.5), ts=1.0) == (1, 25)
-    u = np.asarray(prbs(1, 3000, 1, band=(0.01, 0.1)))
+    u = np.asarray(prbs(1, 1200, 2, band=(0.01, 0.1)))
     runs = _runs(u[:, 0])[:-1]
     assert runs.min() >= 5 and runs.max() <= 50
     # the power lies mostly at and below the band's top

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jthermo import StateSpace
+from jthermo import AbstractModel, StateSpace
 from jthermo import validate as V
 from jthermo.data import from_arrays
 from jthermo.errors import DataError, ModelError
@@ -146,25 +146,40 @@ def test_correlations_match_numpy():
 
 
 def test_spectral_estimate_agrees_at_low_frequency():
-    # fast SISO system, white binary input: the lag window's bias is small, and the
-    # estimate's std is ~ sqrt(0.75 M/N * Phi_v / Phi_u) (Hamming window, Ljung 1999 §6.4)
-    N, M, sv = 4000, 30, 0.1
+    # SISO g_k = 0.5^(k-1), white binary input (Phi_u = 1), white noise of std sv.
+    N, M, sv = 8000, 30, 0.2
     m = StateSpace([[0.5]], [[1.0]], [[1.0]], ts=1.0)
     rng = np.random.default_rng(6)
     u = rng.choice([-1.0, 1.0], size=(N, 1))
-    y = np.asarray(m.simulate(u)) + sv * rng.standard_normal((N, 1))
+    y_clean = np.asarray(m.simulate(u))
+    y = y_clean + sv * rng.standard_normal((N, 1))
     omega, G = V.spectral_estimate(from_arrays(u, y), lag_window=M)
+    _, G_clean = V.spectral_estimate(from_arrays(u, y_clean), lag_window=M)
     assert G.shape == (128, 1, 1)
     Gt = np.asarray(m.frequency_response(omega))
     low = omega < 0.5
-    sigma = np.sqrt(0.75 * M / N * sv ** 2 / 1.0)
-    bias = 0.5 ** 8 * 2.0          # generous allowance for the lag window's attenuation
-    assert np.abs(G - Gt)[low].max() < 5 * sigma + bias
+    tau = np.arange(-M, M + 1)
+    w = 0.54 + 0.46 * np.cos(np.pi * tau / M)
+    # 1) the noise's share of the error: complex, variance sum(w^2)/N * Phi_v/Phi_u (Ljung 1999 §6.4)
+    sigma_v = np.sqrt(np.sum(w ** 2) / N * sv ** 2)
+    assert np.abs(G - G_clean)[low].max() < 5 * sigma_v
+    # 2) noise-free: the lag window's bias sum_k (1 - w_k)|g_k| + truncation, plus the input's
+    #    sample-correlation error, std <= sqrt(sum(w^2)/N) * ||g||_2
+    g = np.asarray(m.impulse_response(400))[:, 0, 0]
+    bias = np.sum((1 - w[M:]) * np.abs(g[:M + 1])) + np.abs(g[M + 1:]).sum()
+    sigma_u = np.sqrt(np.sum(w ** 2) / N) * np.linalg.norm(g)
+    assert np.abs(G_clean - Gt)[low].max() < bias + 5 * sigma_u
+    _, G_hann = V.spectral_estimate(from_arrays(u, y_clean), lag_window=M, window="hann")
+    w_hann = 0.5 + 0.5 * np.cos(np.pi * tau / M)
+    bias_hann = np.sum((1 - w_hann[M:]) * np.abs(g[:M + 1])) + np.abs(g[M + 1:]).sum()
+    assert np.abs(G_hann - Gt)[low].max() < bias_hann + 5 * sigma_u
     b = V.bode(m, omega)
     np.testing.assert_allclose(b["magnitude"], np.abs(Gt))
     np.testing.assert_allclose(b["phase_deg"][0, 0, 0], np.degrees(np.angle(Gt[0, 0, 0])), atol=1e-9)
     with pytest.raises(DataError, match="lag window"):
         V.spectral_estimate(from_arrays(u, y), lag_window=0)
+    with pytest.raises(DataError, match="window must be"):
+        V.spectral_estimate(from_arrays(u, y), window="boxcar")
 
 
 def test_rga_closed_form():
@@ -229,3 +244,32 @@ def test_information_criteria():
         V.information_criteria(0.0, 2, 100)
     with pytest.raises(DataError, match="parameters"):
         V.information_criteria(1.0, 100, 100)
+
+
+class _Cubic(AbstractModel):
+    """A nonlinear model (cubic output map) for the initial-state fallback."""
+
+    ss: StateSpace
+
+    def to_statespace(self):
+        return self.ss
+
+    def simulate(self, u, w=None, x0=None):
+        x0 = jnp.zeros(1) if x0 is None else x0
+
+        def body(x, uk):
+            return 0.9 * x + 0.1 * (uk[0] - 0.5), x[0] + x[0] ** 3
+
+        return jax.lax.scan(body, x0, jnp.asarray(u))[1][:, None]
+
+
+def test_estimate_initial_state_nonlinear_is_no_worse_than_steady():
+    m = _Cubic(StateSpace([[0.9]], [[0.1]], [[1.0]], u0=[0.5]))
+    u = np.asarray(prbs(5, T, 2))[:, :1]
+    y = np.asarray(m.simulate(u, None, jnp.array([1.2])))
+    data = from_arrays(u, y)
+    x_est = V.estimate_initial_state(m, data, n=30)
+    x_st = m.initial_state(y[0])
+    err = lambda x: float(np.sum((y[:30] - np.asarray(m.simulate(u, None, x))[:30]) ** 2))
+    assert err(x_est) <= err(x_st)
+    np.testing.assert_allclose(np.asarray(x_est), [1.2], atol=1e-6)   # Gauss-Newton converged

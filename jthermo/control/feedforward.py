@@ -58,23 +58,23 @@ class FeedForward(AbstractController):
 
     def init(self, y0: Output, r0: Setpoint) -> FFState:
         # the reference trajectory starts where the plant is (steady state at y0)
-        xm = sg(self.Mss) @ (y0 - self.y_op)
+        xm = sg(self.Mss) @ (y0 - sg(self.y_op))
         return FFState(xm=xm, z=y0 + 0.0 * self.T, integ=jnp.zeros_like(self.kp * y0))
 
     def step(self, state: FFState, y: Output, r: Setpoint) -> tuple[Input, FFState]:
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
         G0inv, CBinv = sg(self.G0inv), sg(self.CBinv)
-        y_r = self.y_op + C @ state.xm
+        y_r = sg(self.y_op) + C @ state.xm
         if self.kind == "neutral":
-            uf = self.u_op + G0inv @ (r - self.y_op)
+            uf = self.u_op + G0inv @ (r - sg(self.y_op))
             z_next = state.z
         else:
             a = jnp.exp(-self.ts / self.T)
             z_next = a * state.z + (1.0 - a) * r
             if self.inverse:
-                uf = self.u_op + CBinv @ (z_next - self.y_op - C @ (A @ state.xm))
+                uf = self.u_op + CBinv @ (z_next - sg(self.y_op) - C @ (A @ state.xm))
             else:
-                uf = self.u_op + G0inv @ (state.z - self.y_op)
+                uf = self.u_op + G0inv @ (state.z - sg(self.y_op))
                 y_r = state.z
         xm_next = A @ state.xm + B @ (uf - self.u_op)
         u, integ = pi_update(self.kp, self.ti, self.ts, state.integ, y_r - y, uf)

@@ -53,18 +53,18 @@ class IMC(AbstractController):
     ts: float = eqx.field(static=True)
 
     def init(self, y0: Output, r0: Setpoint) -> IMCState:
-        xm = sg(self.Mss) @ (y0 - self.y_op)
+        xm = sg(self.Mss) @ (y0 - sg(self.y_op))
         return IMCState(xm=xm, z=y0 + 0.0 * self.lam)
 
     def step(self, state: IMCState, y: Output, r: Setpoint) -> tuple[Input, IMCState]:
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
-        d_hat = y - (self.y_op + C @ state.xm)
+        d_hat = y - (sg(self.y_op) + C @ state.xm)
         a = jnp.exp(-self.ts / self.lam)
         z_next = a * state.z + (1.0 - a) * (r - d_hat)
         if self.inverse:
-            u = self.u_op + sg(self.CBinv) @ (z_next - self.y_op - C @ (A @ state.xm))
+            u = self.u_op + sg(self.CBinv) @ (z_next - sg(self.y_op) - C @ (A @ state.xm))
         else:
-            u = self.u_op + sg(self.G0inv) @ (z_next - self.y_op)
+            u = self.u_op + sg(self.G0inv) @ (z_next - sg(self.y_op))
         u = jnp.clip(u, U_MIN, U_MAX)
         xm_next = A @ state.xm + B @ (u - self.u_op)
         return u, IMCState(xm=xm_next, z=z_next)

@@ -117,16 +117,16 @@ class LQG(AbstractController):
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
         nx = A.shape[0]
         # start in the steady state that produces y0 under the static feed-through
-        u_ss = g.L0 @ (y0 - self.y_op)
+        u_ss = g.L0 @ (y0 - sg(self.y_op))
         x0 = jnp.linalg.solve(jnp.eye(nx, dtype=A.dtype) - A + B @ g.Lx, B @ u_ss)
         return LQGState(x=x0, xi=jnp.zeros_like(y0 * self.q1), gains=g)
 
     def step(self, state: LQGState, y: Output, r: Setpoint) -> tuple[Input, LQGState]:
         g = state.gains
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
-        x_f = state.x + g.M @ (y - self.y_op - C @ state.x)
+        x_f = state.x + g.M @ (y - sg(self.y_op) - C @ state.x)
         e = r - y
-        u_req = self.u_op + g.L0 @ (r - self.y_op) - g.Lx @ x_f - g.Li @ state.xi
+        u_req = self.u_op + g.L0 @ (r - sg(self.y_op)) - g.Lx @ x_f - g.Li @ state.xi
         u = jnp.clip(u_req, U_MIN, U_MAX)
         hold = ((u_req > U_MAX) & (e > 0)) | ((u_req < U_MIN) & (e < 0))
         xi = jnp.where(hold, state.xi, state.xi + self.ts * e)

@@ -51,7 +51,11 @@ class DiagonalPI(AbstractController):
         ti = jnp.asarray(ti)
         if kp.ndim == 0:
             kp = kp[None]
-        n = max(kp.shape[0], ti.reshape(-1).shape[0])
+        ti = ti.reshape(-1)
+        if kp.ndim != 1 or (kp.shape[0] != ti.shape[0] and 1 not in (kp.shape[0], ti.shape[0])):
+            raise ControlError(f"DiagonalPI: kp and ti must be 1-D of one length, got "
+                               f"{kp.shape} and {ti.shape}")
+        n = max(kp.shape[0], ti.shape[0])
         dtype = jnp.result_type(kp.dtype, ti.dtype, float)
         self.kp = jnp.broadcast_to(kp, (n,)).astype(dtype)
         self.ti = jnp.broadcast_to(ti, (n,)).astype(dtype)

@@ -1,1 +1,4 @@
 """Mismatch diagnosis: locate, name the missing physics, refit, report."""
+
+from .mechanisms import MECHANISMS as MECHANISMS
+from .select import diagnose as diagnose, to_json as to_json

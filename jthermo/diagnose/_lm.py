@@ -1,11 +1,11 @@
-"""A masked Levenberg–Marquardt solver for the mechanism library, vmapped over candidates.
+"""A masked Levenberg–Marquardt solver for the mechanism library, vmapped over problems.
 
-`jthermo.identify.pem.minimize` fits one structure per compiled function; diagnosis needs eight
-structures (and their combinations) at once. Here a structure is a 0/1 mask over one flat
-parameter vector plus the mechanism switches, so all candidates share one compiled solve:
-masked parameters get a zero step (their rows/columns of $J^\\top J$ are replaced by the
-identity). Each iteration tries three damping values in parallel and keeps the best
-(Marquardt 1963; Ljung 1999, §10.2).
+`jthermo.identify.pem.minimize` compiles one solve per model structure; diagnosis fits eight
+structures (and combinations) for every zone at once. Here a structure is a 0/1 mask over one
+flat parameter vector plus the mechanism switches, so all candidates and zones share one
+compiled solve: masked parameters get a zero step (their rows and columns of $J^\\top J$ are
+replaced by the identity). Each iteration tries three damping values in parallel and keeps the
+best (Marquardt 1963; Ljung 1999, §10.2). The cost is the simulation error (output error).
 """
 
 from __future__ import annotations
@@ -15,71 +15,88 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from .mechanisms import simulate
+from .mechanisms import simulate_full, simulate_zone
 
 
-def _residual(theta, on, args, lay):
-    return (args["y"] - simulate(theta, on, args, lay)).reshape(-1)
+def _zone_cost(theta, on, z, lay):
+    r = z["y"] - simulate_zone(theta, on, z, lay)
+    c = jnp.mean(r ** 2)
+    return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
 
-def _cost(theta, on, args, lay):
-    r = _residual(theta, on, args, lay)
-    return jnp.mean(r ** 2)
-
-
-def _lm_one(theta0, mask, on, args, lay, n_iter):
+def _lm(residual, theta0, mask, n_iter):
+    """Generic masked LM on `residual(theta) -> (m,)`; returns (theta, cost, cost history)."""
     dt = theta0.dtype
 
-    def lin(th):
-        r, jvp = jax.linearize(lambda t: _residual(t, on, args, lay), th)
-        J = jax.vmap(jvp, out_axes=1)(jnp.eye(th.shape[0], dtype=dt) * mask[:, None])
-        return r, J
+    def cost(th):
+        r = residual(th)
+        c = jnp.mean(r ** 2)
+        return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
     def body(carry, _):
-        th, cost, lam = carry
-        r, J = lin(th)
+        th, c_now, lam = carry
+        r, jvp = jax.linearize(residual, th)
+        J = jax.vmap(jvp, out_axes=1)(jnp.eye(th.shape[0], dtype=dt) * mask[:, None])
         H = J.T @ J
         gvec = J.T @ r
         d = jnp.diagonal(H)
         scale = jnp.where(mask > 0, d + 1e-9 * (jnp.max(d) + 1e-30), 1.0)
         Hm = H * (mask[:, None] * mask[None, :]) + jnp.diag(1.0 - mask)
 
-        def step(l):
-            delta = -jnp.linalg.solve(Hm + l * jnp.diag(scale), gvec * mask)
-            delta = jnp.clip(delta, -2.0, 2.0)    # log parameters: at most a factor e^2 a step
+        def step(lm):
+            delta = -jnp.linalg.solve(Hm + lm * jnp.diag(scale), gvec * mask)
+            delta = jnp.clip(delta, -2.0, 2.0)     # log parameters: at most e^2 per step
+            delta = jnp.where(jnp.isfinite(delta), delta, 0.0)
             tn = th + delta * mask
-            c = _cost(tn, on, args, lay)
-            return tn, jnp.where(jnp.isfinite(c), c, jnp.inf)
+            return tn, cost(tn)
 
         lams = lam * jnp.array([0.1, 1.0, 10.0], dt)
         tns, cs = jax.vmap(step)(lams)
         k = jnp.argmin(cs)
-        better = cs[k] < cost
+        better = cs[k] < c_now
         th = jnp.where(better, tns[k], th)
-        lam_new = jnp.where(better, jnp.maximum(lams[k] * 0.5, 1e-9), lam * 30.0)
-        cost = jnp.where(better, cs[k], cost)
-        return (th, cost, lam_new), cost
+        lam = jnp.where(better, jnp.clip(lams[k] * 0.5, 1e-9, 1e9), jnp.clip(lam * 30.0, 1e-9, 1e9))
+        c_now = jnp.where(better, cs[k], c_now)
+        return (th, c_now, lam), c_now
 
-    c0 = _cost(theta0, on, args, lay)
-    c0 = jnp.where(jnp.isfinite(c0), c0, jnp.inf)
-    (th, cost, _), hist = jax.lax.scan(body, (theta0, c0, jnp.asarray(1e-2, dt)), None,
-                                       length=n_iter)
-    return th, cost, hist
+    c0 = cost(theta0)
+    (th, c, _), hist = jax.lax.scan(body, (theta0, c0, jnp.asarray(1e-2, dt)), None, length=n_iter)
+    return th, c, hist
+
+
+def _zone_residual(theta, on, z, lay):
+    return z["y"] - simulate_zone(theta, on, z, lay)
 
 
 @partial(jax.jit, static_argnames=("lay", "n_iter"))
-def lm_batch(theta0, mask, on, args, lay, n_iter):
-    """Fit K candidates at once: `theta0, mask (K, P)`, `on (K, 8)`; `args` shared except
-    `delay` and `events`, which may carry a leading K axis (`args_axes`)."""
-    axes = {k: (0 if k in ("delay",) else None) for k in args}
-    return jax.vmap(lambda t, m, o, a: _lm_one(t, m, o, a, lay, n_iter),
-                    in_axes=(0, 0, 0, axes))(theta0, mask, on, args)
+def fit_zones(theta0, mask, on, per, shared, lay, n_iter):
+    """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
+    per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all."""
+    def one(t, m, o, p):
+        z = {**shared, **p}
+        return _lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter)
+
+    return jax.vmap(one)(theta0, mask, on, per)
 
 
 @partial(jax.jit, static_argnames=("lay",))
-def simulate_batch(theta, on, args, lay):
-    axes = {k: (0 if k in ("delay",) else None) for k in args}
-    return jax.vmap(lambda t, o, a: simulate(t, o, a, lay), in_axes=(0, 0, axes))(theta, on, args)
+def sim_zones(theta, on, per, shared, lay):
+    """Per-zone (series-parallel) simulations of B problems, `(B, T)`."""
+    return jax.vmap(lambda t, o, p: simulate_zone(t, o, {**shared, **p}, lay))(theta, on, per)
 
 
-__all__ = ["lm_batch", "simulate_batch"]
+@partial(jax.jit, static_argnames=("lay", "n_iter"))
+def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
+    """Estimate each model's record parameters (initial states, drift) on a record by masked LM
+    on the coupled simulation, then simulate it: `Theta (M, n, P)`, `on (M, 8)`,
+    `rec0, mask (M, R)`; returns (rec, yhat (M, T, n), cost (M,))."""
+    def one(Th, o, r0, m, fp):
+        f = {**f_shared, **fp}
+        res = lambda r: (y - simulate_full(Th, o, f, lay, r)).reshape(-1)  # noqa: E731
+        r, c, _ = _lm(res, r0, m, n_iter)
+        return r, simulate_full(Th, o, f, lay, r), c
+
+    return jax.vmap(one)(Theta, on, rec0, mask, f_per)
+
+
+__all__ = ["fit_zones", "sim_zones", "fit_records"]

@@ -44,7 +44,7 @@ UNROLL = 8                 # scan unrolling: per-step overhead dominates on CPU
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Where each parameter group sits in the flat vector θ (static: shapes only)."""
+    """Where each parameter group of one zone's model sits in its flat vector θ (static)."""
 
     n: int                   # zones
     nu: int                  # heaters
@@ -69,11 +69,11 @@ class Layout:
 
 
 def make_layout(n: int, nu: int, n_drift: int) -> Layout:
-    npair = n * (n - 1) // 2
-    sizes = [("log_a", n), ("log_b", n * nu), ("x0", n), ("ts0", 1),
-             ("log_k", max(npair, 1)), ("log_r", n), ("log_tauw", 1), ("log_gamma", 1),
-             ("log_c", n), ("xw0", 1), ("log_tauh", 1), ("log_e", 1), ("log_drop", n),
-             ("drift", n_drift)]
+    """Per-zone parameter layout: zone i's model is fitted on its own (its neighbours enter
+    through their measured temperatures), so every zone has the same vector."""
+    sizes = [("log_a", 1), ("log_b", nu), ("x0", 1), ("ts0", 1), ("log_k", max(n - 1, 1)),
+             ("log_r", 1), ("log_tauw", 1), ("log_gamma", 1), ("log_c", 1), ("xw0", 1),
+             ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("drift", n_drift)]
     out, a = [], 0
     for nm, s in sizes:
         out.append((nm, a, s))
@@ -92,26 +92,19 @@ MECH_PARAMS = {
     "recoat_cooling": ("log_drop",),
     "ambient_variation": ("drift",),
 }
-#: parameter groups re-estimated on each record (initial states, drift): not model physics
-RECORD_PARAMS = ("x0", "xw0", "drift")
 
 
 def drift_basis(T: int, ts: float, n_knots: int) -> np.ndarray:
     """Piecewise-linear hat functions with knots every `DRIFT_SPACING` s, `(T, n_knots)`;
-    columns beyond the record's length are zero."""
+    knots beyond the record's end get zero columns."""
     t = np.arange(T) * ts
     knots = np.arange(n_knots) * DRIFT_SPACING
     Phi = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / DRIFT_SPACING, 0.0, None)
-    Phi[:, knots > t[-1] + DRIFT_SPACING] = 0.0
     return Phi
 
 
 def n_drift_knots(T: int, ts: float) -> int:
-    return int(math.ceil(T * ts / DRIFT_SPACING)) + 1
-
-
-def pairs(n: int):
-    return [(i, j) for i in range(n) for j in range(i + 1, n)]
+    return int(math.ceil((T - 1) * ts / DRIFT_SPACING)) + 1
 
 
 def _safe_pow(u, e):
@@ -119,80 +112,140 @@ def _safe_pow(u, e):
     return jnp.where(pos, jnp.where(pos, u, 1.0) ** e, 0.0)
 
 
-def simulate(theta, on, args, lay: Layout):
-    """Simulated zone temperatures `(T, n)` °C of the augmented model.
-
-    **Arguments:**
-    - `theta`: flat parameters (see `make_layout`).
-    - `on`: `(8,)` switches in the order of `MECHANISMS` (1.0 on, 0.0 off).
-    - `args`: dict with `u (T, nu)`, `ts_level` (surroundings °C, scalar), `ts_free` (1.0 when
-      the level is the fitted `ts0`), `wdev (T,)` measured surroundings variation, `Phi (T, K)`
-      drift basis, `events (T, n)` recoat event flags, `delay` (int, samples), `u_pad (nu,)`
-      the input before the record, `ts` (static float, in `lay` closure).
-    """
-    n, nu = lay.n, lay.nu
+def _inputs(theta, on, u, u_pad, delay, lay):
+    """Heater inputs after dead time, lamp nonlinearity and lamp lag: `(T, nu)` per zone model."""
     g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
-    on_k, on_r, on_acc, on_lag, on_del, on_nl, on_rec, on_amb = [on[i] for i in range(8)]
-    dt = theta.dtype
-    a = jnp.exp(g("log_a"))
-    b = jnp.exp(g("log_b")).reshape(n, nu)
-    # surroundings: fixed level, or the fitted constant, plus the variation when switched on
-    ts_level = args["ts_level"] + args["ts_free"] * g("ts0")[0]
-    ts_seq = ts_level + on_amb * (args["wdev"] + args["Phi"] @ g("drift"))
-    # inputs: dead time (dynamic shift), then the lamp nonlinearity
-    u = args["u"]
+    nu = lay.nu
     T = u.shape[0]
-    d = (on_del * args["delay"]).astype(jnp.int32)
-    upad = jnp.concatenate([jnp.broadcast_to(args["u_pad"], (16, nu)).astype(dt), u], axis=0)
-    u = jax.lax.dynamic_slice(upad, (16 - d, jnp.zeros((), jnp.int32)), (T, nu))
-    e = 1.0 + on_nl * (jnp.exp(g("log_e")[0]) - 1.0)
+    dt = theta.dtype
+    d = (on[4] * delay).astype(jnp.int32)
+    upad = jnp.concatenate([jnp.broadcast_to(u_pad, (32, nu)).astype(dt), u.astype(dt)], axis=0)
+    u = jax.lax.dynamic_slice(upad, (32 - d, jnp.zeros((), jnp.int32)), (T, nu))
+    e = 1.0 + on[5] * (jnp.exp(g("log_e")[0]) - 1.0)
     u = _safe_pow(u, e)
-    # linear continuous part, states z = [T (n), wall (1), lamps (nu)]
-    nz = n + 1 + nu
+    return u, e
+
+
+def _lamp(u, p0, alpha, on_lag):
+    def body(p, uk):
+        return alpha * p + (1.0 - alpha) * uk, p
+
+    _, ps = jax.lax.scan(body, p0, u, unroll=UNROLL)
+    return on_lag * ps + (1.0 - on_lag) * u
+
+
+def _zone_matrices(theta, on, lay, ts):
+    """Continuous 2-state (zone, wall) model of one zone and its exact ZOH matrices.
+
+    Inputs per sample: [heater heat rate v, surroundings Ts, Σ_j k_j T_j, mean zone T]."""
+    g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
+    dt = theta.dtype
+    a = jnp.exp(g("log_a")[0])
+    ksum = on[0] * jnp.sum(jnp.exp(g("log_k")))
+    c = on[2] * jnp.exp(g("log_c")[0])
     tauw = jnp.exp(g("log_tauw")[0])
     gam = jnp.exp(g("log_gamma")[0])
-    c = on_acc * jnp.exp(g("log_c"))
-    tauh = jnp.exp(g("log_tauh")[0])
-    A = jnp.zeros((nz, nz), dt)
-    iz = jnp.arange(n)
-    A = A.at[iz, iz].set(-a - c)
-    A = A.at[iz, n].set(c)
-    A = A.at[n, iz].set(1.0 / (n * tauw))
-    A = A.at[n, n].set(-(1.0 + gam) / tauw)
+    A = jnp.array([[-(a + ksum + c), c], [0.0, -(1.0 + gam) / tauw]], dtype=dt)
+    Bc = jnp.array([[1.0, a, 1.0, 0.0], [0.0, gam / tauw, 0.0, 1.0 / tauw]], dtype=dt)
+    M = jnp.zeros((4, 4), dt).at[:2, :2].set(A).at[:2, 2:].set(jnp.eye(2, dtype=dt))
+    F = jax.scipy.linalg.expm(M * ts)
+    E, P1 = F[:2, :2], F[:2, 2:]
+    return E, P1 @ Bc, P1[:, 0]
+
+
+def simulate_zone(theta, on, z, lay: Layout):
+    """Simulated temperature `(T,)` °C of one zone's augmented model (series-parallel form:
+    the neighbours' and the bed's mean temperatures are the measured ones).
+
+    **Arguments:**
+    - `theta`: this zone's flat parameters (see `make_layout`); `on`: `(8,)` switches in the
+      order of `MECHANISMS`.
+    - `z`: dict with `u (T, nu)`, `ynb (T, n-1)` the other zones' measured temperatures,
+      `ybar (T,)` the mean measured zone temperature, `events (T,)` recoat flags of this zone,
+      `ts_level`, `ts_free`, `wdev (T,)`, `Phi (T, K)`, `delay`, `u_pad (nu,)`, `ts`.
+    """
+    g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
+    dt = theta.dtype
+    ts_level = z["ts_level"] + z["ts_free"] * g("ts0")[0]
+    ts_seq = ts_level + on[7] * (z["wdev"] + z["Phi"] @ g("drift"))
+    u, e = _inputs(theta, on, z["u"], z["u_pad"], z["delay"], lay)
+    alpha = jnp.exp(-z["ts"] / jnp.exp(g("log_tauh")[0]))
+    u = _lamp(u, _safe_pow(z["u_pad"].astype(dt), e), alpha, on[3])
+    v = u @ jnp.exp(g("log_b"))
+    nb = on[0] * (z["ynb"] @ jnp.exp(g("log_k"))[: z["ynb"].shape[1]])
+    E, Bd, pz = _zone_matrices(theta, on, lay, z["ts"])
+    r = on[1] * RAD_SCALE * jnp.exp(g("log_r")[0])
+    drop = on[6] * jnp.exp(g("log_drop")[0])
+    s0 = jnp.stack([g("x0")[0], g("xw0")[0] + ts_level])
+    W = jnp.stack([v, ts_seq, nb, z["ybar"]], axis=1)
+
+    def body(s, inp):
+        wk, sk, ev = inp
+        q = -r * ((s[0] + KELVIN) ** 4 - (sk + KELVIN) ** 4)
+        sn = E @ s + Bd @ wk + pz * q
+        sn = sn.at[0].add(-drop * ev)
+        return sn, s[0]
+
+    _, ys = jax.lax.scan(body, s0, (W, ts_seq, z["events"]), unroll=UNROLL)
+    return ys
+
+
+def simulate_full(Theta, on, f, lay: Layout, rec):
+    """Coupled simulation `(T, n)` of all zones' fitted models (neighbours simulated, not
+    measured): what the validation fit uses.
+
+    `Theta (n, P)` per-zone parameters; `rec` = [x0 (n), wall0 (n), drift (Kv)] the record's
+    own initial states (°C) and surroundings drift; `f` dict with `u`, `events (T, n)`,
+    `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`, `ts`.
+    """
+    n = lay.n
+    dt = Theta.dtype
+    x0, w0, dr = rec[:n], rec[n:2 * n], rec[2 * n:]
+    g = lambda nm: Theta[:, lay.sl(nm)]  # noqa: E731
+    ts_level = f["ts_level"] + f["ts_free"] * jnp.median(g("ts0")[:, 0])
+    ts_seq = ts_level + on[7] * (f["wdev"] + f["Phi"] @ dr)
+
+    def zone_input(th):
+        u, e = _inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
+        alpha = jnp.exp(-f["ts"] / jnp.exp(th[lay.sl("log_tauh")][0]))
+        u = _lamp(u, _safe_pow(f["u_pad"].astype(dt), e), alpha, on[3])
+        return u @ jnp.exp(th[lay.sl("log_b")])
+
+    V = jax.vmap(zone_input, out_axes=1)(Theta)                  # (T, n)
+    a = jnp.exp(g("log_a")[:, 0])
+    c = on[2] * jnp.exp(g("log_c")[:, 0])
+    tauw = jnp.exp(g("log_tauw")[:, 0])
+    gam = jnp.exp(g("log_gamma")[:, 0])
+    kk = on[0] * jnp.exp(g("log_k"))                             # (n, n-1): row i, others
+    K = jnp.zeros((n, n), dt)
     if n > 1:
-        pr = pairs(n)
-        pi = jnp.array([p[0] for p in pr])
-        pj = jnp.array([p[1] for p in pr])
-        k = on_k * jnp.exp(g("log_k"))
-        Lk = jnp.zeros((n, n), dt).at[pi, pj].add(k).at[pj, pi].add(k)
-        Lk = Lk - jnp.diag(jnp.sum(Lk, axis=1))
-        A = A.at[:n, :n].add(Lk)
-    il = n + 1 + jnp.arange(nu)
-    A = A.at[:n, n + 1:].set(on_lag * b)
-    A = A.at[il, il].set(-1.0 / tauh)
-    Bu = jnp.zeros((nz, nu), dt).at[:n].set((1.0 - on_lag) * b).at[il, jnp.arange(nu)].set(1.0 / tauh)
-    bs = jnp.zeros((nz,), dt).at[:n].set(a).at[n].set(gam / tauw)
-    # exact ZOH: E = e^{A h}, P1 = ∫ e^{A s} ds (Van Loan block exponential)
-    M = jnp.zeros((2 * nz, 2 * nz), dt).at[:nz, :nz].set(A).at[:nz, nz:].set(jnp.eye(nz, dtype=dt))
-    F = jax.scipy.linalg.expm(M * args["ts"])
-    E, P1 = F[:nz, :nz], F[:nz, nz:]
-    Bd = P1 @ Bu
-    bsd = P1 @ bs
+        cols = np.array([[j for j in range(n) if j != i] for i in range(n)])
+        K = K.at[np.repeat(np.arange(n), n - 1), cols.ravel()].set(kk[:, : n - 1].ravel())
+    iz = jnp.arange(n)
+    A = jnp.zeros((2 * n, 2 * n), dt)
+    A = A.at[:n, :n].set(K - jnp.diag(a + jnp.sum(K, axis=1) + c))
+    A = A.at[iz, n + iz].set(c)
+    A = A.at[n:, :n].set(jnp.broadcast_to((1.0 / (n * tauw))[:, None], (n, n)))
+    A = A.at[n + iz, n + iz].set(-(1.0 + gam) / tauw)
+    Bc = jnp.zeros((2 * n, n + 1), dt).at[iz, iz].set(1.0).at[:n, n].set(a).at[n:, n].set(gam / tauw)
+    M = jnp.zeros((4 * n, 4 * n), dt).at[:2 * n, :2 * n].set(A).at[:2 * n, 2 * n:].set(
+        jnp.eye(2 * n, dtype=dt))
+    F = jax.scipy.linalg.expm(M * f["ts"])
+    E, P1 = F[:2 * n, :2 * n], F[:2 * n, 2 * n:]
+    Bd = P1 @ Bc
     Pz = P1[:, :n]
-    r = on_r * RAD_SCALE * jnp.exp(g("log_r"))
-    drop = on_rec * jnp.exp(g("log_drop"))
-    lamp0 = args["u_pad"].astype(dt)
-    z0 = jnp.concatenate([g("x0"), g("xw0") + ts_level, _safe_pow(lamp0, e)])
+    r = on[1] * RAD_SCALE * jnp.exp(g("log_r")[:, 0])
+    drop = on[6] * jnp.exp(g("log_drop")[:, 0])
+    s0 = jnp.concatenate([x0, w0])
 
-    def body(z, inp):
-        uk, sk, ev = inp
-        Tz = z[:n]
-        q = -r * ((Tz + KELVIN) ** 4 - (sk + KELVIN) ** 4)
-        zn = E @ z + Bd @ uk + bsd * sk + Pz @ q
-        zn = zn.at[:n].add(-drop * ev)
-        return zn, Tz
+    def body(s, inp):
+        vk, sk, ev = inp
+        q = -r * ((s[:n] + KELVIN) ** 4 - (sk + KELVIN) ** 4)
+        sn = E @ s + Bd @ jnp.concatenate([vk, sk[None]]) + Pz @ q
+        sn = sn.at[:n].add(-drop * ev)
+        return sn, s[:n]
 
-    _, ys = jax.lax.scan(body, z0, (u, ts_seq, args["events"]), unroll=UNROLL)
+    _, ys = jax.lax.scan(body, s0, (V, ts_seq, f["events"]), unroll=UNROLL)
     return ys
 
 
@@ -207,67 +260,68 @@ def on_vector(mechs) -> np.ndarray:
     return v
 
 
-def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0) -> np.ndarray:
-    """A neutral start: the baseline parameters given, each mechanism at a plausible value."""
+def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndarray:
+    """One zone's start: the baseline parameters given, each mechanism at a plausible value."""
     th = np.zeros(lay.size)
     th[lay.sl("log_a")] = log_a
     th[lay.sl("log_b")] = np.ravel(log_b)
     th[lay.sl("x0")] = x0
     th[lay.sl("ts0")] = ts0
-    a_mean = float(np.exp(np.mean(log_a)))
-    th[lay.sl("log_k")] = np.log(0.1 * a_mean)
+    a = float(np.exp(log_a))
+    th[lay.sl("log_k")] = np.log(0.05 * a)
     th[lay.sl("log_r")] = np.log(0.5)
     th[lay.sl("log_tauw")] = np.log(1000.0)
-    th[lay.sl("log_gamma")] = np.log(0.5)
-    th[lay.sl("log_c")] = np.log(0.3 * a_mean)
-    th[lay.sl("xw0")] = 0.0
+    th[lay.sl("log_gamma")] = np.log(1.0)
+    th[lay.sl("log_c")] = np.log(0.3 * a)
+    th[lay.sl("xw0")] = xw0
     th[lay.sl("log_tauh")] = np.log(5.0)
     th[lay.sl("log_e")] = 0.0
-    th[lay.sl("log_drop")] = np.log(0.5)
+    th[lay.sl("log_drop")] = np.log(0.3)
     th[lay.sl("drift")] = 0.0
     return th
 
 
-def physical_parameters(theta, mech: str, lay: Layout, ts: float, extra: dict) -> dict:
-    """The physical figures a mechanism's fitted parameters stand for (JSON-ready)."""
-    th = np.asarray(theta)
-    g = lambda nm: th[lay.sl(nm)]  # noqa: E731
+def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -> dict:
+    """The physical figures a mechanism's fitted per-zone parameters stand for (JSON-ready)."""
+    th = np.asarray(Theta)
+    g = lambda nm: th[:, lay.sl(nm)]  # noqa: E731
+    med = lambda v: float(np.median(v))  # noqa: E731
     if mech == "lateral_conduction":
-        k = np.exp(g("log_k"))
-        pr = pairs(lay.n)
-        top = np.argsort(k)[::-1][: min(len(pr), 2 * lay.n)]
-        return {"rate_per_s": {f"{pr[i][0] + 1}-{pr[i][1] + 1}": float(k[i]) for i in top},
-                "mean_neighbour_rate_per_s": float(np.mean(np.sort(k)[::-1][:max(lay.n - 1, 1)])),
-                "relative_to_loss": float(np.mean(np.sort(k)[::-1][:max(lay.n - 1, 1)])
-                                          / np.mean(np.exp(g("log_a"))))}
+        k = np.exp(g("log_k"))[:, : lay.n - 1]
+        a = np.exp(g("log_a")[:, 0])
+        strongest = {}
+        for i in range(lay.n):
+            others = [j for j in range(lay.n) if j != i]
+            jj = int(np.argmax(k[i]))
+            strongest[str(i + 1)] = {"neighbour": others[jj] + 1, "rate_per_s": float(k[i, jj])}
+        return {"strongest_neighbour": strongest,
+                "coupling_to_loss_ratio": float(np.median(np.max(k, axis=1) / a))}
     if mech == "radiative_loss":
-        r = RAD_SCALE * np.exp(g("log_r"))
-        tl = extra.get("ts_level", 20.0)
-        tm = extra.get("t_mean", tl)
+        r = RAD_SCALE * np.exp(g("log_r")[:, 0])
+        tm = extra.get("t_mean", 20.0)
         lin = 4 * r * (tm + KELVIN) ** 3
+        a = np.exp(g("log_a")[:, 0])
         return {"coefficient_per_s_K3": [float(v) for v in r],
-                "linearised_rate_per_s": float(np.mean(lin)),
-                "share_of_loss": float(np.mean(lin / (lin + np.exp(g("log_a")))))}
+                "share_of_loss": med(lin / (lin + a))}
     if mech == "heat_accumulation":
-        tauw = float(np.exp(g("log_tauw")[0]))
-        gam = float(np.exp(g("log_gamma")[0]))
-        c = np.exp(g("log_c"))
-        return {"time_constant_s": tauw / (1.0 + gam),
-                "share": float(np.mean(c / (c + np.exp(g("log_a")))))}
+        tauw = np.exp(g("log_tauw")[:, 0])
+        gam = np.exp(g("log_gamma")[:, 0])
+        c = np.exp(g("log_c")[:, 0])
+        a = np.exp(g("log_a")[:, 0])
+        return {"time_constant_s": med(tauw / (1.0 + gam)), "share": med(c / (c + a))}
     if mech == "heater_lag":
-        return {"time_constant_s": float(np.exp(g("log_tauh")[0]))}
+        return {"time_constant_s": med(np.exp(g("log_tauh")[:, 0]))}
     if mech == "input_delay":
         return {"delay_s": float(extra.get("delay", 0) * ts)}
     if mech == "input_nonlinearity":
-        return {"exponent": float(np.exp(g("log_e")[0]))}
+        return {"exponent": med(np.exp(g("log_e")[:, 0]))}
     if mech == "recoat_cooling":
-        drops = np.exp(g("log_drop"))
-        return {"period_s": float(extra.get("period_s", float("nan"))),
-                "drop_C": float(np.mean(drops)), "drop_per_zone_C": [float(v) for v in drops],
-                "phase_s": float(extra.get("phase_s", float("nan")))}
+        drops = np.exp(g("log_drop")[:, 0])
+        return {"period_s": float(extra.get("period_s", float("nan"))), "drop_C": med(drops),
+                "drop_per_zone_C": [float(v) for v in drops]}
     if mech == "ambient_variation":
-        d = g("drift")
         if extra.get("measured_ambient", False):
-            return {"source": "measured w_ambient", "range_C": float(extra.get("w_range", 0.0))}
-        return {"source": "estimated drift", "range_C": float(np.ptp(d)) if d.size else 0.0}
+            return {"source": "measured surroundings signal", "range_C": float(extra.get("w_range", 0.0))}
+        d = np.median(g("drift"), axis=0)
+        return {"source": "estimated surroundings drift", "range_C": float(np.ptp(d)) if d.size else 0.0}
     raise KeyError(mech)

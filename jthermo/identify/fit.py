@@ -17,6 +17,7 @@ import dataclasses
 import time
 from typing import Any, Callable, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -97,10 +98,15 @@ class _Spec(NamedTuple):
     nf: int
     nu: int
     L: int    # largest input lag
+    offset: bool = False   # a constant kappa (operating point) is estimated too
+
+    @property
+    def n_coef(self) -> int:
+        return self.m * self.na + self.nu * self.nb + self.nc + self.nd + self.nu * self.nf
 
     @property
     def n_params(self) -> int:
-        return self.m * self.na + self.nu * self.nb + self.nc + self.nd + self.nu * self.nf
+        return self.n_coef + int(self.offset)
 
 
 def _unpack(theta, s: _Spec):
@@ -111,6 +117,10 @@ def _unpack(theta, s: _Spec):
     d = poly_from_reflection(jnp.tanh(theta[k:k + s.nd])); k += s.nd
     f = poly_from_reflection(jnp.tanh(theta[k:k + s.nu * s.nf].reshape(s.nu, s.nf)))
     return a, b, c, d, f
+
+
+def _kappa(theta, s: _Spec):
+    return theta[s.n_coef] if s.offset else jnp.zeros((), theta.dtype)
 
 
 def _coefficients(theta, s: _Spec):
@@ -131,7 +141,7 @@ def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
     bl = jnp.einsum("jkl,jk->jl", sel, b)
     pairs = jnp.einsum("tjl,jl->tj", lagged(u, s.L), bl)
     w = ar_filter(pairs, f).sum(axis=1)
-    v = yi
+    v = yi - _kappa(theta, s)
     if s.na:
         v = v + jnp.einsum("tjk,jk->t", lagged(ysrc, s.na)[:, :, 1:], a)
     return ar_filter(fir_monic(v - w, d), c)[:, None]
@@ -159,40 +169,73 @@ def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
     return (yi, ysrc, ub, sel, spec)
 
 
+OFFSETS = ("auto", "mean", "estimate")
+
+
+def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
+    """`"mean"` or `"estimate"`: whichever ARX(n_den, nb) simulates the estimation data better.
+
+    The two differ in the state the record is assumed to start from: at rest at the data's
+    mean operating point, or at rest with zero input (a cold machine, heaters off).
+    """
+    errs = {}
+    for mode in ("mean", "estimate"):
+        yref = jnp.mean(y, axis=0) if mode == "mean" else y[0]
+        u0 = jnp.mean(u, axis=0) if mode == "mean" else jnp.zeros(u.shape[1], u.dtype)
+        m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
+                   offset=mode == "estimate", ts=ts, u0=u0, y0=yref).model
+        errs[mode] = float(jnp.mean((y - m.simulate(u)) ** 2))
+    ok = {k: v for k, v in errs.items() if np.isfinite(v)}
+    return min(ok, key=ok.get) if ok else "mean"
+
+
 def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
                    nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
-                   seed: int = 0, n_starts: int = 8, solver: str = "lm", max_steps: int = 200,
-                   ts: float = 1.0, covariance: bool = True, progress: Callable | None = None):
-    """PEM fit of the polynomial structure to absolute data `y`, `u` (means removed inside).
+                   offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
+                   max_steps: int = 200, ts: float = 1.0, covariance: bool = True,
+                   progress: Callable | None = None):
+    """PEM fit of the polynomial structure to absolute data `y`, `u`.
+
+    Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
+    means: the record is taken to start at rest there); `"estimate"` takes `u0 = 0` and
+    estimates `y0` with the other parameters (the record starts at rest with zero input, e.g.
+    a cold printer); `"auto"` picks the one whose ARX estimate simulates the data better.
 
     ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
     the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
     and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added.
 
     **Returns:** `(model, info)` where `info` has `converged`, `cost`, `covariance`, `std`,
-    `start_costs`, `n_steps`.
+    `start_costs`, `n_steps`, `offset`.
     """
     y = jnp.asarray(y)
     u = jnp.asarray(u, y.dtype)
     ny, nu = y.shape[1], u.shape[1]
-    y0 = jnp.mean(y, axis=0)
-    u0 = jnp.mean(u, axis=0)
-    dy, du = y - y0, u - u0
+    if offset not in OFFSETS:
+        raise ConfigError(f"fit: offset must be one of {', '.join(OFFSETS)}, got {offset!r}")
     nkt = _as_nk(nk, ny, nu)
-    if nc == 0 and nd == 0 and nf == 0:
-        r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, ts=ts, u0=u0, y0=y0)
-        return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
-                             std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
-                             n_steps=0)
     if full_a and ny > 1 and (nd or nf):
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
+    arx_full = full_a and nf == 0
+    if offset == "auto":
+        offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts)
+    est = offset == "estimate"
+    yref = y[0] if est else jnp.mean(y, axis=0)
+    u0 = jnp.zeros(nu, y.dtype) if est else jnp.mean(u, axis=0)
+    dy, du = y - yref, u - u0
+    if nc == 0 and nd == 0 and nf == 0:
+        r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
+        return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
+                             std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
+                             n_steps=0, offset=offset)
     if progress:
-        progress(f"ARX start (na={n_den}, nb={nb})")
-    start = arx_ls(dy, du, max(n_den, 1), nb, nkt, full_a=full_a and nf == 0).model
-    m = ny if (full_a and ny > 1 and nf == 0) else 1
+        progress(f"ARX start (na={max(n_den, 1)}, nb={nb}, offset={offset})")
+    start = arx_ls(dy, du, max(n_den, 1), nb, nkt, full_a=arx_full, offset=est, u0=u0,
+                   y0=yref).model
+    m = ny if arx_full and ny > 1 else 1
     L = max(max(r) for r in nkt) + max(nb, 1) - 1
-    spec = _Spec(m=m, na=na, nb=nb, nc=nc, nd=nd, nf=nf, nu=nu, L=L)
+    spec = _Spec(m=m, na=na, nb=nb, nc=nc, nd=nd, nf=nf, nu=nu, L=L, offset=est)
     a_arx = np.asarray(start.a)                                       # (ny, m', n_den)
     parts = []
     if na:
@@ -204,6 +247,13 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         own = a_arx[:, 0, :nf] if a_arx.shape[1] == 1 else a_arx[np.arange(ny), np.arange(ny), :nf]
         rho = _atanh_reflection(own)                                     # (ny, nf)
         parts.append(np.repeat(rho[:, None, :], nu, axis=1).reshape(ny, -1))
+    if est:
+        dy0 = np.asarray(start.y0 - yref)
+        if na and nf == 0:      # kappa = A(1) (y0 - yref) for the A kept from ARX
+            A1 = np.eye(ny) + np.asarray(jnp.sum(start.a_matrices()[:na], axis=0))
+            parts.append((A1 @ dy0)[:, None])
+        else:
+            parts.append(dy0[:, None])
     theta0 = np.concatenate(parts, axis=1)
     starts = perturb_starts(theta0, n_starts, seed)                   # (ny, K, p)
     args = _poly_args(dy, du, spec, nkt, m > 1)
@@ -215,7 +265,11 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
     a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(res.theta)
-    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=y0)
+    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=yref)
+    if est:
+        kappa = jax.vmap(lambda th: _kappa(th, spec))(res.theta)
+        A1 = jnp.eye(ny, dtype=y.dtype) + jnp.sum(model.a_matrices(), axis=0)
+        model = eqx.tree_at(lambda mm: mm.y0, model, yref + jnp.linalg.solve(A1, kappa))
     cov = std = None
     if covariance:
         Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(res.theta)
@@ -223,7 +277,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
     return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
-                       n_steps=np.asarray(res.n_steps))
+                       n_steps=np.asarray(res.n_steps), offset=offset)
 
 
 # ----------------------------------------------------------------------- dispatcher
@@ -316,7 +370,7 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
                                  n_starts=1)
     require_samples(data, n_params_per_output(family, o, data.n_inputs, data.n_outputs, full_a),
                     what=f"{family} model")
-    allowed = {"full_a", "solver", "max_steps", "covariance"}
+    allowed = {"full_a", "solver", "max_steps", "covariance", "offset"}
     unknown = set(kw) - allowed
     if unknown:
         raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")
@@ -326,7 +380,8 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
     return FitResult(model=model, family=family, orders=o, converged=info["converged"],
                      cost=info["cost"], seconds=time.perf_counter() - t0, criterion_table=table,
                      covariance=info["covariance"], std=info["std"],
-                     extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"]})
+                     extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"],
+                            "offset": info["offset"]})
 
 
 def _wrap_external(res, family, orders, t0) -> FitResult:

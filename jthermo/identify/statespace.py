@@ -11,7 +11,6 @@ optimum lies outside it).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax.numpy as jnp
@@ -19,10 +18,11 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..data import IOData, require_excitation
-from ..errors import FitError, ModelError
+from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
+from .fit import FitResult
 from .pem import minimize
-from .subspace import choose_order, default_horizon, n4sid
+from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
 
 FOCUS = ("prediction", "simulation")
 
@@ -44,58 +44,28 @@ def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
     return jnp.mean(ss_residuals(theta, args) ** 2)
 
 
-@dataclasses.dataclass(frozen=True)
-class _SSFit:
-    """Stand-in with the attributes of `jthermo.identify.fit.FitResult` (used until it exists)."""
-
-    model: Any
-    orders: dict
-    converged: bool
-    cost: float
-    covariance: Any = None
-    std: Any = None
-    criterion_table: list | None = None
-    x0: Any = None
-    family: str = "ss"
-    seconds: float = float("nan")
-    extra: dict = dataclasses.field(default_factory=dict)
-
-
-def _result(**kw):
-    try:
-        from .fit import FitResult
-    except ImportError:
-        return _SSFit(**kw)
-    fields = {f.name for f in dataclasses.fields(FitResult)} if dataclasses.is_dataclass(FitResult) \
-        else set(getattr(FitResult, "__annotations__", {}))
-    if not {"model", "orders", "converged", "cost"} <= fields:
-        return _SSFit(**kw)
-    return FitResult(**{k: v for k, v in kw.items() if k in fields})
-
-
 def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
             horizon: int | None):
-    """Distinct N4SID estimates (weighting × horizon), in the common canonical structure."""
+    """Distinct N4SID estimates (CVA/MOESP × horizons), in the common canonical structure."""
     i0 = default_horizon(n, data.n_outputs, data.n_samples) if horizon is None else int(horizon)
-    plan = [("cva", i0), ("moesp", i0), ("cva", 2 * i0), ("moesp", 2 * i0),
-            ("cva", max(2, i0 // 2)), ("moesp", max(2, i0 // 2))]
     models = []
-    for wt, i in plan[:max(1, n_starts)]:
+    for i in (i0, 2 * i0, max(2, i0 // 2)):
+        if len(models) >= n_starts:
+            break
         try:
-            ss, _ = n4sid(data, n, horizon=i, weighting=wt)
-        except Exception:  # a longer horizon may not fit the data: just fewer starts
+            out = n4sid_variants(data, n, horizon=i)
+        except JThermoError:  # a longer horizon may not fit the data: just fewer starts
             if not models:
                 raise
             continue
-        models.append(InnovationsSS.from_statespace(ss, output_error=output_error))
+        models += [InnovationsSS.from_statespace(ss, output_error=output_error) for ss, _ in out]
+    models = models[:max(1, n_starts)]
     ref = models[0]
-    models = [m for m in models if m.fixed_c == ref.fixed_c]
-    thetas = [np.asarray(pack(m)) for m in models]
+    thetas = [np.asarray(pack(m)) for m in models if m.fixed_c == ref.fixed_c]
     rng = np.random.default_rng(seed)
     while len(thetas) < n_starts:   # perturbations of the first start fill the batch
-        t = thetas[0] * (1.0 + 0.02 * rng.standard_normal(thetas[0].shape))
-        thetas.append(t)
-    return ref, np.stack(thetas[:max(1, n_starts)])
+        thetas.append(thetas[0] * (1.0 + 0.02 * rng.standard_normal(thetas[0].shape)))
+    return ref, np.stack(thetas)
 
 
 def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_starts: int = 4,
@@ -168,7 +138,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
         raise FitError("fit_statespace: the estimate is not finite")
     model = model.stabilized()
     ss = model.to_statespace()
-    return _result(model=ss, orders={"n": n}, converged=bool(res.converged),
+    return FitResult(model=ss, orders={"n": n}, converged=bool(res.converged),
                    cost=float(res.cost), covariance=res.covariance, std=res.std,
                    criterion_table=table, x0=x0, family="ss",
                    seconds=time.perf_counter() - t_start,

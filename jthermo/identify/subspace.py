@@ -201,6 +201,11 @@ def _prepare(data: IOData, n: int | None, horizon: int | None):
         raise ModelError(f"n4sid: horizon must be >= 2, got {horizon}")
     if n is not None and n > i * ny:
         raise ModelError(f"n4sid: order {n} exceeds horizon*ny = {i * ny}; raise `horizon`")
+    # a constant measured signal (e.g. a nominal ambient) carries no information: its Bw
+    # column is set to zero rather than estimated
+    active = np.flatnonzero(w.std(0) > 0) if w.shape[1] else np.zeros(0, int)
+    nw_all = w.shape[1]
+    w = w[:, active]
     m = nu + w.shape[1]
     j = T - 2 * i + 1
     if j < 2 * i * (m + ny) + 1:
@@ -208,25 +213,27 @@ def _prepare(data: IOData, n: int | None, horizon: int | None):
                         f"(need at least {2 * i * (m + ny) + 2 * i})")
     # deviations from the operating point, each channel scaled to unit std (conditioning)
     u0, w0, y0 = u.mean(0), w.mean(0), y.mean(0)
+    w0_all = np.asarray(data.w, dtype=np.float64).mean(0)
     uw = np.concatenate([u - u0, w - w0], axis=1)
     su, sy = uw.std(0), (y - y0).std(0)
     if np.any(su == 0):
-        raise DataError("n4sid: an input or measured signal is constant: it cannot excite the system")
+        raise DataError("n4sid: an input is constant: it cannot excite the system")
     if np.any(sy == 0):
         raise DataError("n4sid: an output is constant: nothing to identify")
-    return i, uw / su, (y - y0) / sy, (u0, w0, y0, su, sy, nu)
+    return i, uw / su, (y - y0) / sy, (u0, w0_all, y0, su, sy, nu, active, nw_all)
 
 
 def _assemble(parts, scaling, ts, max_radius):
     A, Bs, C, Ds, Q, S, R = parts
-    u0, w0, y0, su, sy, nu = scaling
+    u0, w0, y0, su, sy, nu, active, nw_all = scaling
     A = project_stable(A, max_radius)
     K = _kalman_gain(A, C, Q, S, R)
     # undo the scaling: y = sy ỹ, ũ = u / su
     Bfull = Bs / su[None, :]
-    nw = Bfull.shape[1] - nu
+    Bw = np.zeros((A.shape[0], nw_all))
+    Bw[:, active] = Bfull[:, nu:]
     return StateSpace(A, Bfull[:, :nu], sy[:, None] * C, (sy[:, None] * Ds / su[None, :])[:, :nu],
-                      K / sy[None, :], ts=ts, Bw=Bfull[:, nu:] if nw else None, u0=u0, w0=w0, y0=y0)
+                      K / sy[None, :], ts=ts, Bw=Bw if nw_all else None, u0=u0, w0=w0, y0=y0)
 
 
 def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,

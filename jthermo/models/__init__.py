@@ -2,3 +2,4 @@
 
 from ._base import AbstractModel as AbstractModel, StateSpace as StateSpace, is_stable as is_stable
 from .greybox import BedModel as BedModel, ExtendedBedModel as ExtendedBedModel
+from .statespace import InnovationsSS as InnovationsSS

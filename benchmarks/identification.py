@@ -1,0 +1,343 @@
+"""W1 identification benchmark: jthermo against SIPPY and jax-sysid on the same data, same run.
+
+Workload W1 of `../shared/bench/README.md` (imported from `../shared/bench/workloads.py` when
+present, otherwise re-created below): an N-zone linear bed, band-limited PRBS inputs, coloured
+measurement noise, T = 6000 samples for estimation and for validation (separate seeds). For each
+family (ARX, ARMAX, OE, BJ, SS) and N in {4, 16}: fitting time, cold (first call in the process,
+JAX compilation included) and warm (second call, same shapes), and the validation simulation fit
+% (models simulated from rest, x = 0 at u = 0, as the workload's data start), next to the oracle
+fit (noise-free truth vs measured). Peers run in a child process each (with a time limit), so a
+slow or crashing peer cannot stop the run; their time is measured inside the child around the
+fit call only.
+
+Usage:
+    python benchmarks/identification.py [--quick] [--peers none|sippy|all] [--n 4 16]
+        [--families arx armax oe bj ss] [--peer-timeout 900] [--json PATH]
+
+Writes a Markdown table to stdout and to `benchmarks/results/identification.md`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import multiprocessing as mp
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_BENCH = ROOT / ".." / "shared" / "bench" / "workloads.py"
+RESULTS = ROOT / "benchmarks" / "results"
+T = 6000
+FAMILIES = ("arx", "armax", "oe", "bj", "ss")
+#: orders matching the W1 plant (first order per zone, one-sample input delay)
+JT_ORDERS = {"arx": (1, 1, 1), "armax": (1, 1, 1, 1), "oe": (1, 1, 1), "bj": (1, 1, 1, 1, 1)}
+SIPPY_METHOD = {"arx": "ARX", "armax": "ARMAX", "oe": "OE", "bj": "BJ", "ss": "N4SID"}
+
+
+# ----------------------------------------------------------------------------- workload
+
+
+def load_workloads():
+    """The shared W1 definition, or a re-creation of it (same docstring contract)."""
+    path = SHARED_BENCH.resolve()
+    if path.exists():
+        spec = importlib.util.spec_from_file_location("jthermo_bench_workloads", path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+    return _Workloads()
+
+
+class _Workloads:
+    """Re-creation of W1 from the README/docstring of ../shared/bench/workloads.py."""
+
+    SIGMA_W, NOISE_STD, NOISE_POLE = 0.02, 0.1, 0.7
+
+    @staticmethod
+    def _rng(*key):
+        return np.random.default_rng(np.random.SeedSequence([int(k) for k in key]))
+
+    def make_plant(self, N, seed=0):
+        rng = self._rng(seed, N, 0)
+        a, b = rng.uniform(0.92, 0.96, N), rng.uniform(0.15, 0.25, N)
+        rows = max(1, int(np.floor(np.sqrt(N))))
+        cols = int(np.ceil(N / rows))
+        P = np.stack([np.arange(N) // cols, np.arange(N) % cols], 1).astype(float)
+        d2 = ((P[:, None] - P[None]) ** 2).sum(-1)
+        return {"A": np.diag(a), "B": b[:, None] * np.exp(-d2 / 0.8), "a": a, "b": b}
+
+    def _sim(self, plant, u, w=None):
+        x = np.zeros_like(u)
+        Bu = u @ plant["B"].T + (0 if w is None else w)
+        for k in range(len(u) - 1):
+            x[k + 1] = plant["a"] * x[k] + Bu[k]
+        return x
+
+    def make_dataset(self, N, T, seed=0, split=1):
+        plant = self.make_plant(N, seed)
+        rng = self._rng(seed, N, T, split)
+        u = np.empty((T, N))
+        for j in range(N):
+            level, t = rng.integers(0, 2), 0
+            while t < T:
+                hold = int(rng.integers(3, 16))
+                u[t:t + hold, j] = 0.7 if level else 0.3
+                t, level = t + hold, 1 - level
+        w = self.SIGMA_W * rng.standard_normal((T, N))
+        e = rng.standard_normal((T, N))
+        g = self.NOISE_STD * np.sqrt(1 - self.NOISE_POLE ** 2)
+        v = np.empty((T, N))
+        v[0] = self.NOISE_STD * e[0]
+        for k in range(1, T):
+            v[k] = self.NOISE_POLE * v[k - 1] + g * e[k]
+        x = self._sim(plant, u, w)
+        return {"u": u, "y": x + v, "x": x, "y_clean": self._sim(plant, u), "plant": plant}
+
+    def estimation_validation(self, N, T, seed=0):
+        return self.make_dataset(N, T, seed, 1), self.make_dataset(N, T, seed, 2)
+
+    @staticmethod
+    def fit_percent(y, yhat):
+        num = np.linalg.norm(y - yhat, axis=0)
+        den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+        return float(np.mean(100.0 * (1.0 - num / den)))
+
+
+# ----------------------------------------------------------------------------- jthermo
+
+
+def simulate_from_rest(model, u: np.ndarray) -> np.ndarray:
+    """Simulate a jthermo model from rest at u = 0 (the workload's ambient start)."""
+    ss = model.to_statespace()
+    A, B, u0 = (np.asarray(m) for m in (ss.A, ss.B, ss.u0))
+    try:
+        x0 = np.linalg.solve(np.eye(A.shape[0]) - A, B @ (0.0 - u0))
+    except np.linalg.LinAlgError:
+        x0 = np.zeros(A.shape[0])
+    return np.asarray(ss.simulate(u, x0=x0))
+
+
+def jthermo_fit(family: str, data, N: int, seed: int = 0):
+    from jthermo.identify.fit import fit
+
+    if family == "ss":
+        # N4SID start + PEM; one start at N = 16 (the dense LM Jacobian is large)
+        return fit(data, "ss", (N,), seed=seed, n_starts=2 if N <= 4 else 1,
+                   max_steps=30 if N <= 4 else 10, covariance=N <= 4)
+    return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4)
+
+
+def run_jthermo(W, family: str, N: int, est: dict, val: dict) -> dict:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jthermo.data import from_arrays
+
+    data = from_arrays(est["u"], est["y"])
+    row = {"tool": "jthermo", "family": family, "N": N}
+    try:
+        t0 = time.perf_counter()
+        res = jthermo_fit(family, data, N)
+        jax.block_until_ready(res.model)
+        row["cold_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        res = jthermo_fit(family, data, N)
+        jax.block_until_ready(res.model)
+        row["warm_s"] = time.perf_counter() - t0
+        row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
+        row["note"] = "" if res.converged else "not converged"
+    except Exception as exc:  # a family that is missing or fails is a row, not a crash
+        row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120]}"
+    return row
+
+
+# ----------------------------------------------------------------------------- peers
+
+
+def _lfilter_sim(num, den, u: np.ndarray) -> np.ndarray:
+    """Simulate a MIMO transfer-function matrix given as nested coefficient lists (z powers)."""
+    from scipy.signal import lfilter
+
+    ny, nu = len(num), len(num[0])
+    y = np.zeros((u.shape[0], ny))
+    for i in range(ny):
+        for j in range(nu):
+            b = np.atleast_1d(np.asarray(num[i][j], dtype=float)).ravel()
+            a = np.atleast_1d(np.asarray(den[i][j], dtype=float)).ravel()
+            if len(b) < len(a):
+                b = np.concatenate([np.zeros(len(a) - len(b)), b])
+            y[:, i] += lfilter(b, a, u[:, j])
+    return y
+
+
+def _sippy_fit(family: str, est: dict, N: int):
+    from sippy_unipi import system_identification
+
+    y, u = est["y"].T, est["u"].T
+    kw = {"arx": {"ARX_orders": [1, 1, 0]}, "armax": {"ARMAX_orders": [1, 1, 1, 0]},
+          "oe": {"OE_orders": [1, 1, 0]}, "bj": {"BJ_orders": [1, 1, 1, 1, 0]},
+          "ss": {"SS_fixed_order": N}}[family]
+    return system_identification(y, u, SIPPY_METHOD[family], **kw)
+
+
+def _sippy_sim(model, family: str, u: np.ndarray) -> np.ndarray:
+    if family == "ss":
+        A, B, C, D = (np.asarray(m) for m in (model.A, model.B, model.C, model.D))
+        x = np.zeros(A.shape[0])
+        y = np.empty((u.shape[0], C.shape[0]))
+        for k in range(u.shape[0]):
+            y[k] = C @ x + D @ u[k]
+            x = A @ x + B @ u[k]
+        return y
+    return _lfilter_sim(model.NUMERATOR, model.DENOMINATOR, u)
+
+
+def _jaxsysid_fit(est: dict, N: int):
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jax_sysid.models import LinearModel
+
+    model = LinearModel(N, N, N, feedthrough=False)
+    model.loss(rho_x0=1e-3, rho_th=1e-2)
+    model.optimization(lbfgs_epochs=1000, iprint=-1)
+    model.fit(est["y"], est["u"])
+    return model
+
+
+def _peer_child(tool: str, family: str, N: int, queue):
+    """Child process: build the data, fit once (timed), simulate, put the row on `queue`."""
+    row = {"tool": tool, "family": family, "N": N}
+    try:
+        W = load_workloads()
+        est, val = W.estimation_validation(N, T, 0)
+        if tool == "SIPPY":
+            t0 = time.perf_counter()
+            model = _sippy_fit(family, est, N)
+            row["cold_s"] = time.perf_counter() - t0
+            yhat = _sippy_sim(model, family, val["u"])
+        else:
+            t0 = time.perf_counter()
+            model = _jaxsysid_fit(est, N)
+            row["cold_s"] = time.perf_counter() - t0
+            yhat, _ = model.predict(np.zeros(N), val["u"])
+            yhat = np.asarray(yhat)
+        fitp = W.fit_percent(val["y"], yhat)
+        row["fit"] = fitp if np.isfinite(fitp) else float("-inf")
+        if not np.isfinite(fitp) or np.max(np.abs(yhat)) > 1e6:
+            row["note"] = "unstable simulation"
+    except BaseException as exc:  # noqa: BLE001 - SIPPY calls sys.exit on bad options
+        row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}"
+        row["trace"] = traceback.format_exc(limit=2)[-400:]
+    queue.put(row)
+
+
+def run_peer(tool: str, family: str, N: int, timeout: float) -> dict:
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_peer_child, args=(tool, family, N, q))
+    p.start()
+    p.join(timeout)
+    if p.is_alive():
+        p.terminate()
+        p.join()
+        return {"tool": tool, "family": family, "N": N, "error": f"timed out after {timeout:.0f} s"}
+    try:
+        return q.get(timeout=5)
+    except Exception:
+        return {"tool": tool, "family": family, "N": N, "error": f"child exited with {p.exitcode}"}
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _fmt(x, nd=2):
+    if x is None or (isinstance(x, float) and np.isnan(x)):
+        return "—"
+    if isinstance(x, float) and np.isinf(x):
+        return "−inf"
+    return f"{x:.{nd}f}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
+    lines = [
+        "# W1 identification benchmark",
+        "",
+        f"T = {T} estimation + {T} validation samples; fit % = validation simulation fit from rest "
+        "(mean over outputs); oracle = noise-free truth vs measured. Cold = first call in the process "
+        "(JAX compilation included), warm = second call. Peers: one call each, in a child process "
+        "(time of the fit call only). Speed-up = peer seconds / jthermo warm seconds "
+        "(cold in brackets); SIPPY's SS row is its N4SID.",
+        "",
+        f"Machine: {meta['machine']}; {meta['date']}; command: `{meta['command']}`",
+        "",
+        "| family | N | tool | cold s | warm s | fit % | oracle % | speed-up vs jthermo | note |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    jt = {(r["family"], r["N"]): r for r in rows if r["tool"] == "jthermo"}
+    for r in rows:
+        key = (r["family"], r["N"])
+        note = r.get("error", r.get("note", ""))
+        speed = "—"
+        ref = jt.get(key)
+        if r["tool"] != "jthermo" and ref and "warm_s" in ref and "cold_s" in r:
+            speed = f"{r['cold_s'] / ref['warm_s']:.1f}× ({r['cold_s'] / ref['cold_s']:.1f}×)"
+        warm = r.get("warm_s") if r["tool"] == "jthermo" else r.get("cold_s")
+        lines.append(f"| {r['family'].upper()} | {r['N']} | {r['tool']} | {_fmt(r.get('cold_s'))} | "
+                     f"{_fmt(warm)} | {_fmt(r.get('fit'), 1)} | {_fmt(oracle[r['N']], 1)} | {speed} | "
+                     f"{note} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="N = 4 only; skip SIPPY OE and BJ")
+    ap.add_argument("--peers", choices=("none", "sippy", "all"), default="all")
+    ap.add_argument("--n", type=int, nargs="+", default=None, help="zone counts (default 4 16)")
+    ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
+    ap.add_argument("--peer-timeout", type=float, default=900.0, help="s per peer fit")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
+    args = ap.parse_args(argv)
+    Ns = args.n or ([4] if args.quick else [4, 16])
+    W = load_workloads()
+    rows, oracle = [], {}
+    for N in Ns:
+        est, val = W.estimation_validation(N, T, 0)
+        oracle[N] = W.fit_percent(val["y"], val["y_clean"])
+        for fam in args.families:
+            print(f"[W1] N={N} {fam}: jthermo ...", file=sys.stderr, flush=True)
+            rows.append(run_jthermo(W, fam, N, est, val))
+            if args.peers in ("sippy", "all"):
+                if args.quick and fam in ("oe", "bj"):
+                    rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped (--quick)"})
+                else:
+                    print(f"[W1] N={N} {fam}: SIPPY ...", file=sys.stderr, flush=True)
+                    rows.append(run_peer("SIPPY", fam, N, args.peer_timeout))
+            if args.peers == "all" and fam == "ss":
+                print(f"[W1] N={N} ss: jax-sysid ...", file=sys.stderr, flush=True)
+                rows.append(run_peer("jax-sysid", fam, N, args.peer_timeout))
+    meta = {"machine": f"{platform.machine()}, {mp.cpu_count()} CPU cores, {platform.python_version()}",
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "command": "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
+    md = markdown(rows, oracle, meta)
+    print(md)
+    from jthermo.data import atomic_write_text
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.out, md)
+    if args.json:
+        clean = [{k: v for k, v in r.items() if k != "trace"} for r in rows]
+        atomic_write_text(args.json, json.dumps({"rows": clean, "oracle": oracle, **meta}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
