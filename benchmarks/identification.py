@@ -35,10 +35,10 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED_BENCH = ROOT / ".." / "shared" / "bench" / "workloads.py"
 RESULTS = ROOT / "benchmarks" / "results"
 T = 6000
-FAMILIES = ("arx", "armax", "oe", "bj", "ss")
+FAMILIES = ("arx", "armax", "oe", "bj", "n4sid", "ss")
 #: orders matching the W1 plant (first order per zone, one-sample input delay)
 JT_ORDERS = {"arx": (1, 1, 1), "armax": (1, 1, 1, 1), "oe": (1, 1, 1), "bj": (1, 1, 1, 1, 1)}
-SIPPY_METHOD = {"arx": "ARX", "armax": "ARMAX", "oe": "OE", "bj": "BJ", "ss": "N4SID"}
+SIPPY_METHOD = {"arx": "ARX", "armax": "ARMAX", "oe": "OE", "bj": "BJ", "n4sid": "N4SID"}
 
 
 # ----------------------------------------------------------------------------- workload
@@ -127,6 +127,11 @@ def simulate_from_rest(model, u: np.ndarray) -> np.ndarray:
 def jthermo_fit(family: str, data, N: int, seed: int = 0):
     from jthermo.identify.fit import fit
 
+    if family == "n4sid":   # subspace only (CVA weighting), no PEM
+        from types import SimpleNamespace
+
+        from jthermo.identify.subspace import n4sid
+        return SimpleNamespace(model=n4sid(data, N)[0], converged=True)
     if family == "ss":
         # N4SID start + PEM; one start at N = 16 (the dense LM Jacobian is large)
         return fit(data, "ss", (N,), seed=seed, n_starts=2 if N <= 4 else 1,
@@ -183,12 +188,12 @@ def _sippy_fit(family: str, est: dict, N: int):
     y, u = est["y"].T, est["u"].T
     kw = {"arx": {"ARX_orders": [1, 1, 0]}, "armax": {"ARMAX_orders": [1, 1, 1, 0]},
           "oe": {"OE_orders": [1, 1, 0]}, "bj": {"BJ_orders": [1, 1, 1, 1, 0]},
-          "ss": {"SS_fixed_order": N}}[family]
+          "n4sid": {"SS_fixed_order": N}}[family]
     return system_identification(y, u, SIPPY_METHOD[family], **kw)
 
 
 def _sippy_sim(model, family: str, u: np.ndarray) -> np.ndarray:
-    if family == "ss":
+    if family == "n4sid":
         A, B, C, D = (np.asarray(m) for m in (model.A, model.B, model.C, model.D))
         x = np.zeros(A.shape[0])
         y = np.empty((u.shape[0], C.shape[0]))
@@ -274,7 +279,8 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
         "(mean over outputs); oracle = noise-free truth vs measured. Cold = first call in the process "
         "(JAX compilation included), warm = second call. Peers: one call each, in a child process "
         "(time of the fit call only). Speed-up = peer seconds / jthermo warm seconds "
-        "(cold in brackets); SIPPY's SS row is its N4SID.",
+        "(cold in brackets). N4SID = subspace estimate only (order N); SS = N4SID start + PEM "
+        "(one-step prediction error, order N; MATLAB `ssest`), compared with jax-sysid's SS fit.",
         "",
         f"Machine: {meta['machine']}; {meta['date']}; command: `{meta['command']}`",
         "",
@@ -303,6 +309,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, nargs="+", default=None, help="zone counts (default 4 16)")
     ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
     ap.add_argument("--peer-timeout", type=float, default=900.0, help="s per peer fit")
+    ap.add_argument("--peer-families", nargs="+", default=list(FAMILIES), choices=FAMILIES,
+                    help="families the peers are run for (SIPPY OE/BJ are slow)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
     args = ap.parse_args(argv)
@@ -315,13 +323,13 @@ def main(argv=None) -> int:
         for fam in args.families:
             print(f"[W1] N={N} {fam}: jthermo ...", file=sys.stderr, flush=True)
             rows.append(run_jthermo(W, fam, N, est, val))
-            if args.peers in ("sippy", "all"):
-                if args.quick and fam in ("oe", "bj"):
-                    rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped (--quick)"})
+            if args.peers in ("sippy", "all") and fam in SIPPY_METHOD:
+                if (args.quick and fam in ("oe", "bj")) or fam not in args.peer_families:
+                    rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped"})
                 else:
                     print(f"[W1] N={N} {fam}: SIPPY ...", file=sys.stderr, flush=True)
                     rows.append(run_peer("SIPPY", fam, N, args.peer_timeout))
-            if args.peers == "all" and fam == "ss":
+            if args.peers == "all" and fam == "ss" and fam in args.peer_families:
                 print(f"[W1] N={N} ss: jax-sysid ...", file=sys.stderr, flush=True)
                 rows.append(run_peer("jax-sysid", fam, N, args.peer_timeout))
     meta = {"machine": f"{platform.machine()}, {mp.cpu_count()} CPU cores, {platform.python_version()}",

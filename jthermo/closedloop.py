@@ -121,12 +121,37 @@ class _ModelPlant(eqx.Module):
         return y, y
 
 
+class _LinearPlant(eqx.Module):
+    """A linear model's state space, built once outside the scan: one matrix product per step."""
+
+    M: Array          # [A  B  Bw]
+    C: Array
+    u0: Array
+    w0: Array
+    y0: Array
+
+    def step(self, x, u, d):
+        parts = [x, u - self.u0]
+        if self.w0.shape[0]:
+            parts.append(d.w - self.w0)
+        return self.M @ jnp.concatenate(parts)
+
+    def measure(self, x, d):
+        y = self.y0 + self.C @ x + d.dy
+        return y, y
+
+
 def _prepare(plant):
     if isinstance(plant, Printer):
         return _PrinterPlant(plant.discretise())
     if isinstance(plant, DiscretePrinter):
         return _PrinterPlant(plant)
     if isinstance(plant, AbstractModel):
+        if type(plant).step is AbstractModel.step and type(plant).output is AbstractModel.output:
+            # the default plant interface goes through the state space: build it once
+            ss = plant.to_statespace()
+            return _LinearPlant(M=jnp.concatenate([ss.A, ss.B, ss.Bw], axis=1), C=ss.C,
+                                u0=ss.u0, w0=ss.w0, y0=ss.y0)
         return _ModelPlant(plant)
     raise ConfigError(f"closed loop: unsupported plant {type(plant).__name__} "
                       "(a Printer or a fitted AbstractModel)")
@@ -419,12 +444,7 @@ def cost(traj: Trajectory, scenario: Scenario, weights: Mapping[str, float] | No
     smooth fraction of time (and zones) outside the window. Batches give the mean over rollouts.
     `weights` keys: tracking, uniformity, effort, window (defaults all 1).
     """
-    w = dict(DEFAULT_WEIGHTS)
-    if weights is not None:
-        bad = [k for k in weights if k not in DEFAULT_WEIGHTS]
-        if bad:
-            raise ConfigError(f"cost: unknown weight `{bad[0]}` (known: {', '.join(DEFAULT_WEIGHTS)})")
-        w.update(weights)
+    w = _weights(weights)
     if traj.temperature.ndim == 3:
         return jnp.mean(jax.vmap(lambda t, s: cost(t, s, w, smoothing=smoothing))(traj, scenario))
     T, u = traj.temperature, traj.u
@@ -438,6 +458,81 @@ def cost(traj: Trajectory, scenario: Scenario, weights: Mapping[str, float] | No
     a = jnp.sqrt(e ** 2 + (0.1 * smoothing) ** 2)
     J = J + w["window"] * jnp.mean(jax.nn.sigmoid((a - scenario.window) / smoothing))
     return J
+
+
+def _weights(weights):
+    w = dict(DEFAULT_WEIGHTS)
+    if weights is not None:
+        bad = [k for k in weights if k not in DEFAULT_WEIGHTS]
+        if bad:
+            raise ConfigError(f"cost: unknown weight `{bad[0]}` (known: {', '.join(DEFAULT_WEIGHTS)})")
+        w.update(weights)
+    return w
+
+
+def _is_zero(x) -> bool:
+    return isinstance(x, (int, float)) and x == 0
+
+
+def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
+                  weights: Mapping[str, float] | None = None, x0=None, *,
+                  smoothing: float = 0.1) -> Float[Array, ""]:
+    """`cost(simulate(...), scenario, weights)` accumulated inside the scan, without storing the
+    trajectory: memory independent of the horizon (for large batches and long runs)."""
+    w = _weights(weights)
+    p = _prepare(plant)
+    x0 = initial_state(plant, scenario) if x0 is None else x0
+    d0 = jax.tree.map(lambda a: a[0], scenario.d)
+    y_first = p.measure(x0, d0)[0] + scenario.v[0]
+    c0 = controller.init(y_first, scenario.r[0])
+    idx = _edge_index(scenario.edges)
+    eps = 0.1 * smoothing
+    nu = _n_inputs(plant)
+    zero = jnp.zeros((), scenario.r.dtype)
+
+    def body(carry, inp):
+        x, c, u_prev, first, acc = carry
+        r, d, v = inp
+        y_clean, temps = p.measure(x, d)
+        u, c = controller.step(c, y_clean + v, r)
+        u = jnp.clip(u, 0.0, 1.0)
+        e = temps - r
+        track = jnp.mean(e ** 2)
+        # terms with a weight of (Python) zero are not computed at all
+        unif = zero if (idx is None or _is_zero(w["uniformity"])) else \
+            jnp.mean((temps[idx[0]] - temps[idx[1]]) ** 2)
+        du = zero if _is_zero(w["effort"]) else jnp.where(first, 0.0, jnp.mean((u - u_prev) ** 2))
+        win = zero if _is_zero(w["window"]) else jnp.mean(
+            jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - scenario.window) / smoothing))
+        acc = acc + jnp.stack([track, unif, du, win])
+        return (p.step(x, u, d), c, u, jnp.zeros((), bool), acc), None
+
+    init = (x0, c0, jnp.zeros((nu,), scenario.r.dtype), jnp.ones((), bool),
+            jnp.zeros((4,), scenario.r.dtype))
+    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v))
+    T = scenario.r.shape[0]
+    J = w["tracking"] * acc[0] / T + w["window"] * acc[3] / T
+    if idx is not None:
+        J = J + w["uniformity"] * acc[1] / T
+    return J + w["effort"] * acc[2] / max(T - 1, 1)
+
+
+def rollout_costs(plant, controller: AbstractController, scenarios: Scenario,
+                  weights: Mapping[str, float] | None = None, x0s=None, *,
+                  plant_axis: int | None = None) -> Float[Array, " B"]:
+    """Per-rollout `simulate_cost` over a batch of scenarios (and plants with `plant_axis=0`)."""
+    if x0s is None:
+        return jax.vmap(lambda pl, sc: simulate_cost(pl, controller, sc, weights),
+                        in_axes=(plant_axis, 0))(plant, scenarios)
+    return jax.vmap(lambda pl, sc, x0: simulate_cost(pl, controller, sc, weights, x0),
+                    in_axes=(plant_axis, 0, 0))(plant, scenarios, x0s)
+
+
+def _n_inputs(plant) -> int:
+    if isinstance(plant, (Printer, DiscretePrinter)):
+        pr = plant if isinstance(plant, Printer) else plant.printer
+        return pr.n_inputs
+    return int(plant.n_inputs)
 
 
 # ----------------------------------------------------------------------------- convenience

@@ -15,6 +15,7 @@ from jthermo.closedloop import (
     rollouts,
     run,
     simulate,
+    simulate_cost,
 )
 from jthermo.control.pi import DiagonalPI
 from jthermo.errors import ConfigError
@@ -74,6 +75,8 @@ def test_cost_gradient_matches_central_differences(printer):
         fd[i] = (float(J(theta.at[i].add(h))) - float(J(theta.at[i].add(-h)))) / (2 * h)
     np.testing.assert_allclose(g, fd, rtol=2e-4, atol=1e-8)
     assert np.all(np.abs(fd) > 0)
+    # the streaming cost (no trajectory kept) is the same number
+    np.testing.assert_allclose(simulate_cost(printer, base, sc), J(theta), rtol=1e-12)
 
 
 def test_fitted_model_plant_equals_printer_by_superposition():

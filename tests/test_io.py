@@ -225,3 +225,71 @@ def test_nested_containers(tmp_path):
     assert back["list"] == [1, 2.5, None, "s", (True, float("inf"))]
     np.testing.assert_array_equal(back["arr"], tree["arr"])
     assert eqx.tree_equal(back["m"], tree["m"])
+
+
+# ---------------------------------------------------------------- every family that exists
+
+
+def _families():
+    rng = np.random.default_rng(5)
+    out = {}
+    try:
+        from jthermo.models.polynomial import Polynomial
+
+        out["bj"] = Polynomial(a=None, b=rng.normal(size=(2, 2, 2)), c=0.1 * rng.normal(size=(2, 1)),
+                               d=0.1 * rng.normal(size=(2, 1)), f=0.1 * rng.normal(size=(2, 2, 1)),
+                               nk=((1, 2), (1, 1)), ts=1.0, u0=[0.5, 0.5], y0=[170.0, 171.0])
+        out["arx_full"] = Polynomial(a=0.1 * rng.normal(size=(2, 2, 2)), b=rng.normal(size=(2, 2, 1)),
+                                     nk=1, ts=2.0)
+    except ImportError:
+        pass
+    try:
+        from jthermo.models.statespace import InnovationsSS
+
+        out["ss"] = InnovationsSS.from_statespace(_model(3))
+    except ImportError:
+        pass
+    try:
+        from jthermo.models.greybox import BedModel
+
+        out["greybox"] = BedModel(np.log([1000.0, 1100.0]), np.log([2.0, 2.5]),
+                                  np.log(np.abs(rng.normal(size=(2, 2))) + 1.0), surroundings=25.0)
+    except ImportError:
+        pass
+    return out
+
+
+@pytest.mark.parametrize("name", list(_families()))
+def test_family_round_trip(name, tmp_path):
+    m = _families()[name]
+    back = io.load(io.save(m, tmp_path / f"{name}.jtm", meta={"family": name}), kind="model")
+    assert type(back) is type(m) and eqx.tree_equal(back, m)
+    rng = np.random.default_rng(0)
+    T = 30
+    u = rng.random((T, m.n_inputs))
+    w = 25.0 + rng.random((T, m.n_signals)) if m.n_signals else None
+    np.testing.assert_array_equal(np.asarray(back.simulate(u, w)), np.asarray(m.simulate(u, w)))
+    y = np.asarray(m.simulate(u, w)) + 0.1 * rng.standard_normal((T, m.n_outputs))
+    np.testing.assert_array_equal(np.asarray(back.predict(y, u, w)), np.asarray(m.predict(y, u, w)))
+    assert io.load_header(tmp_path / f"{name}.jtm")["family"] == name
+
+
+def test_designed_controllers_round_trip(tmp_path):
+    design = pytest.importorskip("jthermo.control.design")
+    ss = _model(0, nw=0)
+    ss = StateSpace(0.9 * np.eye(2), 0.5 * np.eye(2) + 0.05, np.eye(2), ts=1.0, u0=[0.5, 0.5], y0=[174.0, 174.0])
+    for fam in design.FAMILIES:
+        try:
+            c = design.design(fam, ss)
+        except Exception as exc:  # noqa: BLE001 - a design that does not apply to this model
+            pytest.fail(f"{fam}: {exc}") if fam in ("pi_lambda",) else None
+            continue
+        path = io.save(c, tmp_path / f"{fam}.jtm")
+        back = io.load_controller(path)
+        assert type(back) is type(c) and eqx.tree_equal(back, c), fam
+        y, r = jnp.array([173.0, 175.0]), jnp.array([174.0, 174.0])
+        s1, s2 = c.init(y, r), back.init(y, r)
+        for _ in range(3):
+            u1, s1 = c.step(s1, y, r)
+            u2, s2 = back.step(s2, y, r)
+            np.testing.assert_array_equal(np.asarray(u1), np.asarray(u2))

@@ -70,3 +70,16 @@ def test_errors(problem):
         minimise(loss, start, [d], steps=-1)
     with pytest.raises(ControlError, match="non-finite cost"):
         minimise(lambda c, b: jnp.nan * loss(c, b), start, [d], steps=1)
+
+
+@pytest.mark.slow
+def test_tune_report_on_a_small_printer():
+    from jthermo.tune import tune_report
+
+    rep = tune_report("pi_lambda", zones=2, rollouts=2, steps=4, duration=120.0, seed=3)
+    ctrl = rep.pop("tuned")
+    assert set(rep) >= {"controller", "start_cost", "tuned_cost", "lambda_pi_cost",
+                        "improvement_percent", "scenarios", "seconds"}
+    assert set(rep["scenarios"]) == {"tracking", "powder", "print"}
+    assert np.isfinite(rep["tuned_cost"]) and np.all(np.asarray(ctrl.kp) > 0)
+    assert rep["train_tuned_cost"] <= rep["train_start_cost"]

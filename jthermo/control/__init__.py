@@ -1,6 +1,7 @@
 """Controllers for the N-zone bed and their classical design rules."""
 
 from ._base import AbstractController as AbstractController
+from .pi import DiagonalPI as DiagonalPI, PIState as PIState
 from .decoupled import (DecoupledPI as DecoupledPI, design_decoupled_pi as design_decoupled_pi,
                         design_lambda_pi as design_lambda_pi, design_untuned_pi as design_untuned_pi)
 from .design import (FAMILIES as FAMILIES, decoupling_matrix as decoupling_matrix,

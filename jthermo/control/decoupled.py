@@ -37,7 +37,7 @@ def pi_update(kp, ti, ts, integ, e, u_open, W1=None):
     return u_sat, integ_new
 
 
-class PIState(eqx.Module):
+class DecoupledPIState(eqx.Module):
     integ: Float[Array, " nu"]      # integrator, in decoupled input units
 
 
@@ -68,13 +68,13 @@ class DecoupledPI(AbstractController):
         if self.W1 is not None and self.W1.shape != (n[0], n[0]):
             raise ControlError(f"DecoupledPI: W1 has shape {self.W1.shape}, expected {(n[0], n[0])}")
 
-    def init(self, y0: Output, r0: Setpoint) -> PIState:
-        return PIState(integ=jnp.zeros_like(self.kp * jnp.asarray(y0)))
+    def init(self, y0: Output, r0: Setpoint) -> DecoupledPIState:
+        return DecoupledPIState(integ=jnp.zeros_like(self.kp * jnp.asarray(y0)))
 
-    def step(self, state: PIState, y: Output, r: Setpoint) -> tuple[Input, PIState]:
+    def step(self, state: DecoupledPIState, y: Output, r: Setpoint) -> tuple[Input, DecoupledPIState]:
         e = r - y
         u, integ = pi_update(self.kp, self.ti, self.ts, state.integ, e, self.u_bias, self.W1)
-        return u, PIState(integ)
+        return u, DecoupledPIState(integ)
 
 
 def design_lambda_pi(model, lam=None, *, u_bias=None) -> DiagonalPI:

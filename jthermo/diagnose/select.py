@@ -114,6 +114,48 @@ def _shared(rec, level, ts_free, ts):
                 u_pad=jnp.asarray(rec["u_pad"]), ts=jnp.asarray(float(ts)))
 
 
+def _grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
+    """Per-zone baseline start by separable least squares: for each loss rate on a log grid the
+    zone's simulated output is linear in its heater gains, initial temperature (and the
+    surroundings level when it is free); keep the best rate. Returns (log_a, b, x0, ts0)."""
+    from scipy.signal import lfilter
+
+    T, n = y.shape
+    nu = u.shape[1]
+    rates = np.exp(np.linspace(np.log(1.0 / 3000.0), np.log(1.0 / 3.0), n_grid)) 
+    k = np.arange(T)
+    best = [(np.inf, None)] * n
+    for a in rates:
+        ad = math.exp(-a * ts)
+        g = (1 - ad) / a
+        # f[k] = sum_{m<k} ad^(k-1-m) g u[m]  (zero initial state)
+        F = lfilter([0.0, g], [1.0, -ad], u, axis=0)
+        X = [F, (ad ** k)[:, None]]
+        one = 1.0 - ad ** k
+        if ts_free:
+            X.append(one[:, None])
+        X = np.concatenate(X, axis=1)
+        for i in range(n):
+            target = y[:, i] - (0.0 if ts_free else level * one)
+            coef, *_ = np.linalg.lstsq(X, target, rcond=None)
+            c = float(np.mean((target - X @ coef) ** 2))
+            if c < best[i][0]:
+                best[i] = (c, (a, coef))
+    log_a = np.empty(n)
+    b = np.empty((n, nu))
+    x0 = np.empty(n)
+    ts0 = np.zeros(n)
+    for i in range(n):
+        a, coef = best[i][1]
+        log_a[i] = math.log(a)
+        bi = coef[:nu]
+        b[i] = np.maximum(bi, 0.02 * max(np.max(bi), 1e-9))
+        x0[i] = coef[nu]
+        if ts_free:
+            ts0[i] = coef[nu + 1] - level
+    return log_a, b, x0, ts0
+
+
 def _summary(mech, zones, params):
     z = ", ".join(str(v) for v in zones)
     where = f"zone{'s' if len(zones) > 1 else ''} {z}"
@@ -199,8 +241,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     sh_e = _shared(rec_e, level, ts_free, ts)
     base_names = ["log_a", "log_b", "x0"] + (["ts0"] if ts_free else [])
     base_mask = lay.mask(base_names)
-    th0 = np.stack([M.initial_theta(lay, log_a=math.log(loss[i]), log_b=np.log(gain[i]),
-                                    x0=y[0, i], xw0=(y[0].mean() - level) / 2.0)
+    ga, gb, gx, gs = _grid_start(y, u, ts, level, ts_free)
+    th0 = np.stack([M.initial_theta(lay, log_a=ga[i], log_b=np.log(gb[i]), x0=gx[i], ts0=gs[i],
+                                    xw0=(y[0].mean() - level) / 2.0)
                     for i in range(n)])
 
     # ---- 1. baseline -----------------------------------------------------------------------
@@ -238,15 +281,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     # ---- 3. one refit per mechanism -----------------------------------------------------------
     cands = list(mechanisms)
     K = len(cands)
-    theta0, masks, ons, delays, events = [], [], [], [], []
+    masks, ons, delays, events = [], [], [], []
     for m in cands:
-        theta0.append(thb)
         mk = base_mask + lay.mask(M.MECH_PARAMS[m])
         masks.append(np.tile(np.minimum(mk, 1.0), (n, 1)))
         ons.append(np.tile(M.on_vector([m]), (n, 1)))
         delays.append(best_delay if m == "input_delay" else 0)
         events.append(ev_e)
-    theta0 = np.concatenate(theta0)
     # mechanism parameters start at their neutral values (baseline parameters kept)
     neutral = np.stack([M.initial_theta(lay, log_a=thb[i, lay.sl("log_a")][0],
                                         log_b=thb[i, lay.sl("log_b")], x0=thb[i, lay.sl("x0")][0],
@@ -320,12 +361,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
             rmask[j, n:2 * n] = 1.0
         if on[7] and not measured_var:
             rmask[j, 2 * n:] = 1.0
+
     fper = dict(events=jnp.asarray(np.stack([ev_v] * Mn)),
                 delay=jnp.asarray(np.array([mm[3] for mm in models], np.int32)))
     _, yhat_v, _ = fit_records(jnp.asarray(np.stack([mm[1] for mm in models])),
                                jnp.asarray(np.stack([mm[2] for mm in models])),
                                jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v,
-                               lay, 8)
+                               lay, 10)
     yhat_v = np.asarray(yhat_v)
     tick({"stage": "validation"})
 

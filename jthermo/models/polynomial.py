@@ -51,10 +51,11 @@ def _doubling_recursion(M: Array, drive: Array) -> Array:
     shift = 1
     while shift < T:
         prev = jnp.concatenate([jnp.zeros((shift,) + S.shape[1:], S.dtype), S[:T - shift]], axis=0)
-        S = S + jnp.matmul(P, prev[..., None])[..., 0]
+        # broadcast-multiply-sum, not matmul: XLA CPU is slow on batches of tiny dot products
+        S = S + jnp.sum(P * prev[..., None, :], axis=-1)
         shift *= 2
         if shift < T:
-            P = P @ P
+            P = jnp.sum(P[..., :, :, None] * P[..., None, :, :], axis=-2)
     return S
 
 
