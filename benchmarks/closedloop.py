@@ -38,14 +38,14 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import equinox as eqx  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
 
-from jthermo.closedloop import ModelDisturbance, Scenario, rollout_costs, rollouts  # noqa: E402
-from jthermo.control.pi import DiagonalPI  # noqa: E402
-from jthermo.data import atomic_write_text  # noqa: E402
-from jthermo.models import StateSpace  # noqa: E402
+from jthermo.closedloop import ModelDisturbance, Scenario, rollout_costs, rollouts
+from jthermo.control.pi import DiagonalPI
+from jthermo.data import atomic_write_text
+from jthermo.models import StateSpace
 
 BENCH = Path(os.environ.get("JTHERMO_BENCH", "/work/shared/bench"))
 HERE = Path(__file__).resolve().parent
@@ -100,7 +100,7 @@ def timed(f, repeats):
 
 def xla_bytes(fn, *args):
     try:
-        m = fn.lower(*args).compile().memory_analysis()
+        m = jax.jit(lambda *a: fn(*a)).lower(*args).compile().memory_analysis()
         return int(m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes)
     except Exception:   # memory analysis is not available on every backend
         return -1
@@ -167,6 +167,7 @@ def run(Ns, Bs, T, repeats, pc_rollouts, max_gb, traj_max_gb, scaling):
                 _, tc, tw = timed(lambda: jax_traj_costs(*args), repeats)
                 row["traj_warm"] = tw
                 row["traj_cold"] = tc
+                row["traj_mem"] = xla_bytes(jax_traj_costs, *args)
             if N <= 16 and B in (1, 256) and pc_rollouts:
                 nb = min(pc_rollouts, B)
                 Jp, per = python_control_costs(setup, nb)
@@ -201,7 +202,7 @@ def report(rows, scale, T, args):
              "warm = median of repeats, cold = first call with compilation. Each implementation's "
              "per-rollout cost agrees with NumPy's to the `max |ΔJ|` shown.", "",
              "| N | B | jthermo warm s | zone-steps/s | cold s | NumPy s | zone-steps/s | ×NumPy "
-             "| python-control s (extrapolated) | ×python-control | jthermo trajectories warm s "
+             "| python-control s (extrapolated) | ×python-control | jthermo trajectories kept: warm s (memory) "
              "| memory jthermo / NumPy MB | max abs ΔJ |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -214,7 +215,8 @@ def report(rows, scale, T, args):
         pc_txt = (f"{pc_s:.3g} ({r['pc_rollouts']} run{'s' if r['pc_rollouts'] > 1 else ''} × "
                   f"{r['B'] / r['pc_rollouts']:g})") if pc else "—"
         pc_ratio = f"{pc_s / r['jax_warm']:.0f}" if pc else "—"
-        traj = f"{r['traj_warm']:.3g}" if "traj_warm" in r else "—"
+        traj = (f"{r['traj_warm']:.3g} ({r['traj_mem'] / 1e6:.0f} MB)" if "traj_warm" in r
+                else "—")
         mem = f"{r['jax_mem'] / 1e6:.0f} / {r['np_mem'] / 1e6:.0f}" if r["jax_mem"] >= 0 else \
             f"— / {r['np_mem'] / 1e6:.0f}"
         lines.append(

@@ -135,7 +135,7 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
     if family == "ss":
         # N4SID start + PEM; one start at N = 16 (the dense LM Jacobian is large)
         return fit(data, "ss", (N,), seed=seed, n_starts=2 if N <= 4 else 1,
-                   max_steps=30 if N <= 4 else 10, covariance=N <= 4)
+                   max_steps=30 if N <= 4 else 5, covariance=N <= 4)
     return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4)
 
 

@@ -476,7 +476,7 @@ def _is_zero(x) -> bool:
 
 def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
                   weights: Mapping[str, float] | None = None, x0=None, *,
-                  smoothing: float = 0.1) -> Float[Array, ""]:
+                  smoothing: float = 0.1, unroll: int = 1) -> Float[Array, ""]:
     """`cost(simulate(...), scenario, weights)` accumulated inside the scan, without storing the
     trajectory: memory independent of the horizon (for large batches and long runs)."""
     w = _weights(weights)
@@ -509,7 +509,8 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
 
     init = (x0, c0, jnp.zeros((nu,), scenario.r.dtype), jnp.ones((), bool),
             jnp.zeros((4,), scenario.r.dtype))
-    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v))
+    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v),
+                                        unroll=unroll)
     T = scenario.r.shape[0]
     J = w["tracking"] * acc[0] / T + w["window"] * acc[3] / T
     if idx is not None:

@@ -24,6 +24,13 @@ $n_{ij}$. Each physical effect is switched on by name with its own parameters
 | `sensor_noise` | white + AR(1) coloured measurement noise | `white_std_C`, `coloured_std_C`, `pole` |
 | `sensor_offset` | a constant bias per zone sensor | `std_C` (or `offsets_C`) |
 
+Conventions that keep the operating point where the data are taken: with `radiative_loss`,
+`loss` stays the total loss conductance at the window centre (the linear part gives up the
+radiation's secant share); with `heat_accumulation`, `loss` stays the steady-state loss of a
+uniform bed; with `input_nonlinearity`, power = $0.5^{1-p} u^p$ (equal to u at the nominal input
+0.5). Default parameters (PA12, seed 0): C ≈ 36 J/K, G ≈ 0.6 W/K (τ = C/G ≈ 60 s), heater
+footprint width 0.7 zone, surroundings 145 °C, so that u ≈ 0.5 holds the 172–176 °C window.
+
 `areas=True` adds the thesis' areas 1–3 (wall heaters, build plate, powder container) as extra
 states, each with its own heater input and thermocouple output (inputs/outputs N+1..N+3).
 
@@ -414,7 +421,7 @@ class Printer(eqx.Module):
             return u.at[:n].set(NOMINAL_INPUT ** (1.0 - e) * _safe_power(u[:n], e))
         return u
 
-    def discretise(self) -> "DiscretePrinter":
+    def discretise(self) -> DiscretePrinter:
         """Precompute the sample-time matrices once (what `closedloop.simulate` calls)."""
         A, Bp, bs, Bl = self.linear_system()
         m = self.substeps if self.nonlinear else 1
@@ -655,7 +662,7 @@ def make_printer(zones: int = 4, effects: Mapping[str, Mapping] | Iterable[str] 
     eff = _normalise_effects(effects)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), n, 7]))
     spread = float(overrides.get("spread", 0.08))
-    jitter = lambda: 1.0 + spread * rng.uniform(-1.0, 1.0, n)   # noqa: E731
+    jitter = lambda: 1.0 + spread * rng.uniform(-1.0, 1.0, n)
     cap_nominal = pw.density * pw.heat_capacity * ZONE_AREA * HEATED_DEPTH     # J/K (≈36 for PA12)
     loss_nominal = 0.6                                                         # W/K (τ ≈ 60 s)
     rise = 29.0                      # K above the surroundings at the nominal input 0.5

@@ -98,23 +98,22 @@ def test_fitted_model_plant_equals_printer_by_superposition():
 
 
 def test_scenarios_and_run(printer):
-    for kind in KINDS:
-        sc = make_scenario(kind, printer, 120, 0)
-        assert isinstance(sc, Scenario) and sc.r.shape == (120, N) and sc.v.shape == (120, N)
-    sc = make_scenario("tracking", printer, 120, 0)
-    np.testing.assert_allclose(sc.r[0] - sc.y0, 4.0)
-    sc = make_scenario("powder", printer, 120, 0)
-    assert float(sc.d.recoat.sum()) == 2.0 and float(sc.d.laser.sum()) == 0.0
-    pre = make_scenario("preheat", printer, 120, 0)
-    np.testing.assert_allclose(pre.y0, float(printer.surroundings))
-    out = run("tracking", "untuned", printer, rollouts=2, duration=120, seed=0)
+    assert set(KINDS) == {"tracking", "powder", "print", "preheat", "ensemble"}
+    sc = {k: make_scenario(k, printer, T, 3) for k in ("tracking", "powder", "print", "preheat")}
+    for s in sc.values():
+        assert isinstance(s, Scenario) and s.r.shape == (T, N) and s.v.shape == (T, N)
+    np.testing.assert_allclose(sc["tracking"].r[0] - sc["tracking"].y0, 4.0)
+    assert float(sc["powder"].d.recoat.sum()) == 4.0 and float(sc["powder"].d.laser.sum()) == 0.0
+    assert float(sc["print"].d.laser.sum()) > 0.0
+    np.testing.assert_allclose(sc["preheat"].y0, float(printer.surroundings))
+    out = run("ensemble", "untuned", printer, rollouts=3, duration=T, seed=7)
     assert {"scenario", "controller", "zones", "rollouts", "metrics", "seconds"} <= set(out)
-    assert out["zones"] == N and out["rollouts"] == 2
+    assert out["zones"] == N and out["rollouts"] == 3 and np.isfinite(out["cost"])
     with pytest.raises(ConfigError, match="unknown scenario"):
         make_scenario("warmup", printer, 100, 0)
     with pytest.raises(ConfigError, match="needs a printer with the `recoat_cooling`"):
         make_scenario("powder", make_printer(N), 100, 0)
     with pytest.raises(ConfigError, match="unknown weight"):
-        cost(simulate(printer, DiagonalPI.untuned(N), sc), sc, {"speed": 1.0})
+        cost(simulate(printer, DiagonalPI.untuned(N), sc["print"]), sc["print"], {"speed": 1.0})
     with pytest.raises(ConfigError, match="drives 3 zones"):
         run("tracking", DiagonalPI.untuned(3), printer, rollouts=1, duration=50)

@@ -80,7 +80,7 @@ def test_energy_balance_closes():
     K, sub = 40, 100
     u = _u(K)
     d = disturbances(p, K, jax.random.key(0), laser=True)
-    rep = lambda a: jnp.repeat(a, sub, axis=0)   # noqa: E731
+    rep = lambda a: jnp.repeat(a, sub, axis=0)
     x0 = p.initial_state()
     _, coarse = simulate_open_loop(p, u, d, x0)
     _, temps = simulate_open_loop(fine, rep(u), jax.tree.map(rep, d), x0)
@@ -115,14 +115,14 @@ def test_effects_change_the_response_in_the_physical_direction():
     # radiation: the loss grows as T^4, so the hotter the bed the less one more unit of
     # input warms it (`loss` is matched at the window centre)
     rad = make_printer(N, ["radiative_loss"], seed=0)
-    hot = lambda p: _steady_hot(p, 0.8) - _steady_hot(p, 0.7)    # noqa: E731
-    cold = lambda p: _steady_hot(p, 0.3) - _steady_hot(p, 0.2)   # noqa: E731
+    hot = lambda p: _steady_hot(p, 0.8) - _steady_hot(p, 0.7)
+    cold = lambda p: _steady_hot(p, 0.3) - _steady_hot(p, 0.2)
     assert np.all(hot(rad) < hot(base)) and np.all(hot(rad) < cold(rad))
     assert np.all(_steady_hot(rad, 0.9) < _steady_hot(base, 0.9))
     # lateral conduction: zones closer together at a non-uniform steady state
     lat = make_printer(N, ["lateral_conduction"], seed=0)
     uu = jnp.array([0.9, 0.1, 0.1, 0.1])
-    spread = lambda p: np.ptp(np.asarray(steady_state(p, uu).z[:N]))   # noqa: E731
+    spread = lambda p: np.ptp(np.asarray(steady_state(p, uu).z[:N]))
     assert spread(lat) < spread(base)
     # heater lag and input delay: a later response to a step, same end point
     us = base.steady_input()
@@ -141,7 +141,7 @@ def test_effects_change_the_response_in_the_physical_direction():
     # heat accumulation: a slow mode; the response keeps creeping after the fast one is done
     p = make_printer(N, ["heat_accumulation"], seed=0)
     y, _ = simulate_open_loop(p, step, None, p.initial_state())
-    frac = lambda p, y: (y[-1] - y[49]) / (steady_state(p, us + 0.25).z[:N] - y[49])  # noqa: E731
+    frac = lambda p, y: (y[-1] - y[49]) / (steady_state(p, us + 0.25).z[:N] - y[49])
     # `loss` is the steady-state loss for a uniform bed: end points agree up to the mixing
     np.testing.assert_allclose(steady_state(p, us + 0.25).z[:N], steady_state(base, us + 0.25).z, atol=0.5)
     assert np.all(frac(base, yb) > 0.95) and np.all(frac(p, y) < 0.9)

@@ -81,7 +81,7 @@ class DiagonalPI(AbstractController):
 
     @classmethod
     def untuned(cls, zones: int, *, ts: float = 1.0, kp: float = UNTUNED_KP,
-                ti: float = UNTUNED_TI, u0: float = 0.5) -> "DiagonalPI":
+                ti: float = UNTUNED_TI, u0: float = 0.5) -> DiagonalPI:
         """The original solution: the same PI on every zone, tuned for no model in particular."""
         if not (isinstance(zones, int) and zones >= 1):
             raise ControlError(f"DiagonalPI.untuned: zones must be a positive integer, got {zones!r}")

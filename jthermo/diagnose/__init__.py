@@ -2,3 +2,4 @@
 
 from .mechanisms import MECHANISMS as MECHANISMS
 from .select import diagnose as diagnose, to_json as to_json
+from .report import write_report as write_report

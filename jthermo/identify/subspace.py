@@ -29,6 +29,7 @@ import scipy.linalg as sla
 from ..data import IOData
 from ..errors import DataError, ModelError
 from ..models._base import StateSpace
+from ..models.statespace import project_stable
 
 WEIGHTINGS = ("cva", "moesp")
 #: eigenvalues of the returned A lie inside this radius
@@ -66,22 +67,6 @@ def _inv_sqrt_psd(M: np.ndarray, rel_floor: float = 1e-12) -> tuple[np.ndarray, 
     lam, V = np.linalg.eigh(0.5 * (M + M.T))
     lam = np.maximum(lam, rel_floor * max(float(lam.max()), 1e-300))
     return (V / np.sqrt(lam)) @ V.T, (V * np.sqrt(lam)) @ V.T
-
-
-def project_stable(A: np.ndarray, max_radius: float = MAX_RADIUS) -> np.ndarray:
-    """A with every eigenvalue of modulus > `max_radius` moved radially onto that circle.
-
-    Uses the eigendecomposition $A = V \\Lambda V^{-1}$; complex pairs are moved together so the
-    result is real. A matrix already inside is returned unchanged.
-    """
-    A = np.asarray(A, dtype=np.float64)
-    lam, V = np.linalg.eig(A)
-    mag = np.abs(lam)
-    if A.size == 0 or mag.max() <= max_radius:
-        return A
-    lam2 = np.where(mag > max_radius, lam / mag * max_radius, lam)
-    A2 = (V * lam2) @ np.linalg.inv(V)
-    return np.real(A2)
 
 
 def choose_order(svals, max_order: int | None = None) -> int:

@@ -106,10 +106,24 @@ class InnovationsSS(AbstractModel):
 
     def stabilized(self, max_radius: float = 0.9995) -> "InnovationsSS":
         """This model with A's eigenvalues pulled inside `max_radius` (NumPy; not traced)."""
-        from ..identify.subspace import project_stable  # identify sits above models
-
         A = project_stable(np.asarray(self.A), max_radius)
         return eqx.tree_at(lambda m: m.A, self, jnp.asarray(A, self.A.dtype))
+
+
+def project_stable(A: np.ndarray, max_radius: float = 0.9995) -> np.ndarray:
+    """A with every eigenvalue of modulus > `max_radius` moved radially onto that circle.
+
+    Uses the eigendecomposition $A = V \\Lambda V^{-1}$; complex pairs are moved together so the
+    result is real. A matrix already inside is returned unchanged.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    lam, V = np.linalg.eig(A)
+    mag = np.abs(lam)
+    if A.size == 0 or mag.max() <= max_radius:
+        return A
+    lam2 = np.where(mag > max_radius, lam / mag * max_radius, lam)
+    A2 = (V * lam2) @ np.linalg.inv(V)
+    return np.real(A2)
 
 
 def pack(model: InnovationsSS) -> Float[Array, " p"]:
@@ -155,4 +169,4 @@ def innovations(model: InnovationsSS | StateSpace, y: Float[Array, "T ny"], du: 
     return es
 
 
-__all__ = ["InnovationsSS", "pack", "unpack", "innovations"]
+__all__ = ["InnovationsSS", "pack", "unpack", "innovations", "project_stable"]

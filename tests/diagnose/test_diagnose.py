@@ -1,0 +1,154 @@
+"""Small, fast version of the diagnosis study: 2 zones, short records, a null and two mechanisms."""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jthermo.data import from_arrays
+from jthermo.diagnose import MECHANISMS, diagnose, to_json, write_report
+from jthermo.diagnose import mechanisms as M
+from jthermo.diagnose.localise import detect_periodic, event_matrix, localise
+from jthermo.errors import DataError
+from jthermo.models.greybox import BedModel, ExtendedBedModel
+
+T_EST, T_VAL = 900, 450
+CAP = np.array([36.0, 40.0])
+LOSS = np.array([0.6, 0.55])
+GAIN = np.array([[35.0, 6.0], [5.0, 32.0]])
+TS = 145.0
+
+
+def _prbs(T, n, seed):
+    rng = np.random.default_rng(seed)
+    u = np.empty((T, n))
+    for j in range(n):
+        t, level = 0, int(rng.integers(0, 2))
+        while t < T:
+            h = int(rng.integers(3, 16))
+            u[t:t + h, j] = 0.7 if level else 0.3
+            t += h
+            level = 1 - level
+    return u
+
+
+def _record(effect, seed):
+    T = T_EST + T_VAL
+    u = _prbs(T, 2, seed)
+    w = np.full((T, 1), TS)
+    if effect == "lateral_conduction":
+        model = ExtendedBedModel.from_physical(CAP, LOSS, GAIN, coupling=[0.25], edges=[(0, 1)])
+    else:
+        model = BedModel.from_physical(CAP, LOSS, GAIN)
+    u_in = u
+    if effect == "input_delay":
+        u_in = np.concatenate([np.full((4, 2), 0.5), u[:-4]])
+    x0 = jnp.asarray(TS + GAIN @ np.full(2, 0.5) / LOSS)
+    y = np.asarray(model.simulate(u_in, w, x0=x0))
+    y = y + 0.05 * np.random.default_rng(seed + 100).normal(size=y.shape)
+    d = from_arrays(u, y, 1.0, w, signal_names=["ambient"])
+    return d.replace(u=u[:T_EST], y=y[:T_EST], w=w[:T_EST]), d.replace(
+        u=u[T_EST:], y=y[T_EST:], w=w[T_EST:], t0=float(T_EST))
+
+
+@pytest.fixture(scope="module")
+def results():
+    out = {}
+    for k, eff in enumerate([None, "input_delay", "lateral_conduction"]):
+        est, val = _record(eff, k)
+        out[eff] = (diagnose(est, val), est, val)
+    return out
+
+
+def test_null_case_has_no_finding(results):
+    res, _, _ = results[None]
+    assert res["verdict"] == "no_significant_mismatch"
+    assert res["findings"] == []
+    assert res["augmented"]["mechanisms"] == []
+
+
+@pytest.mark.parametrize("mech", ["input_delay", "lateral_conduction"])
+def test_concealed_mechanism_is_top_finding(results, mech):
+    res, _, _ = results[mech]
+    assert res["verdict"] == "mismatch"
+    assert res["findings"][0]["mechanism"] == mech
+    gain = res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"]
+    assert gain >= 2.0
+    if mech == "input_delay":
+        assert res["findings"][0]["parameters"]["delay_s"] == 4.0
+
+
+def test_json_contract(results):
+    res, _, _ = results["input_delay"]
+    js = json.loads(json.dumps(to_json(res)))
+    assert set(js) >= {"verdict", "baseline", "findings", "augmented"}
+    assert set(js["baseline"]) >= {"model", "mean_fit_percent", "fit_percent"}
+    f = js["findings"][0]
+    assert set(f) >= {"mechanism", "confidence", "zones", "summary", "evidence", "parameters"}
+    assert f["mechanism"] in MECHANISMS and 0 < f["confidence"] <= 1
+    assert set(js["augmented"]) >= {"mechanisms", "mean_fit_percent", "fit_percent", "parameters"}
+    assert len(js["baseline"]["fit_percent"]) == 2
+
+
+def test_write_report(results, tmp_path):
+    res, est, val = results["lateral_conduction"]
+    path = write_report(res, tmp_path, est, val)
+    text = path.read_text()
+    assert "lateral_conduction" in text
+    for fn in ("residuals.png", "fit.png", "evidence.png", "diagnosis.json"):
+        assert (tmp_path / fn).stat().st_size > 0
+
+
+def test_bad_input_errors():
+    est, val = _record(None, 0)
+    with pytest.raises(DataError, match="do not match"):
+        diagnose(est, val.replace(y=val.y[:, :1], output_names=("1",)))
+    with pytest.raises(DataError, match="is constant"):
+        diagnose(est.replace(u=np.full_like(est.u, 0.5)), val)
+    with pytest.raises(DataError, match="unknown mechanism"):
+        diagnose(est, val, mechanisms=("magic",))
+
+
+def test_periodic_drop_detection():
+    rng = np.random.default_rng(0)
+    T, n, P = 1200, 3, 45
+    R = 0.05 * rng.normal(size=(T, n))
+    ev = event_matrix(T, P, [7, 8, 9])
+    R -= 0.4 * np.cumsum(ev, axis=0) * 0 + 0.4 * np.cumsum(ev - ev.mean(0), axis=0)
+    d = detect_periodic(R, 1.0)
+    assert d["significant"] and d["period_s"] == P
+    assert d["zone_phase"] == [7, 8, 9]
+    null = detect_periodic(0.05 * rng.normal(size=(T, n)), 1.0)
+    assert not null["significant"]
+
+
+def test_localise_reports_zones_and_common_mode():
+    rng = np.random.default_rng(1)
+    T = 600
+    R = np.zeros((T, 3))
+    R[:, 1] = np.sin(np.arange(T) / 50.0)
+    loc = localise(R + 0.01 * rng.normal(size=R.shape), np.full((T, 3), 170.0) + R, rng.random((T, 3)), 1.0)
+    assert np.argmax(loc["zone_share"]) == 1
+    assert loc["band_share"]["1_over_600s_to_1_over_60s"] > 0.5
+
+
+def test_zone_and_coupled_simulations_agree():
+    n, T = 2, 300
+    lay = M.make_layout(n, n, M.n_drift_knots(T, 1.0))
+    u = _prbs(T, n, 3)
+    Th = np.stack([M.initial_theta(lay, log_a=np.log(0.015), log_b=np.log([0.6, 0.2]), x0=170.0,
+                                   xw0=10.0) for _ in range(n)])
+    on = jnp.asarray(M.on_vector(["ambient_variation", "radiative_loss"]))
+    Th[:, lay.sl("drift")] = np.linspace(-1, 1, lay.n_drift)
+    f = dict(u=jnp.asarray(u), events=jnp.zeros((T, n)), ts_level=145.0, ts_free=0.0,
+             wdev=jnp.zeros(T), Phi=jnp.asarray(M.drift_basis(T, 1.0, lay.n_drift)),
+             delay=jnp.asarray(0), u_pad=jnp.asarray(u.mean(0)), ts=1.0)
+    dr = Th[0, lay.sl("drift")] - Th[0, lay.sl("drift")].mean()
+    rec = jnp.concatenate([jnp.full(n, 170.0), jnp.full(n, 155.0), jnp.asarray(dr)])
+    Y = np.asarray(M.simulate_full(jnp.asarray(Th), on, f, lay, rec))
+    for i in range(n):
+        z = dict(f, ynb=jnp.asarray(np.delete(Y, i, axis=1)), ybar=jnp.asarray(Y.mean(1)),
+                 events=jnp.zeros(T))
+        yi = np.asarray(M.simulate_zone(jnp.asarray(Th[i]), on, z, lay))
+        np.testing.assert_allclose(yi, Y[:, i], atol=1e-9)
