@@ -421,13 +421,17 @@ def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) 
     it never settles); `time_to_ready_s`: first time every zone is inside the window (ready
     to print; the run length if never); `effort`: mean input; `input_variation`: mean |Δu|.
     """
-    if traj.temperature.ndim == 3:
-        vals = jax.vmap(_metrics_one, in_axes=(0, 0))(traj, scenario)
-    else:
-        vals = _metrics_one(traj, scenario)
+    vals = _metrics_jit(traj, scenario)
     if per_rollout:
         return {k: np.asarray(v) for k, v in vals.items()}
     return {k: float(np.mean(np.asarray(v))) for k, v in vals.items()}
+
+
+@eqx.filter_jit
+def _metrics_jit(traj, scenario):
+    if traj.temperature.ndim == 3:
+        return jax.vmap(_metrics_one, in_axes=(0, 0))(traj, scenario)
+    return _metrics_one(traj, scenario)
 
 
 DEFAULT_WEIGHTS = {"tracking": 1.0, "uniformity": 1.0, "effort": 1.0, "window": 1.0}

@@ -28,9 +28,11 @@ FAMILY_ORDERS: dict[str, tuple[int, ...] | None] = {
 
 SETTINGS = {
     "full": {"zones": 4, "est_s": 3600.0, "val_s": 1800.0, "tune_rollouts": 8, "tune_steps": 40,
-             "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0, "diag_val_s": 1800.0},
+             "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0, "diag_val_s": 1800.0,
+             "n_starts": 4},
     "quick": {"zones": 4, "est_s": 1200.0, "val_s": 600.0, "tune_rollouts": 4, "tune_steps": 10,
-              "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0, "diag_val_s": 900.0},
+              "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0, "diag_val_s": 900.0,
+              "n_starts": 2},
 }
 ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
 CONCEALED = ("heater_lag", {"time_constant_s": 25.0})
@@ -126,7 +128,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         for fam, orders in FAMILY_ORDERS.items():
             bar = _progress(f"fit {fam}", quiet)
             try:
-                res = fit(est, fam, orders, seed=seed, progress=bar)
+                res = fit(est, fam, orders, seed=seed, progress=bar, n_starts=cfg["n_starts"])
                 cmp = compare(res.model, val)
             except JThermoError as exc:
                 rows.append({"model": fam, "error": " ".join(str(exc).split())})

@@ -473,6 +473,11 @@ class Printer(eqx.Module):
         if y0.shape[0] not in (n, self.n_outputs):
             raise ModelError(f"Printer.initial_state: y0 has {y0.shape[0]} values, expected {n}"
                              f" or {self.n_outputs}")
+        return _initial_state(self, y0, Ts)
+
+    def _initial_state(self, y0, Ts) -> PrinterState:
+        n = self.zones
+        dt = self.capacity.dtype
         L = self._layout()
         A, Bp, bs, _ = self.linear_system()
         nz = L["n"].stop
@@ -540,6 +545,11 @@ class Printer(eqx.Module):
             col = jnp.concatenate([c0[None], col], axis=0)
             v = v.at[:, :self.zones].add(col)
         return v
+
+
+@eqx.filter_jit
+def _initial_state(printer: Printer, y0, Ts) -> PrinterState:
+    return printer._initial_state(y0, Ts)
 
 
 def _steady_u(printer: Printer, x: PrinterState, ambient) -> Array:
@@ -767,6 +777,7 @@ def _check_effect_values(leaves, static):
 # ----------------------------------------------------------------------------- steady state
 
 
+@eqx.filter_jit
 def steady_state(printer: Printer, u, *, ambient=None, iterations: int = 30) -> PrinterState:
     """The equilibrium for a constant input `u` (no recoat, no laser), by Newton's method
     on the continuous-time right-hand side (one linear solve when no effect is nonlinear)."""

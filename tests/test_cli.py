@@ -194,3 +194,151 @@ def test_console_script_help_is_quick():
     r = subprocess.run([str(exe), "fit", "missing.csv", "--model", "arx"], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.strip() == "jthermo: error: estimation data missing.csv: no such file"
+
+
+# ---------------------------------------------------------------- progress, report, demo pieces
+
+
+def test_progress_quiet_and_callback_forms(monkeypatch):
+    from jthermo import progress as pg
+
+    monkeypatch.delenv("CI", raising=False)
+    assert pg.enabled() is False              # pytest captures stderr: not a TTY
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    assert pg.enabled() is True and pg.enabled(quiet=True) is False
+    monkeypatch.setenv("CI", "1")
+    assert pg.enabled() is False
+    monkeypatch.delenv("CI")
+    pg.set_quiet(True)
+    try:
+        assert pg.enabled() is False
+    finally:
+        pg.set_quiet(False)
+    assert list(pg.progress(3, "x", quiet=True)) == [0, 1, 2]
+    with pg.Progress(10, "t", quiet=True) as bar:
+        bar.update(2, cost=1.5)
+        bar(5, 10, {"cost": 0.5})              # (i, total, info)
+        assert bar.n == 5 and bar.info["cost"] == 0.5
+        bar(6, 0.25)                           # tuning's (i, cost): iteration 6 done
+        assert bar.n == 7 and bar.info["cost"] == 0.25
+        bar("choosing orders")                 # identification's status strings
+        assert bar.info["status"] == "choosing orders" and not bar.active
+
+
+def test_report_markdown(tmp_path):
+    from jthermo.report import Report, fmt, markdown_table
+
+    assert fmt(None) == "—" and fmt(float("nan")) == "—" and fmt(1.23456) == "1.235" and fmt(True) == "yes"
+    t = markdown_table([{"a": 1.0, "b": "x|y"}, {"a": None}], ["a", "b"])
+    assert t.splitlines() == ["| a | b |", "| --- | --- |", "| 1 | x\\|y |", "| — | — |"]
+    (tmp_path / "figs").mkdir()
+    rep = Report("T").para("hello").figure(tmp_path / "figs" / "a.png", "cap").table([{"k": 2}])
+    text = rep.write(tmp_path / "out" / "report.md").read_text()
+    assert "# T" in text and "![cap](../figs/a.png)" in text and "| k |" in text
+
+
+def test_demo_stage_guard_and_report(tmp_path):
+    from jthermo import demo
+    from jthermo.errors import FitError
+
+    st = demo._Stages(3, quiet=True)
+
+    def missing():
+        import jthermo.not_written_yet  # noqa: F401
+
+    def failing():
+        raise FitError("no start point converged")
+
+    assert st.run("a", lambda: 42) == 42
+    st.run("b", missing)
+    st.run("c", failing)
+    assert [r["status"] for r in st.records] == ["ok", "missing", "failed"]
+    assert "jthermo.not_written_yet" in st.records[1]["message"]
+    S = {"name": "t", "quick": True, "seed": 0, "settings": {"zones": 4}, "seconds": 1.0,
+         "stages": st.records,
+         "identification": [{"model": "arx", "orders": {"na": 2}, "fit_percent": [90.0, 91.0],
+                             "mean_fit_percent": 90.5, "converged": True, "seconds": 1.0},
+                            {"model": "oe", "error": "diverged"}],
+         "tuning": {"start_cost": 2.0, "tuned_cost": 1.0, "lambda_pi_cost": 2.0, "improvement_percent": 50.0,
+                    "rollouts": 4, "steps": 10, "held_out_seeds": [10000],
+                    "scenarios": {"tracking": {"mse_before": 1.0, "mse_after": 0.5}}},
+         "diagnosis": {"verdict": "mismatch", "baseline": {"mean_fit_percent": 80.0},
+                       "augmented": {"mechanisms": ["heater_lag"], "mean_fit_percent": 95.0},
+                       "findings": [{"mechanism": "heater_lag", "confidence": 0.99, "zones": [1, 2],
+                                     "parameters": {"time_constant_s": 24.0}, "summary": "lamps lag"}],
+                       "concealed": {"mechanism": "heater_lag", "time_constant_s": 25.0}}}
+    text = demo._write_report(tmp_path, S, {}).read_text()
+    assert "| arx |" in text and "diverged" in text and "heater_lag" in text
+    assert "Stages that did not complete" in text and "no start point converged" in text
+
+
+# ---------------------------------------------------------------- tune, simulate, diagnose wiring
+
+
+def _pi_1zone():
+    design = pytest.importorskip("jthermo.control.design")
+    from jthermo.models._base import StateSpace
+
+    m = StateSpace(np.array([[0.98]]), np.array([[0.3]]), np.array([[1.0]]), ts=1.0, u0=[0.5], y0=[174.0])
+    return design.design("pi_lambda", m)
+
+
+def test_tune_saves_controller_and_simulate_runs_it(tmp_path, capsys, monkeypatch):
+    tune = pytest.importorskip("jthermo.tune")
+    pytest.importorskip("jthermo.closedloop")
+    ctrl = _pi_1zone()
+    seen = {}
+
+    def fake_tune_report(family, **kw):
+        seen.update(kw, family=family)
+        kw["progress"](0, 2.0)
+        kw["progress"](1, 1.0)
+        return {"controller": family, "start_cost": 2.0, "tuned_cost": 1.0, "lambda_pi_cost": 2.0,
+                "improvement_percent": 50.0, "scenarios": {}, "history": [2.0, 1.0], "seconds": 0.1,
+                "tuned": ctrl}
+
+    monkeypatch.setattr(tune, "tune_report", fake_tune_report)
+    out, js = tmp_path / "c.jtm", tmp_path / "t.json"
+    rc, _, err = _run(["tune", "--controller", "pi_lambda", "--rollouts", "3", "--steps", "2",
+                       "--seed", "4", "--out", out, "--json", js, "--quiet"], capsys)
+    assert rc == 0, err
+    assert seen["rollouts"] == 3 and seen["steps"] == 2 and seen["seed"] == 4 and seen["plant"] == "printer"
+    rep = json.loads(js.read_text())
+    assert rep["improvement_percent"] == 50.0 and "tuned" not in rep and rep["out"] == str(out)
+    assert io.load_header(out)["kind"] == "controller"
+    rc, _, err = _run(["tune", "--controller", "nope"], capsys)
+    assert rc == 2 and "unknown family 'nope'" in _one_line_error(err)
+    # the saved controller drives a one-zone printer
+    js2 = tmp_path / "s.json"
+    rc, _, err = _run(["simulate", "--scenario", "tracking", "--controller-file", out, "--zones", "1",
+                       "--rollouts", "2", "--duration", "60", "--json", js2, "--quiet"], capsys)
+    assert rc == 0, err
+    rep = json.loads(js2.read_text())
+    for key in ("scenario", "controller", "zones", "rollouts", "metrics", "seconds"):
+        assert key in rep
+    assert rep["zones"] == 1 and rep["rollouts"] == 2 and np.isfinite(rep["metrics"]["mse"])
+    # a controller for 1 zone on a 2-zone printer is a one-line error
+    rc, _, err = _run(["simulate", "--scenario", "tracking", "--controller-file", out, "--zones", "2",
+                       "--duration", "60", "--json", tmp_path / "x.json"], capsys)
+    assert rc == 2 and _one_line_error(err) and not (tmp_path / "x.json").exists()
+
+
+def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
+    diag = pytest.importorskip("jthermo.diagnose")
+    est, val = _arx_csv(tmp_path / "est.csv"), _arx_csv(tmp_path / "val.csv", seed=1)
+
+    def fake(e, v, *, seed, progress):
+        assert e.n_outputs == 2 and seed == 7
+        return {"verdict": "no_significant_mismatch", "baseline": {"model": "greybox", "mean_fit_percent": 90.0,
+                                                                   "fit_percent": [90.0, 90.0]},
+                "findings": [], "augmented": None, "_arrays": np.zeros(3)}
+
+    monkeypatch.setattr(diag, "diagnose", fake)
+    js = tmp_path / "d.json"
+    rc, out, err = _run(["diagnose", est, "--validation", val, "--json", js, "--seed", "7"], capsys)
+    assert rc == 0, err
+    rep = json.loads(js.read_text())
+    assert rep["verdict"] == "no_significant_mismatch" and "_arrays" not in rep and rep["findings"] == []
+    assert "verdict: no_significant_mismatch" in out
+    rc, _, err = _run(["diagnose", est, "--json", js], capsys)
+    assert rc == 2 and "--validation" in _one_line_error(err)

@@ -103,7 +103,7 @@ def test_scenarios_and_run(printer):
     for s in sc.values():
         assert isinstance(s, Scenario) and s.r.shape == (T, N) and s.v.shape == (T, N)
     np.testing.assert_allclose(sc["tracking"].r[0] - sc["tracking"].y0, 4.0)
-    assert float(sc["powder"].d.recoat.sum()) == 4.0 and float(sc["powder"].d.laser.sum()) == 0.0
+    assert float(sc["powder"].d.recoat.sum()) == 3.0 and float(sc["powder"].d.laser.sum()) == 0.0
     assert float(sc["print"].d.laser.sum()) > 0.0
     np.testing.assert_allclose(sc["preheat"].y0, float(printer.surroundings))
     out = run("ensemble", "untuned", printer, rollouts=3, duration=T, seed=7)

@@ -5,7 +5,8 @@ The contract (DESIGN.md): one line on stderr, exit status 2, no traceback, no ou
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from jthermo import cli
 

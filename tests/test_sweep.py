@@ -147,3 +147,28 @@ def test_ray_bad_address(tmp_path):
     cfg = sweep.parse_config(CFG)
     with pytest.raises(ConfigError, match="--ray 127.0.0.1:1: cannot connect"):
         sweep.run_sweep(cfg, tmp_path / "r.jsonl", ray_address="127.0.0.1:1")
+
+
+def test_identify_kind_on_a_data_file(tmp_path):
+    pytest.importorskip("jthermo.identify.fit")
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    T = 300
+    u = np.repeat(rng.choice([0.2, 0.8], size=T // 10), 10)
+    y = np.zeros(T)
+    for k in range(1, T):
+        y[k] = 0.9 * y[k - 1] + 2.0 * u[k - 1]
+    y += 20 + 0.01 * rng.standard_normal(T)
+    np.savetxt(tmp_path / "d.csv", np.column_stack([np.arange(T), u, y]), delimiter=",",
+               header="t,u_1,y_1", comments="")
+    cfg = sweep.parse_config(f'[sweep]\nname="i"\nkind="identify"\n[data]\ndata="{tmp_path / "d.csv"}"\n'
+                             '[fixed]\nfamily="arx"\n[space]\nna=[1]\nnb=[1]\nnk=[1]\n')
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl")
+    assert rep["n_run"] == 1 and rep["n_failed"] == 0, sweep.read_results(tmp_path / "r.jsonl")
+    assert rep["best"][0]["score"] > 95
+    cfg = sweep.parse_config(f'[sweep]\nname="i"\nkind="identify"\n[data]\ndata="{tmp_path / "d.csv"}"\n'
+                             '[fixed]\nfamily="arx"\n[space]\nna=[1]\nnb=[1]\n')
+    rep = sweep.run_sweep(cfg, tmp_path / "r2.jsonl")
+    assert rep["n_failed"] == 1
+    assert "needs all of the orders" in sweep.read_results(tmp_path / "r2.jsonl")[0]["error"]

@@ -7,7 +7,6 @@ import pytest
 from jthermo.control import DecoupledPI
 from jthermo.errors import ControlError
 from jthermo.tune import minimise
-
 from tests.control.loop import bed_plant, closed_loop, step_reference
 from tests.helpers import central_difference
 

@@ -17,8 +17,8 @@ from jaxtyping import Array, Float
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import AbstractController
+from .design import _as_ss, _f, decoupling_matrix, lambda_gains, operating_point, step_models
 from .pi import UNTUNED_KP, UNTUNED_TI, DiagonalPI
-from .design import (_as_ss, _f, decoupling_matrix, lambda_gains, operating_point, step_models)
 
 U_MIN, U_MAX = 0.0, 1.0   # actuator limits, power fraction
 

@@ -114,7 +114,7 @@ class LQG(AbstractController):
 
     def init(self, y0: Output, r0: Setpoint) -> LQGState:
         g = self.gains()
-        A, B, C = sg(self.A), sg(self.B), sg(self.C)
+        A, B = sg(self.A), sg(self.B)
         nx = A.shape[0]
         # start in the steady state that produces y0 under the static feed-through
         u_ss = g.L0 @ (y0 - sg(self.y_op))

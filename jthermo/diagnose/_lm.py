@@ -92,11 +92,11 @@ def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     `rec0, mask (M, R)`; returns (rec, yhat (M, T, n), cost (M,))."""
     def one(Th, o, r0, m, fp):
         f = {**f_shared, **fp}
-        res = lambda r: (y - simulate_full(Th, o, f, lay, r)).reshape(-1)  # noqa: E731
+        res = lambda r: (y - simulate_full(Th, o, f, lay, r)).reshape(-1)
         r, c, _ = _lm(res, r0, m, n_iter)
         return r, simulate_full(Th, o, f, lay, r), c
 
     return jax.vmap(one)(Theta, on, rec0, mask, f_per)
 
 
-__all__ = ["fit_zones", "sim_zones", "fit_records"]
+__all__ = ["fit_records", "fit_zones", "sim_zones"]

@@ -51,8 +51,8 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
     s = D.mean(axis=1)
     sd = np.std(s) + 1e-300
     best = (0.0, 0, 0)
-    pmin = max(3, int(round(period_range[0] / ts)))
-    pmax = min(int(round(period_range[1] / ts)), (T - 1) // 4)
+    pmin = max(3, round(period_range[0] / ts))
+    pmax = min(round(period_range[1] / ts), (T - 1) // 4)
     for P in range(pmin, pmax + 1):
         m = (len(s) // P) * P
         f = s[:m].reshape(-1, P)
@@ -153,4 +153,4 @@ def localise(R: np.ndarray, y: np.ndarray, u: np.ndarray, ts: float) -> dict:
     }
 
 
-__all__ = ["localise", "detect_periodic", "event_matrix", "PERIOD_THRESHOLD"]
+__all__ = ["PERIOD_THRESHOLD", "detect_periodic", "event_matrix", "localise"]

@@ -18,11 +18,15 @@ Each mechanism adds states, terms or input transformations with physically const
 | `recoat_cooling` | a drop $\\delta_i \\ge 0$ of each zone at the detected recoat events (period, phase) |
 | `ambient_variation` | $T_s(t) = \\bar T_s + $ the measured variation, or a piecewise-linear drift |
 
-All mechanisms live in one simulator (`simulate`): a candidate model is a vector of 0/1
-switches `on` (one per mechanism) plus a mask over the flat parameter vector, so every
-candidate, and every combination, is fitted by one compiled, vmapped solver. The linear part
-(zones, wall, lamps) is discretised exactly (zero-order hold); radiation enters through the
-exponential-Euler integral of its rate over the sample.
+All mechanisms live in one simulator: a candidate is a vector of 0/1 switches `on` (one per
+mechanism) plus a mask over one flat parameter vector, so every candidate and combination is
+fitted by one compiled, vmapped solver. Fitting is per zone (`simulate_zone`, series-parallel
+form: a zone's neighbours and the bed's mean temperature enter as their measured values, the
+zone itself is simulated), which makes every zone and candidate a small independent problem;
+`simulate_full` then couples the fitted zone models (neighbours simulated) for validation.
+The linear part (zone, wall) is discretised exactly (zero-order hold); radiation enters through
+the exponential-Euler integral of its rate over the sample; the lamp lag is a discrete
+first-order filter of the (delayed, transformed) command.
 """
 
 from __future__ import annotations
@@ -104,7 +108,7 @@ def drift_basis(T: int, ts: float, n_knots: int) -> np.ndarray:
 
 
 def n_drift_knots(T: int, ts: float) -> int:
-    return int(math.ceil((T - 1) * ts / DRIFT_SPACING)) + 1
+    return math.ceil((T - 1) * ts / DRIFT_SPACING) + 1
 
 
 def _safe_pow(u, e):
@@ -114,7 +118,7 @@ def _safe_pow(u, e):
 
 def _inputs(theta, on, u, u_pad, delay, lay):
     """Heater inputs after dead time, lamp nonlinearity and lamp lag: `(T, nu)` per zone model."""
-    g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
+    g = lambda nm: theta[lay.sl(nm)]
     nu = lay.nu
     T = u.shape[0]
     dt = theta.dtype
@@ -138,7 +142,7 @@ def _zone_matrices(theta, on, lay, ts):
     """Continuous 2-state (zone, wall) model of one zone and its exact ZOH matrices.
 
     Inputs per sample: [heater heat rate v, surroundings Ts, Σ_j k_j T_j, mean zone T]."""
-    g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
+    g = lambda nm: theta[lay.sl(nm)]
     dt = theta.dtype
     a = jnp.exp(g("log_a")[0])
     ksum = on[0] * jnp.sum(jnp.exp(g("log_k")))
@@ -164,7 +168,7 @@ def simulate_zone(theta, on, z, lay: Layout):
       `ybar (T,)` the mean measured zone temperature, `events (T,)` recoat flags of this zone,
       `ts_level`, `ts_free`, `wdev (T,)`, `Phi (T, K)`, `delay`, `u_pad (nu,)`, `ts`.
     """
-    g = lambda nm: theta[lay.sl(nm)]  # noqa: E731
+    g = lambda nm: theta[lay.sl(nm)]
     dt = theta.dtype
     ts_level = z["ts_level"] + z["ts_free"] * g("ts0")[0]
     # the drift has no mean on the estimation record: a constant offset would trade with the
@@ -204,7 +208,7 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     n = lay.n
     dt = Theta.dtype
     x0, w0, dr = rec[:n], rec[n:2 * n], rec[2 * n:]
-    g = lambda nm: Theta[:, lay.sl(nm)]  # noqa: E731
+    g = lambda nm: Theta[:, lay.sl(nm)]
     ts_level = f["ts_level"] + f["ts_free"] * jnp.median(g("ts0")[:, 0])
     ts_seq = ts_level + on[7] * (f["wdev"] + f["Phi"] @ dr)
 
@@ -287,8 +291,8 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
 def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -> dict:
     """The physical figures a mechanism's fitted per-zone parameters stand for (JSON-ready)."""
     th = np.asarray(Theta)
-    g = lambda nm: th[:, lay.sl(nm)]  # noqa: E731
-    med = lambda v: float(np.median(v))  # noqa: E731
+    g = lambda nm: th[:, lay.sl(nm)]
+    med = lambda v: float(np.median(v))
     if mech == "lateral_conduction":
         k = np.exp(g("log_k"))[:, : lay.n - 1]
         a = np.exp(g("log_a")[:, 0])

@@ -44,7 +44,7 @@ def _evidence_figure(result, est, path):
         ax2.set_title("dead-time scan of the baseline", fontsize="small")
     elif top == "recoat_cooling" and "resid_est" in arrays:
         R = np.asarray(arrays["resid_est"])
-        P = int(round(result["findings"][0]["parameters"].get("period_s", 0) / est.ts))
+        P = round(result["findings"][0]["parameters"].get("period_s", 0) / est.ts)
         if P > 1:
             m = (len(R) // P) * P
             ax2.plot(np.arange(P) * est.ts, R[:m].mean(axis=1).reshape(-1, P).mean(axis=0))
@@ -92,9 +92,9 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
     atomic_write_text(d / "diagnosis.json", json.dumps(js, indent=1, default=float))
     lines = ["# Mismatch diagnosis", "",
              f"**Verdict:** `{result['verdict']}`", "",
-             f"Baseline ({result['baseline']['model']}): mean validation simulation fit "
+             (f"Baseline ({result['baseline']['model']}): mean validation simulation fit "
              f"{result['baseline']['mean_fit_percent']:.1f} % "
-             f"(per zone: {', '.join(f'{v:.1f}' for v in result['baseline']['fit_percent'])}).", ""]
+             f"(per zone: {', '.join(f'{v:.1f}' for v in result['baseline']['fit_percent'])})."), ""]
     if result["findings"]:
         lines += ["## Findings (most likely first)", "",
                   "| # | mechanism | confidence | zones | summary |", "| --- | --- | --- | --- | --- |"]
@@ -102,9 +102,9 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
             lines.append(f"| {k + 1} | `{f['mechanism']}` | {f['confidence']:.2f} | "
                          f"{', '.join(map(str, f['zones']))} | {f['summary']} |")
         aug = result["augmented"]
-        lines += ["", f"Augmented model ({' + '.join(aug['mechanisms'])}): mean validation fit "
+        lines += ["", (f"Augmented model ({' + '.join(aug['mechanisms'])}): mean validation fit "
                   f"{aug['mean_fit_percent']:.1f} % (gain "
-                  f"{aug['mean_fit_percent'] - result['baseline']['mean_fit_percent']:+.1f} points).", "",
+                  f"{aug['mean_fit_percent'] - result['baseline']['mean_fit_percent']:+.1f} points)."), "",
                   "Parameters: `" + json.dumps(aug["parameters"], default=float)[:600] + "`", ""]
     else:
         lines += ["No candidate mechanism improved the validation simulation by a significant margin:",

@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 import time
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -65,7 +64,7 @@ def _check(est, val):
                         f"validation ({val.n_inputs}, {val.n_outputs}) data do not match")
     if abs(est.ts - val.ts) > 1e-9 * est.ts:
         raise DataError(f"diagnose: sample times differ: {est.ts:g} s and {val.ts:g} s")
-    n, nu = est.n_outputs, est.n_inputs
+    _n, nu = est.n_outputs, est.n_inputs
     need = 10 * (3 + nu)
     for nm, d in (("estimation", est), ("validation", val)):
         if d.n_samples < need:
@@ -88,9 +87,9 @@ def _record_arrays(data, amb_col, level, lay, n_knots):
     else:
         wdev = np.zeros(T)
     ynb = np.stack([np.delete(y, i, axis=1) if n > 1 else np.zeros((T, 1)) for i in range(n)])
-    return dict(y=y, ynb=ynb, ybar=y.mean(axis=1), wdev=wdev,
-                Phi=M.drift_basis(T, data.ts, n_knots), u=np.asarray(data.u, float),
-                u_pad=np.asarray(data.u, float).mean(axis=0))
+    return {"y": y, "ynb": ynb, "ybar": y.mean(axis=1), "wdev": wdev,
+                "Phi": M.drift_basis(T, data.ts, n_knots), "u": np.asarray(data.u, float),
+                "u_pad": np.asarray(data.u, float).mean(axis=0)}
 
 
 def _problems(rec, K, events=None, delays=None):
@@ -99,19 +98,19 @@ def _problems(rec, K, events=None, delays=None):
     T, n = y.shape
     ev = np.zeros((K, T, n)) if events is None else events
     dl = np.zeros(K, int) if delays is None else np.asarray(delays, int)
-    return dict(
-        y=jnp.asarray(np.tile(y.T, (K, 1))),
-        ynb=jnp.asarray(np.tile(rec["ynb"], (K, 1, 1))),
-        ybar=jnp.asarray(np.tile(rec["ybar"], (K * n, 1))),
-        events=jnp.asarray(np.concatenate([ev[k].T for k in range(K)], axis=0)),
-        delay=jnp.asarray(np.repeat(dl, n).astype(np.int32)),
-    )
+    return {
+        "y": jnp.asarray(np.tile(y.T, (K, 1))),
+        "ynb": jnp.asarray(np.tile(rec["ynb"], (K, 1, 1))),
+        "ybar": jnp.asarray(np.tile(rec["ybar"], (K * n, 1))),
+        "events": jnp.asarray(np.concatenate([ev[k].T for k in range(K)], axis=0)),
+        "delay": jnp.asarray(np.repeat(dl, n).astype(np.int32)),
+    }
 
 
 def _shared(rec, level, ts_free, ts):
-    return dict(u=jnp.asarray(rec["u"]), ts_level=jnp.asarray(level), ts_free=jnp.asarray(ts_free),
-                wdev=jnp.asarray(rec["wdev"]), Phi=jnp.asarray(rec["Phi"]),
-                u_pad=jnp.asarray(rec["u_pad"]), ts=jnp.asarray(float(ts)))
+    return {"u": jnp.asarray(rec["u"]), "ts_level": jnp.asarray(level), "ts_free": jnp.asarray(ts_free),
+                "wdev": jnp.asarray(rec["wdev"]), "Phi": jnp.asarray(rec["Phi"]),
+                "u_pad": jnp.asarray(rec["u_pad"]), "ts": jnp.asarray(float(ts))}
 
 
 def _grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
@@ -227,7 +226,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         measured_var = False
         w_range = 0.0
     # per-zone first-order starts (rates: capacity 1)
-    loss, gain, surr = first_order_start(y, u, None if amb is None else
+    _loss, _gain, surr = first_order_start(y, u, None if amb is None else
                                          np.full((T, 1), level), ts, 1.0)
     if level is None:
         level = surr
@@ -263,7 +262,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     ev_e = np.zeros((T, n))
     P = 0
     if per_ev["significant"]:
-        P = int(round(per_ev["period_s"] / ts))
+        P = round(per_ev["period_s"] / ts)
         ev_e = event_matrix(T, P, per_ev["zone_phase"])
     # dead time: simulate the baseline with each whole-sample delay
     dgrid = np.arange(1, MAX_DELAY + 1)
@@ -319,8 +318,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                          delays=[best_delay if "input_delay" in (m1, m2) else 0])
         thk, ck, _ = fit_zones(jnp.asarray(th_start), jnp.asarray(np.tile(np.minimum(mk, 1), (n, 1))),
                                jnp.asarray(np.tile(on_c, (n, 1))), perk, sh_e, lay, n_iter)
-        combo = dict(mechs=(m1, m2), theta=np.asarray(thk), est=float(np.mean(np.asarray(ck))),
-                     on=on_c, delay=best_delay if "input_delay" in (m1, m2) else 0)
+        combo = {"mechs": (m1, m2), "theta": np.asarray(thk), "est": float(np.mean(np.asarray(ck))),
+                     "on": on_c, "delay": best_delay if "input_delay" in (m1, m2) else 0}
     tick({"stage": "combination"})
 
     # ---- 5. validation: simulate every model coupled, initial states re-estimated -----------------
@@ -329,17 +328,17 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     kv = M.n_drift_knots(Tv, ts)
     Phi_v = M.drift_basis(Tv, ts, kv)
     ts_level_v = level
-    sh_v = _shared(dict(u=rec_v["u"], wdev=rec_v["wdev"], Phi=Phi_v, u_pad=rec_v["u_pad"]),
+    sh_v = _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": Phi_v, "u_pad": rec_v["u_pad"]},
                    ts_level_v, ts_free, ts)
     # recoat events on the validation record: same period, phase from its own residuals
     ev_v = np.zeros((Tv, n))
     if P:
-        pv_per = _problems(dict(y=yv, ynb=rec_v["ynb"], ybar=rec_v["ybar"]), 1)
+        pv_per = _problems({"y": yv, "ynb": rec_v["ynb"], "ybar": rec_v["ybar"]}, 1)
         thb_v = thb.copy()
         thb_v[:, lay.sl("x0")] = yv[0][:, None]
         ybv = np.asarray(sim_zones(jnp.asarray(thb_v), jnp.asarray(on0), pv_per,
-                                   _shared(dict(u=rec_v["u"], wdev=rec_v["wdev"], Phi=rec_v["Phi"][:Tv],
-                                                u_pad=rec_v["u_pad"]), level, ts_free, ts), lay)).T
+                                   _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": rec_v["Phi"][:Tv],
+                                                "u_pad": rec_v["u_pad"]}, level, ts_free, ts), lay)).T
         dv = detect_periodic(yv - ybv, ts, period_range=(P * ts, P * ts))
         ev_v = event_matrix(Tv, P, dv["zone_phase"])
     models = [("baseline", thb, M.baseline_on(), 0)]
@@ -362,8 +361,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         if on[7] and not measured_var:
             rmask[j, 2 * n:] = 1.0
 
-    fper = dict(events=jnp.asarray(np.stack([ev_v] * Mn)),
-                delay=jnp.asarray(np.array([mm[3] for mm in models], np.int32)))
+    fper = {"events": jnp.asarray(np.stack([ev_v] * Mn)),
+                "delay": jnp.asarray(np.array([mm[3] for mm in models], np.int32))}
     _, yhat_v, _ = fit_records(jnp.asarray(np.stack([mm[1] for mm in models])),
                                jnp.asarray(np.stack([mm[2] for mm in models])),
                                jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v,
@@ -383,13 +382,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     for j, (name, th, on, d) in enumerate(models):
         if j == 0:
             continue
-        table.append(dict(
-            mechanism=name,
-            est_cost=float(est_all[j]), est_reduction=float(1 - est_all[j] / est_base),
-            val_mse=float(vmse[j]), val_reduction=float(1 - vmse[j] / vmse[0]),
-            mean_fit_percent=float(np.mean(fits[j])) if finite[j] else float("nan"),
-            fit_gain=float(np.mean(fits[j]) - np.mean(base_fit)) if finite[j] else float("-inf"),
-            index=j))
+        table.append({
+            "mechanism": name,
+            "est_cost": float(est_all[j]), "est_reduction": float(1 - est_all[j] / est_base),
+            "val_mse": float(vmse[j]), "val_reduction": float(1 - vmse[j] / vmse[0]),
+            "mean_fit_percent": float(np.mean(fits[j])) if finite[j] else float("nan"),
+            "fit_gain": float(np.mean(fits[j]) - np.mean(base_fit)) if finite[j] else float("-inf"),
+            "index": j})
 
     def significant(row):
         return (row["val_reduction"] >= MIN_VAL_REDUCTION and row["fit_gain"] >= MIN_FIT_GAIN
@@ -406,14 +405,14 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         aug_index = top["index"]
         crow = next((r for r in table if "+" in r["mechanism"]), None)
         if crow is not None and top["mechanism"] in crow["mechanism"].split("+"):
-            other = [m for m in crow["mechanism"].split("+") if m != top["mechanism"]][0]
+            other = next(m for m in crow["mechanism"].split("+") if m != top["mechanism"])
             orow = next(r for r in singles if r["mechanism"] == other)
             further = 1 - crow["val_mse"] / top["val_mse"]
             if further >= MIN_COMBINED_REDUCTION and significant(orow) and significant(crow):
                 chosen = [top["mechanism"], other]
                 aug_index = crow["index"]
-    extra = dict(delay=best_delay, period_s=P * ts if P else float("nan"), t_mean=float(y.mean()),
-                 ts_level=level, measured_ambient=measured_var, w_range=w_range)
+    extra = {"delay": best_delay, "period_s": P * ts if P else float("nan"), "t_mean": float(y.mean()),
+                 "ts_level": level, "measured_ambient": measured_var, "w_range": w_range}
     findings = []
     g_sorted = [r["val_reduction"] for r in ranked]
     for rank, mech in enumerate(chosen):

@@ -6,10 +6,10 @@ $$y_i(t) = -\\sum_{k=1}^{n_a}\\sum_{l} a_{ilk}\\, y_l(t-k)
           + \\sum_j \\sum_{k=0}^{n_b-1} b_{ijk}\\, u_j(t - n_{k,ij} - k) + e_i(t),$$
 
 with $l$ ranging over all outputs for a full A and over $l = i$ for a diagonal A. Signals are
-zero before $t = 0$ in the regressors, and the first $\max(n_a, \max n_k + n_b - 1)$ rows, whose
+zero before $t = 0$ in the regressors, and the first $\\max(n_a, \\max n_k + n_b - 1)$ rows, whose
 regressors reach before the record, are left out (as MATLAB's `arx` does). With `offset=True` a
 constant column estimates the operating point: $A(q)(y - y_0) = B(q) u + e$ gives the constant
-$\kappa = A(1) y_0$.
+$\\kappa = A(1) y_0$.
 """
 
 from __future__ import annotations

@@ -105,11 +105,14 @@ def _solve_one(residual_fn, theta0, args, solver: str, max_steps: int, rtol: flo
 
 
 def _minimize_impl(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
-                   covariance):
+                   covariance, batch="vmap"):
     """All starts `(K, p)`, best pick and covariance. Pure; vmappable over problems."""
-    thetas, oks, steps = jax.vmap(
-        lambda th: _solve_one(residual_fn, th, args, solver, max_steps, rtol, atol, learning_rate)
-    )(theta0)
+    one = lambda th: _solve_one(residual_fn, th, args, solver, max_steps, rtol, atol,  # noqa: E731
+                                learning_rate)
+    if batch == "vmap":
+        thetas, oks, steps = jax.vmap(one)(theta0)
+    else:
+        thetas, oks, steps = jax.lax.map(one, theta0)
     costs = jax.vmap(lambda th: _cost(residual_fn, th, args))(thetas)
     finite = jnp.isfinite(costs) & jnp.all(jnp.isfinite(thetas), axis=1)
     costs = jnp.where(finite, costs, jnp.inf)
@@ -138,14 +141,20 @@ _minimize_jit = eqx.filter_jit(_minimize_impl)
 
 @eqx.filter_jit
 def _minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
-                       covariance):
-    return eqx.filter_vmap(
-        lambda th, a: _minimize_impl(residual_fn, th, a, solver, max_steps, rtol, atol,
-                                     learning_rate, covariance)
-    )(theta0, args)
+                       covariance, batch):
+    def one(th, a):
+        return _minimize_impl(residual_fn, th, a, solver, max_steps, rtol, atol, learning_rate,
+                              covariance, batch)
+
+    if batch == "vmap":
+        return eqx.filter_vmap(one)(theta0, args)
+    arrays, static = eqx.partition(args, eqx.is_array)
+    return jax.lax.map(lambda x: one(x[0], eqx.combine(x[1], static)), (theta0, arrays))
 
 
-def _check(theta0, solver, max_steps, batch_dims):
+def _check(theta0, solver, max_steps, batch_dims, batch="vmap"):
+    if batch not in ("vmap", "map"):
+        raise ConfigError(f"minimize: batch must be 'vmap' or 'map', got {batch!r}")
     if solver not in SOLVERS:
         raise ConfigError(f"minimize: solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     if int(max_steps) < 1:
@@ -165,7 +174,8 @@ def _check(theta0, solver, max_steps, batch_dims):
 
 def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = None, *,
              solver: str = "lm", max_steps: int = 200, rtol: float = 1e-8, atol: float = 1e-8,
-             learning_rate: float = 1e-2, covariance: bool = True, throw: bool = True) -> PEMResult:
+             learning_rate: float = 1e-2, covariance: bool = True, throw: bool = True,
+             batch: str = "vmap") -> PEMResult:
     """Minimise the mean squared residual of `residual_fn` from one or several start points.
 
     $\\hat\\theta = \\arg\\min_\\theta \\frac{1}{T n_y}\\sum_t \\|\\varepsilon(t,\\theta)\\|^2$
@@ -181,12 +191,15 @@ def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = 
     - `max_steps`, `rtol`, `atol`: solver limits and tolerances (optimistix meaning).
     - `covariance`: compute the Gauss–Newton covariance (needs the `(T·ny, p)` Jacobian).
     - `throw`: raise `FitError` when no start point gives a finite cost.
+    - `batch`: `"vmap"` solves the starts together (best on an accelerator); `"map"` solves them
+      one after another inside the same compiled call (`lax.map`), which is faster on CPU,
+      where a vmapped trust-region loop runs every start until the slowest one stops.
 
     **Returns:** a `PEMResult`; `start_costs` holds the final cost from each start.
     """
-    theta0 = _check(theta0, solver, max_steps, 0)
+    theta0 = _check(theta0, solver, max_steps, 0, batch)
     res = _minimize_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
-                        float(atol), float(learning_rate), bool(covariance))
+                        float(atol), float(learning_rate), bool(covariance), batch)
     if throw and not bool(jnp.isfinite(res.cost)):
         raise FitError(f"minimize: no start point gave a finite cost ({theta0.shape[0]} tried)")
     return res
@@ -195,7 +208,7 @@ def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = 
 def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args: Any = None, *,
                   solver: str = "lm", max_steps: int = 200, rtol: float = 1e-8,
                   atol: float = 1e-8, learning_rate: float = 1e-2, covariance: bool = True,
-                  throw: bool = True) -> PEMResult:
+                  throw: bool = True, batch: str = "vmap") -> PEMResult:
     """`minimize` for M independent problems of the same shape, solved together with `vmap`.
 
     Used for models whose outputs do not share parameters (MISO per output): a block-diagonal
@@ -203,9 +216,9 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     `args` carries the problem index on axis 0. The returned `PEMResult` has a leading `M` axis
     on every field.
     """
-    theta0 = _check(theta0, solver, max_steps, 1)
+    theta0 = _check(theta0, solver, max_steps, 1, batch)
     res = _minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
-                             float(atol), float(learning_rate), bool(covariance))
+                             float(atol), float(learning_rate), bool(covariance), batch)
     if throw and not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"minimize: problem {bad}: no start point gave a finite cost "

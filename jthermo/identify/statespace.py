@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -22,7 +23,7 @@ from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
 from .fit import FitResult
 from .pem import minimize
-from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
+from .subspace import OPERATING_POINTS, choose_order, default_horizon, n4sid, n4sid_variants
 
 FOCUS = ("prediction", "simulation")
 
@@ -39,13 +40,49 @@ def ss_residuals(theta: Float[Array, " p"], args: Any) -> Float[Array, "T ny"]:
     return innovations(model, y, du, dw, theta[p:])
 
 
+def ss_residuals_offset(theta: Float[Array, " p"], args: Any) -> Float[Array, "T ny"]:
+    """As `ss_residuals` with the output operating point estimated too: theta = [pack, x0, dy0]."""
+    template, y, du, dw = args
+    p, nx, ny = template.n_params(), template.A.shape[0], template.C.shape[0]
+    model = unpack(theta[:p], template)
+    return innovations(model, y - theta[p + nx:p + nx + ny], du, dw, theta[p:p + nx])
+
+
 def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
     """Mean squared residual $V(\\theta) = \\frac{1}{T n_y}\\sum \\|\\varepsilon\\|^2$."""
     return jnp.mean(ss_residuals(theta, args) ** 2)
 
 
+def _sim_error(ss, data: IOData) -> float:
+    """Simulation error on `data` with the least-squares initial state (NumPy)."""
+    A, C = np.asarray(ss.A), np.asarray(ss.C)
+    w = data.w if ss.Bw.shape[1] else None
+    y_free = np.asarray(ss.simulate(data.u, w))
+    O = np.empty((data.n_samples, C.shape[0], A.shape[0]))
+    M = C.copy()
+    for k in range(data.n_samples):
+        O[k] = M
+        M = M @ A
+    r = (data.y - y_free).ravel()
+    Om = O.reshape(-1, A.shape[0])
+    x0 = np.linalg.lstsq(Om, r, rcond=None)[0]
+    err = float(np.sum((r - Om @ x0) ** 2))
+    return err if np.isfinite(err) else float("inf")
+
+
+def choose_operating_point(data: IOData, n: int, horizon: int | None = None) -> str:
+    """`"mean"` or `"rest"`: whichever N4SID estimate simulates the estimation data better."""
+    errs = {}
+    for op in OPERATING_POINTS:
+        try:
+            errs[op] = _sim_error(n4sid(data, n, horizon, operating_point=op)[0], data)
+        except JThermoError:
+            errs[op] = float("inf")
+    return min(errs, key=errs.get)
+
+
 def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
-            horizon: int | None):
+            horizon: int | None, operating_point: str = "mean"):
     """Distinct N4SID estimates (CVA/MOESP × horizons), in the common canonical structure."""
     i0 = default_horizon(n, data.n_outputs, data.n_samples) if horizon is None else int(horizon)
     models = []
@@ -53,7 +90,7 @@ def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
         if len(models) >= n_starts:
             break
         try:
-            out = n4sid_variants(data, n, horizon=i)
+            out = n4sid_variants(data, n, horizon=i, operating_point=operating_point)
         except JThermoError:  # a longer horizon may not fit the data: just fewer starts
             if not models:
                 raise
@@ -71,7 +108,7 @@ def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
 def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_starts: int = 4,
                    focus: str = "prediction", horizon: int | None = None, max_steps: int = 100,
                    solver: str = "lm", covariance: bool = True, estimate_x0: bool = True,
-                   max_order: int | None = None):
+                   max_order: int | None = None, operating_point: str = "auto"):
     """Estimate an innovations state space of order `n` by N4SID + PEM.
 
     $\\hat\\theta = \\arg\\min \\frac{1}{T n_y}\\sum_t \\|y_t - \\hat y(t|t-1;\\theta)\\|^2$
@@ -86,6 +123,9 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     - `focus`: `"prediction"` (one-step error, K estimated) or `"simulation"` (K = 0).
     - `horizon`, `max_steps`, `solver`, `covariance`: passed to `n4sid` / `minimize`.
     - `estimate_x0`: estimate the initial state (otherwise x0 = 0, the operating point).
+    - `operating_point`: `"mean"` (u0, y0 = the data's means), `"rest"` (the record starts at
+      rest with zero input: u0 = 0, y0 estimated with the other parameters, from y(0)), or
+      `"auto"` (whichever N4SID estimate simulates the estimation data better).
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
@@ -110,9 +150,16 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     if int(n) != n or n < 1:
         raise ModelError(f"fit_statespace: order n must be a positive integer, got {n!r}")
     n = int(n)
+    if operating_point == "auto":
+        operating_point = choose_operating_point(data, n, horizon)
+    elif operating_point not in OPERATING_POINTS:
+        raise ModelError(f"fit_statespace: operating_point must be auto, mean or rest, "
+                         f"got {operating_point!r}")
     output_error = focus == "simulation"
-    template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon)
-    n_par = template.n_params() + (n if estimate_x0 else 0)
+    template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon,
+                                operating_point)
+    rest = operating_point == "rest"
+    n_par = template.n_params() + (n if estimate_x0 else 0) + (data.n_outputs if rest else 0)
     if data.n_samples * data.n_outputs <= n_par:
         raise FitError(f"fit_statespace: {data.n_samples} samples are too few for "
                        f"{n_par} parameters")
@@ -120,13 +167,17 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     y = jnp.asarray(data.y, dtype)
     du = jnp.asarray(data.u, dtype) - template.u0
     dw = jnp.asarray(data.w, dtype) - template.w0
-    if estimate_x0:
-        theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], n))], axis=1)
+    if estimate_x0 or rest:
+        extra = n + (data.n_outputs if rest else 0)
+        theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], extra))], axis=1)
         args = (template, y, du, dw)
-        res = minimize(ss_residuals, jnp.asarray(theta0, dtype), args, solver=solver,
-                       max_steps=max_steps, covariance=covariance)
+        res = minimize(ss_residuals_offset if rest else ss_residuals, jnp.asarray(theta0, dtype),
+                       args, solver=solver, max_steps=max_steps, covariance=covariance)
         theta = res.theta
-        x0 = theta[template.n_params():]
+        p = template.n_params()
+        x0 = theta[p:p + n]
+        if rest:
+            template = eqx.tree_at(lambda m: m.y0, template, template.y0 + theta[p + n:])
     else:
         args = (template, y, du, dw)
         res = minimize(_ss_residuals_x0zero, jnp.asarray(theta_m, dtype), args, solver=solver,
@@ -143,7 +194,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
                    criterion_table=table, x0=x0, family="ss",
                    seconds=time.perf_counter() - t_start,
                    extra={"start_costs": np.asarray(res.start_costs), "n_steps": int(res.n_steps),
-                          "parametrised": model})
+                          "parametrised": model, "operating_point": operating_point})
 
 
 def _ss_residuals_x0zero(theta, args):
@@ -151,4 +202,5 @@ def _ss_residuals_x0zero(theta, args):
     return innovations(unpack(theta, template), y, du, dw, None)
 
 
-__all__ = ["fit_statespace", "ss_residuals", "ss_cost", "FOCUS"]
+__all__ = ["fit_statespace", "ss_residuals", "ss_residuals_offset", "ss_cost", "choose_operating_point",
+           "FOCUS"]

@@ -32,6 +32,7 @@ from ..models._base import StateSpace
 from ..models.statespace import project_stable
 
 WEIGHTINGS = ("cva", "moesp")
+OPERATING_POINTS = ("mean", "rest")
 #: eigenvalues of the returned A lie inside this radius
 MAX_RADIUS = 0.9995
 
@@ -174,7 +175,7 @@ def _estimate(L: np.ndarray, j: int, i: int, m: int, ny: int, n: int | None, wei
     return A, B, C, D, Q, S, R, s
 
 
-def _prepare(data: IOData, n: int | None, horizon: int | None):
+def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: str = "mean"):
     u = np.asarray(data.u, dtype=np.float64)
     y = np.asarray(data.y, dtype=np.float64)
     w = np.asarray(data.w, dtype=np.float64)
@@ -197,8 +198,13 @@ def _prepare(data: IOData, n: int | None, horizon: int | None):
         raise DataError(f"n4sid: {T} samples are too few for horizon {i} "
                         f"(need at least {2 * i * (m + ny) + 2 * i})")
     # deviations from the operating point, each channel scaled to unit std (conditioning)
-    u0, w0, y0 = u.mean(0), w.mean(0), y.mean(0)
-    w0_all = np.asarray(data.w, dtype=np.float64).mean(0)
+    if operating_point == "rest":
+        # the record starts at rest with zero input (a cold start): u0 = 0, y0 = y(0)
+        u0, w0, y0 = np.zeros(nu), w[0], y[0]
+        w0_all = np.asarray(data.w, dtype=np.float64)[0]
+    else:
+        u0, w0, y0 = u.mean(0), w.mean(0), y.mean(0)
+        w0_all = np.asarray(data.w, dtype=np.float64).mean(0)
     uw = np.concatenate([u - u0, w - w0], axis=1)
     su, sy = uw.std(0), (y - y0).std(0)
     if np.any(su == 0):
@@ -223,7 +229,8 @@ def _assemble(parts, scaling, ts, max_radius):
 
 def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
           weighting: str = "cva", feedthrough: bool = False, max_order: int | None = None,
-          max_radius: float = MAX_RADIUS) -> tuple[StateSpace, np.ndarray]:
+          max_radius: float = MAX_RADIUS, operating_point: str = "mean"
+          ) -> tuple[StateSpace, np.ndarray]:
     """Subspace estimate of an innovations state space, and the Hankel singular values.
 
     $x_{k+1} = A x_k + B \\tilde u_k + B_w \\tilde w_k + K e_k$, $y_k = y_0 + C x_k + D\\tilde u_k + e_k$
@@ -236,22 +243,30 @@ def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
     - `weighting`: `"cva"` (canonical variate analysis) or `"moesp"`.
     - `feedthrough`: estimate D (default False: thermal plants are strictly proper).
     - `max_order`: largest order `choose_order` may pick.
+    - `operating_point`: `"mean"` (deviations from the data's means; the record is taken to
+      sit around a steady operating point) or `"rest"` (the record starts at rest with zero
+      input: `u0 = 0`, `w0 = w(0)`, `y0 = y(0)`, e.g. a cold start from ambient).
 
     **Returns:** `(model, svals)` with `model` a stable `StateSpace` at the data's operating point
     (means of u, w, y) and `svals` the singular values, largest first.
     """
     return n4sid_variants(data, n, horizon, weightings=(weighting,), feedthrough=feedthrough,
-                          max_order=max_order, max_radius=max_radius)[0]
+                          max_order=max_order, max_radius=max_radius,
+                          operating_point=operating_point)[0]
 
 
 def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
                    weightings=WEIGHTINGS, feedthrough: bool = False, max_order: int | None = None,
-                   max_radius: float = MAX_RADIUS) -> list[tuple[StateSpace, np.ndarray]]:
+                   max_radius: float = MAX_RADIUS, operating_point: str = "mean"
+                   ) -> list[tuple[StateSpace, np.ndarray]]:
     """`n4sid` for several weightings sharing one Hankel factorisation (multi-start points)."""
     for wt in weightings:
         if wt not in WEIGHTINGS:
             raise ModelError(f"n4sid: weighting must be one of {', '.join(WEIGHTINGS)}, got {wt!r}")
-    i, us, ys, scaling = _prepare(data, n, horizon)
+    if operating_point not in OPERATING_POINTS:
+        raise ModelError(f"n4sid: operating_point must be one of {', '.join(OPERATING_POINTS)}, "
+                         f"got {operating_point!r}")
+    i, us, ys, scaling = _prepare(data, n, horizon, operating_point)
     L, j = _compress(us, ys, i)
     out = []
     for wt in weightings:

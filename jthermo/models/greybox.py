@@ -100,7 +100,7 @@ class BedModel(AbstractModel):
 
     @classmethod
     def from_physical(cls, capacity, loss, gain, ts: float = 1.0, *, innovation=None,
-                      surroundings=20.0, measured_surroundings: bool = True) -> "BedModel":
+                      surroundings=20.0, measured_surroundings: bool = True) -> BedModel:
         """Build from physical values: `capacity` $C_i$ (J/K, `(N,)`), `loss` $G_i$ (W/K, `(N,)`),
         `gain` $n_{ij}$ (W, `(N, N)`, heater j to zone i), all strictly positive."""
         vals = {}
@@ -196,7 +196,7 @@ class ExtendedBedModel(AbstractModel):
 
     @classmethod
     def from_physical(cls, capacity, loss, gain, *, coupling=(), edges=(), sensors=None,
-                      ts: float = 1.0) -> "ExtendedBedModel":
+                      ts: float = 1.0) -> ExtendedBedModel:
         """Physical values: `capacity (M,)` J/K, `loss (M,)` W/K, `gain (M, nu)` W (zeros
         allowed: a body without heater), `coupling (E,)` W/K along `edges`; `sensors` defaults
         to the first `nu` nodes (the bed zones)."""
@@ -372,8 +372,8 @@ def fit_greybox(data, *, seed: int = 0, n_starts: int = 4, capacity: float = NOM
         pert = base.copy()
         pert[:n + n * nu] += rng.normal(0.0, 0.3, n + n * nu)
         starts.append(pert)
-    args = dict(u=jnp.asarray(u), w=jnp.asarray(w), y=jnp.asarray(y),
-                log_cap=jnp.log(jnp.full((n,), capacity)), ts=float(data.ts))
+    args = {"u": jnp.asarray(u), "w": jnp.asarray(w), "y": jnp.asarray(y),
+                "log_cap": jnp.log(jnp.full((n,), capacity)), "ts": float(data.ts)}
     res = minimize(_greybox_residual, jnp.asarray(np.stack(starts)), args, solver="lm",
                    max_steps=max_steps, throw=False)
     if not bool(jnp.isfinite(res.cost)):
@@ -382,9 +382,9 @@ def fit_greybox(data, *, seed: int = 0, n_starts: int = 4, capacity: float = NOM
     model = BedModel(jnp.log(jnp.full((n,), capacity)), log_loss, log_gain, surroundings=s,
                      ts=data.ts, measured_surroundings=measured)
     seconds = time.perf_counter() - t0
-    info = dict(cost=float(res.cost), start_costs=np.asarray(res.start_costs).tolist(),
-                n_steps=int(res.n_steps), measured_surroundings=measured,
-                surroundings=None if measured else float(s), x0=np.asarray(x0).tolist())
+    info = {"cost": float(res.cost), "start_costs": np.asarray(res.start_costs).tolist(),
+                "n_steps": int(res.n_steps), "measured_surroundings": measured,
+                "surroundings": None if measured else float(s), "x0": np.asarray(x0).tolist()}
     return _make_fit_result(model, res, seconds, info, data)
 
 
@@ -394,10 +394,11 @@ def _make_fit_result(model, res, seconds, info, data):
     except ImportError:
         FitResult = None
     if FitResult is not None:
-        try:
-            return FitResult.from_pem(model, res, seconds=seconds, data=data, info=info)  # type: ignore[attr-defined]
-        except Exception:  # noqa: BLE001 - fall back to the local record below
-            pass
+        import dataclasses
+
+        fr = FitResult.from_pem(model, res, seconds=seconds, data=data, info=info,
+                                family="greybox")
+        return dataclasses.replace(fr, x0=np.asarray(info["x0"]))
     return GreyboxFit(model=model, cost=float(res.cost), converged=bool(res.converged),
                       seconds=seconds, std=np.asarray(res.std), info=info)
 
@@ -407,5 +408,13 @@ def greybox_initial_state(model: BedModel, y0) -> Array:
     return model.to_statespace().initial_state(jnp.asarray(y0))
 
 
-__all__ = ["BedModel", "ExtendedBedModel", "fit_greybox", "first_order_start", "zoh",
-           "NOMINAL_CAPACITY", "GreyboxFit", "greybox_initial_state"]
+__all__ = [
+    "NOMINAL_CAPACITY",
+    "BedModel",
+    "ExtendedBedModel",
+    "GreyboxFit",
+    "first_order_start",
+    "fit_greybox",
+    "greybox_initial_state",
+    "zoh",
+]

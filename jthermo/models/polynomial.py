@@ -38,7 +38,7 @@ def lagged(x: Float[Array, "T m"], L: int) -> Float[Array, "T m L1"]:
 
 
 def ar_filter(x: Array, den: Array) -> Array:
-    """All-pole filter $y(t) = x(t) - \sum_{k=1}^{n} den_k\, y(t-k)$, zero initial conditions.
+    """All-pole filter $y(t) = x(t) - \\sum_{k=1}^{n} den_k\\, y(t-k)$, zero initial conditions.
 
     `x` is `(T, *batch)`, `den` is `(*batch, n)` (the monic polynomial without its leading 1).
     A `lax.scan` over time (measured faster on CPU, with forward-mode Jacobians, than a
@@ -73,7 +73,7 @@ def fir_monic(x: Array, num: Array) -> Array:
 
 
 def ar_matrix_filter(w: Float[Array, "T ny"], a: Float[Array, "na ny ny"]) -> Float[Array, "T ny"]:
-    """$y(t) = w(t) - \sum_k a_k\, y(t-k)$ with matrix coefficients (a full A polynomial)."""
+    """$y(t) = w(t) - \\sum_k a_k\\, y(t-k)$ with matrix coefficients (a full A polynomial)."""
     na = a.shape[0]
     if na == 0:
         return w

@@ -3,9 +3,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jthermo.control import DecoupledPI, design, design_feedforward, design_imc, design_lqg, gated
 from jthermo.control.pi import DiagonalPI
-from jthermo.control import (DecoupledPI, design, design_feedforward, design_imc, design_lqg,
-                             gated)
 from jthermo.errors import ControlError
 
 from .loop import bed_plant, closed_loop, step_reference

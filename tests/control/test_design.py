@@ -1,8 +1,16 @@
 import numpy as np
 import pytest
 
-from jthermo.control import (FAMILIES, decoupling_matrix, design, fit_step_model, lambda_gains,
-                             needs_decoupling, rga, step_models)
+from jthermo.control import (
+    FAMILIES,
+    decoupling_matrix,
+    design,
+    fit_step_model,
+    lambda_gains,
+    needs_decoupling,
+    rga,
+    step_models,
+)
 from jthermo.control.design import StepModel, zeros_stable
 from jthermo.errors import ControlError
 from jthermo.models import StateSpace
@@ -23,7 +31,7 @@ def test_step_model_exact_for_first_order():
 def test_step_model_with_delay():
     t = np.arange(600.0)
     s = 2.0 * (1 - np.exp(-np.clip(t - 5.0, 0, None) / 20.0))
-    k, lag, tc = fit_step_model(s, 1.0)
+    _, lag, tc = fit_step_model(s, 1.0)
     assert tc == pytest.approx(20.0, rel=0.03) and lag == pytest.approx(5.0, abs=0.5)
 
 

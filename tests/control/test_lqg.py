@@ -6,7 +6,6 @@ import scipy.linalg
 
 from jthermo.control import design_lqg, solve_dare
 from jthermo.control.lqg import lqr_gain
-
 from tests.helpers import central_difference
 
 from .loop import bed_plant
@@ -33,7 +32,7 @@ def test_riccati_matches_scipy(seed):
 
 
 def test_riccati_gradient_matches_finite_differences():
-    A, B, Q, R = _random_system(2, n=3, m=2)
+    A, B, _, _ = _random_system(2, n=3, m=2)
     A, B = jnp.asarray(A), jnp.asarray(B)
 
     def f(logq):

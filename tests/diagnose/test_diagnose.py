@@ -141,9 +141,9 @@ def test_zone_and_coupled_simulations_agree():
                                    xw0=10.0) for _ in range(n)])
     on = jnp.asarray(M.on_vector(["ambient_variation", "radiative_loss"]))
     Th[:, lay.sl("drift")] = np.linspace(-1, 1, lay.n_drift)
-    f = dict(u=jnp.asarray(u), events=jnp.zeros((T, n)), ts_level=145.0, ts_free=0.0,
-             wdev=jnp.zeros(T), Phi=jnp.asarray(M.drift_basis(T, 1.0, lay.n_drift)),
-             delay=jnp.asarray(0), u_pad=jnp.asarray(u.mean(0)), ts=1.0)
+    f = {"u": jnp.asarray(u), "events": jnp.zeros((T, n)), "ts_level": 145.0, "ts_free": 0.0,
+             "wdev": jnp.zeros(T), "Phi": jnp.asarray(M.drift_basis(T, 1.0, lay.n_drift)),
+             "delay": jnp.asarray(0), "u_pad": jnp.asarray(u.mean(0)), "ts": 1.0}
     dr = Th[0, lay.sl("drift")] - Th[0, lay.sl("drift")].mean()
     rec = jnp.concatenate([jnp.full(n, 170.0), jnp.full(n, 155.0), jnp.asarray(dr)])
     Y = np.asarray(M.simulate_full(jnp.asarray(Th), on, f, lay, rec))

@@ -122,6 +122,8 @@ def test_simulation_focus_and_errors():
         fit_statespace(data, 2, focus="bogus")
     with pytest.raises(ModelError, match="positive integer"):
         fit_statespace(data, 0)
+    with pytest.raises(ModelError, match="operating_point"):
+        fit_statespace(data, 2, operating_point="bogus")
     m = InnovationsSS.from_statespace(n4sid(data, 2, horizon=5)[0], output_error=True)
     assert float(jnp.max(jnp.abs(m.K))) == 0.0
     assert m.n_params() == 4 + 4

@@ -109,3 +109,24 @@ def test_errors():
     const = data.replace(u=np.ones_like(data.u))
     with pytest.raises(DataError, match="constant"):
         n4sid(const, 2)
+
+
+def test_rest_operating_point_exact_on_cold_start():
+    """A record that starts at rest (x = 0, zero input) with a non-zero-mean input: the 'rest'
+    operating point is exact, where the sample means would add an offset state."""
+    A, B, C, poles = _system(1)
+    rng = np.random.default_rng(5)
+    u = 0.5 + rng.standard_normal((800, 2))
+    x = np.zeros(3)
+    y = np.empty((800, 2))
+    for k in range(800):
+        y[k] = 20.0 + C @ x
+        x = A @ x + B @ u[k]
+    data = from_arrays(u, y)
+    model, _ = n4sid(data, 3, operating_point="rest")
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(np.asarray(model.A))), poles,
+                               atol=1e-7)
+    np.testing.assert_allclose(np.asarray(model.y0), y[0])
+    np.testing.assert_allclose(np.asarray(model.simulate(u)), y, atol=1e-6)
+    with pytest.raises(ModelError, match="operating_point"):
+        n4sid(data, 3, operating_point="bogus")
