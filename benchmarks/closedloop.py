@@ -20,7 +20,7 @@ analysis of the compiled call (arguments + outputs + temporaries) for jthermo, t
 for NumPy. Configurations whose input arrays alone exceed `--max-gb` are skipped (stated).
 
     python benchmarks/closedloop.py            # N in {4,16,64}, B in {1,256,4096}, T = 3600
-    python benchmarks/closedloop.py --quick    # N in {4,16}, B in {1,256}, T = 600
+    python benchmarks/closedloop.py --quick    # N in {4,16}, B in {1,256}, T = 600 (_quick.md)
 """
 
 from __future__ import annotations
@@ -240,8 +240,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small grid for a smoke test")
     ap.add_argument("--max-gb", type=float, default=3.0, help="skip configurations above this")
-    ap.add_argument("--out", default=str(HERE / "results" / "closedloop.md"))
+    ap.add_argument("--out", default=None,
+                    help="default benchmarks/results/closedloop.md (closedloop_quick.md with --quick)")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = str(HERE / "results" / ("closedloop_quick.md" if args.quick else "closedloop.md"))
     if args.quick:
         Ns, Bs, T, repeats, pcr, scaling = (4, 16), (1, 256), 600, 2, 2, False
     else:

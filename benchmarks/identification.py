@@ -158,7 +158,7 @@ def run_jthermo(W, family: str, N: int, est: dict, val: dict) -> dict:
         row["warm_s"] = time.perf_counter() - t0
         row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
         row["note"] = "" if res.converged else "not converged"
-    except Exception as exc:  # a family that is missing or fails is a row, not a crash
+    except Exception as exc:  # noqa: BLE001 - a missing or failing family is a row, not a crash
         row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120]}"
     return row
 
@@ -256,7 +256,7 @@ def run_peer(tool: str, family: str, N: int, timeout: float) -> dict:
         return {"tool": tool, "family": family, "N": N, "error": f"timed out after {timeout:.0f} s"}
     try:
         return q.get(timeout=5)
-    except Exception:
+    except Exception:  # noqa: BLE001 - the child died without a result
         return {"tool": tool, "family": family, "N": N, "error": f"child exited with {p.exitcode}"}
 
 
@@ -317,33 +317,39 @@ def main(argv=None) -> int:
     Ns = args.n or ([4] if args.quick else [4, 16])
     W = load_workloads()
     rows, oracle = [], {}
+    meta = {"machine": f"{platform.machine()}, {mp.cpu_count()} CPU cores, {platform.python_version()}",
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "command": "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
+    from jthermo.data import atomic_write_text
+
+    def save():   # after every row, so a stopped run still leaves its table
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out, markdown(rows, oracle, meta))
+        if args.json:
+            clean = [{k: v for k, v in r.items() if k != "trace"} for r in rows]
+            atomic_write_text(args.json, json.dumps({"rows": clean, "oracle": oracle, **meta},
+                                                    indent=1))
+
     for N in Ns:
         est, val = W.estimation_validation(N, T, 0)
         oracle[N] = W.fit_percent(val["y"], val["y_clean"])
         for fam in args.families:
             print(f"[W1] N={N} {fam}: jthermo ...", file=sys.stderr, flush=True)
             rows.append(run_jthermo(W, fam, N, est, val))
+            save()
             if args.peers in ("sippy", "all") and fam in SIPPY_METHOD:
                 if (args.quick and fam in ("oe", "bj")) or fam not in args.peer_families:
                     rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped"})
                 else:
                     print(f"[W1] N={N} {fam}: SIPPY ...", file=sys.stderr, flush=True)
                     rows.append(run_peer("SIPPY", fam, N, args.peer_timeout))
+                    save()
             if args.peers == "all" and fam == "ss" and fam in args.peer_families:
                 print(f"[W1] N={N} ss: jax-sysid ...", file=sys.stderr, flush=True)
                 rows.append(run_peer("jax-sysid", fam, N, args.peer_timeout))
-    meta = {"machine": f"{platform.machine()}, {mp.cpu_count()} CPU cores, {platform.python_version()}",
-            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "command": "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
-    md = markdown(rows, oracle, meta)
-    print(md)
-    from jthermo.data import atomic_write_text
-
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.out, md)
-    if args.json:
-        clean = [{k: v for k, v in r.items() if k != "trace"} for r in rows]
-        atomic_write_text(args.json, json.dumps({"rows": clean, "oracle": oracle, **meta}, indent=1))
+                save()
+    save()
+    print(markdown(rows, oracle, meta))
     return 0
 
 

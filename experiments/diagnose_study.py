@@ -168,7 +168,8 @@ def main(argv=None):
         rows, real = [], []
         for tag in a.merge.split(","):
             d = json.loads((out / f"diagnose_study{tag}.json").read_text())
-            rows += d["cases"]
+            rows = [r for r in rows if r["case"] not in {c["case"] for c in d["cases"]}]
+            rows += d["cases"]          # a later tag's run of the same case replaces it
             real += [(l, r, r.get("seconds", float("nan"))) for l, r in d.get("real", {}).items()]
         write(rows, real, out / "diagnose_study.md")
         return 0

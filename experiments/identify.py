@@ -26,13 +26,13 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from jthermo import data as jdata  # noqa: E402
-from jthermo.data import atomic_write_text, from_arrays  # noqa: E402
-from jthermo.identify.fit import fit  # noqa: E402
-from jthermo.identify.subspace import n4sid  # noqa: E402
-from jthermo.validate import compare, residual_tests  # noqa: E402
+from jthermo import data as jdata
+from jthermo.data import atomic_write_text, from_arrays
+from jthermo.identify.fit import fit
+from jthermo.identify.subspace import n4sid
+from jthermo.validate import compare, residual_tests
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT / ".." / "shared"

@@ -90,7 +90,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     root = Path(runs_dir) / name
     figs = root / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    st = _Stages(7, quiet)
+    st = _Stages(8, quiet)
     t_start = time.perf_counter()
     S: dict[str, Any] = {"name": name, "quick": quick, "seed": seed, "settings": cfg}
     figures: dict[str, list[tuple[Path, str]]] = {}

@@ -11,7 +11,7 @@ Each mechanism adds states, terms or input transformations with physically const
 | --- | --- |
 | `lateral_conduction` | $+\\sum_{j} k_{ij}(T_j - T_i)$, $k_{ij} = k_{ji} \\ge 0$ for every pair of zones |
 | `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$ |
-| `heat_accumulation` | a slow shared wall: $\\tau_w \\dot T_w = \\bar T - T_w + \\gamma (T_s - T_w)$, zones $+c_i (T_w - T_i)$ |
+| `heat_accumulation` | a slow shared wall: $\\tau_w \\dot T_w = \\bar T - T_w + \\gamma (T_s - T_w)$, zones $+c_i (T_w - T_i)$; $\\tau_w > 200$ s, $0 < \\gamma < 4$ |
 | `heater_lag` | lamps $\\tau_h \\dot p_j = u_j - p_j$ drive the zones instead of $u$ |
 | `input_delay` | $u(t - d)$, $d$ whole samples (chosen on a grid, not by gradient) |
 | `input_nonlinearity` | $u_j^{\\,e}$, $e > 0$ |
@@ -111,6 +111,19 @@ def n_drift_knots(T: int, ts: float) -> int:
     return math.ceil((T - 1) * ts / DRIFT_SPACING) + 1
 
 
+#: the wall is a slow body: its time constant τ_w is at least this (s) ...
+TAUW_MIN = 200.0
+#: ... and its own loss to the surroundings at most this multiple of its coupling to the bed,
+#: so the effective time constant τ_w / (1 + γ) stays above TAUW_MIN / (1 + GAMMA_MAX) = 40 s
+GAMMA_MAX = 4.0
+
+
+def wall_parameters(log_tauw, log_gamma):
+    """(τ_w in s, γ) from their unconstrained parameters: τ_w > TAUW_MIN, 0 < γ < GAMMA_MAX."""
+    xp = jnp if isinstance(log_tauw, jax.Array) else np
+    return TAUW_MIN + xp.exp(log_tauw), GAMMA_MAX / (1.0 + xp.exp(-log_gamma))
+
+
 def _safe_pow(u, e):
     pos = u > 1e-12
     return jnp.where(pos, jnp.where(pos, u, 1.0) ** e, 0.0)
@@ -147,8 +160,7 @@ def _zone_matrices(theta, on, lay, ts):
     a = jnp.exp(g("log_a")[0])
     ksum = on[0] * jnp.sum(jnp.exp(g("log_k")))
     c = on[2] * jnp.exp(g("log_c")[0])
-    tauw = jnp.exp(g("log_tauw")[0])
-    gam = jnp.exp(g("log_gamma")[0])
+    tauw, gam = wall_parameters(g("log_tauw")[0], g("log_gamma")[0])
     A = jnp.array([[-(a + ksum + c), c], [0.0, -(1.0 + gam) / tauw]], dtype=dt)
     Bc = jnp.array([[1.0, a, 1.0, 0.0], [0.0, gam / tauw, 0.0, 1.0 / tauw]], dtype=dt)
     M = jnp.zeros((4, 4), dt).at[:2, :2].set(A).at[:2, 2:].set(jnp.eye(2, dtype=dt))
@@ -221,8 +233,7 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     V = jax.vmap(zone_input, out_axes=1)(Theta)                  # (T, n)
     a = jnp.exp(g("log_a")[:, 0])
     c = on[2] * jnp.exp(g("log_c")[:, 0])
-    tauw = jnp.exp(g("log_tauw")[:, 0])
-    gam = jnp.exp(g("log_gamma")[:, 0])
+    tauw, gam = wall_parameters(g("log_tauw")[:, 0], g("log_gamma")[:, 0])
     kk = on[0] * jnp.exp(g("log_k"))                             # (n, n-1): row i, others
     K = jnp.zeros((n, n), dt)
     if n > 1:
@@ -277,8 +288,8 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     a = float(np.exp(log_a))
     th[lay.sl("log_k")] = np.log(0.05 * a)
     th[lay.sl("log_r")] = np.log(0.5)
-    th[lay.sl("log_tauw")] = np.log(1000.0)
-    th[lay.sl("log_gamma")] = np.log(1.0)
+    th[lay.sl("log_tauw")] = np.log(1000.0 - TAUW_MIN)
+    th[lay.sl("log_gamma")] = np.log(1.0 / (GAMMA_MAX - 1.0))      # γ = 1
     th[lay.sl("log_c")] = np.log(0.3 * a)
     th[lay.sl("xw0")] = xw0
     th[lay.sl("log_tauh")] = np.log(5.0)
@@ -311,8 +322,7 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
         return {"coefficient_per_s_K3": [float(v) for v in r],
                 "share_of_loss": med(lin / (lin + a))}
     if mech == "heat_accumulation":
-        tauw = np.exp(g("log_tauw")[:, 0])
-        gam = np.exp(g("log_gamma")[:, 0])
+        tauw, gam = wall_parameters(g("log_tauw")[:, 0], g("log_gamma")[:, 0])
         c = np.exp(g("log_c")[:, 0])
         a = np.exp(g("log_a")[:, 0])
         return {"time_constant_s": med(tauw / (1.0 + gam)), "share": med(c / (c + a))}

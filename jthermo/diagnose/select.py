@@ -352,7 +352,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     rmask = np.zeros((Mn, R))
     for j, (_, th, on, _) in enumerate(models):
         rec0[j, :n] = yv[0]
-        gam = np.exp(th[:, lay.sl("log_gamma")][:, 0])
+        _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
         tsl = ts_level_v + ts_free * float(np.median(th[:, lay.sl("ts0")][:, 0]))
         rec0[j, n:2 * n] = tsl + (yv[0].mean() - tsl) / (1.0 + gam)
         rmask[j, :n] = 1.0

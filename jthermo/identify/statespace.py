@@ -129,7 +129,8 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
-    `[pack(InnovationsSS), x0]`, and `criterion_table` (the Hankel singular values when `n` was
+    `[pack(InnovationsSS), x0]` (then the output offset `dy0` in rest mode; in the basis
+    $C = [I\;0]$, before any eigenvalue projection), and `criterion_table` (the Hankel singular values when `n` was
     chosen automatically).
     """
     import time
@@ -202,5 +203,11 @@ def _ss_residuals_x0zero(theta, args):
     return innovations(unpack(theta, template), y, du, dw, None)
 
 
-__all__ = ["fit_statespace", "ss_residuals", "ss_residuals_offset", "ss_cost", "choose_operating_point",
-           "FOCUS"]
+__all__ = [
+    "FOCUS",
+    "choose_operating_point",
+    "fit_statespace",
+    "ss_cost",
+    "ss_residuals",
+    "ss_residuals_offset",
+]

@@ -276,4 +276,4 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
     return out
 
 
-__all__ = ["n4sid", "n4sid_variants", "choose_order", "project_stable", "default_horizon", "WEIGHTINGS"]
+__all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "n4sid", "n4sid_variants", "project_stable"]

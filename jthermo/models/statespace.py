@@ -62,7 +62,7 @@ class InnovationsSS(AbstractModel):
 
     @staticmethod
     def from_statespace(ss: StateSpace, *, canonical: bool = True,
-                        output_error: bool = False) -> "InnovationsSS":
+                        output_error: bool = False) -> InnovationsSS:
         """Wrap a `StateSpace`; with `canonical`, change basis so that $C = [I\\;0]$ when possible."""
         A, B, C, K, Bw = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.K, ss.Bw))
         nx, ny = A.shape[0], C.shape[0]
@@ -78,7 +78,7 @@ class InnovationsSS(AbstractModel):
         if output_error:
             K = np.zeros_like(K)
         dt = jnp.asarray(ss.A).dtype
-        j = lambda a: jnp.asarray(a, dt)  # noqa: E731
+        j = lambda a: jnp.asarray(a, dt)
         return InnovationsSS(A=j(A), B=j(B), C=j(C), K=j(K), Bw=j(Bw), D=jnp.asarray(ss.D),
                              u0=jnp.asarray(ss.u0), w0=jnp.asarray(ss.w0), y0=jnp.asarray(ss.y0),
                              ts_=ss.ts, fixed_c=fixed, output_error=output_error)
@@ -104,7 +104,7 @@ class InnovationsSS(AbstractModel):
     def n_params(self) -> int:
         return int(sum(a.size for a in self.free_leaves()))
 
-    def stabilized(self, max_radius: float = 0.9995) -> "InnovationsSS":
+    def stabilized(self, max_radius: float = 0.9995) -> InnovationsSS:
         """This model with A's eigenvalues pulled inside `max_radius` (NumPy; not traced)."""
         A = project_stable(np.asarray(self.A), max_radius)
         return eqx.tree_at(lambda m: m.A, self, jnp.asarray(A, self.A.dtype))
@@ -169,4 +169,4 @@ def innovations(model: InnovationsSS | StateSpace, y: Float[Array, "T ny"], du: 
     return es
 
 
-__all__ = ["InnovationsSS", "pack", "unpack", "innovations", "project_stable"]
+__all__ = ["InnovationsSS", "innovations", "pack", "project_stable", "unpack"]

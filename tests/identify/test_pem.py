@@ -97,3 +97,92 @@ def test_errors(linear_problem):
         pem.minimize(_linear_residual, jnp.zeros(3), linear_problem, solver="bfgs")
     with pytest.raises(ConfigError, match="shape"):
         pem.minimize(_linear_residual, jnp.zeros((1, 1, 3)), linear_problem)
+
+
+# ------------------------------------------------------------ polynomial PEM costs
+
+from tests.helpers import central_difference  # noqa: E402
+
+from jthermo.data import from_arrays  # noqa: E402
+from jthermo.identify.fit import _poly_args, _Spec, fit, poly_cost  # noqa: E402
+from jthermo.models.polynomial import ARMAX, OE, BoxJenkins, poly_from_reflection  # noqa: E402
+
+SPECS = {   # m, na, nb, nc, nd, nf, nu, L, offset
+    "armax": _Spec(1, 2, 2, 1, 0, 0, 2, 2, True),
+    "armax_full": _Spec(2, 1, 1, 1, 0, 0, 2, 1, False),
+    "oe": _Spec(1, 0, 2, 0, 0, 2, 2, 2, True),
+    "bj": _Spec(1, 0, 1, 2, 1, 1, 2, 1, False),
+}
+
+
+@pytest.mark.parametrize("name", list(SPECS))
+def test_grad_of_pem_cost_matches_central_differences(name):
+    spec = SPECS[name]
+    rng = np.random.default_rng(5)
+    y = jnp.asarray(np.cumsum(rng.standard_normal((120, 2)), axis=0) * 0.1)
+    u = jnp.asarray(rng.uniform(0, 1, (120, 2)))
+    args = _poly_args(y, u, spec, 1, spec.m > 1)
+    one = tuple(a[0] for a in args[:4]) + (spec,)
+    theta = jnp.asarray(rng.normal(0, 0.3, spec.n_params))
+    g = np.asarray(jax.grad(poly_cost)(theta, one))
+    fd = central_difference(lambda th: poly_cost(th, one), np.asarray(theta))
+    np.testing.assert_allclose(g, fd, rtol=1e-6, atol=1e-9 * np.max(np.abs(fd)))
+
+
+def _family_data(model, T, seed, noise=0.05):
+    """Data from `model` in innovations form: start at rest, u in [0, 1] held 3-12 samples."""
+    rng = np.random.default_rng(seed)
+    nu = model.n_inputs
+    u = np.repeat(rng.uniform(0, 1, (T // 6 + 1, nu)), 6, axis=0)[:T]
+    ss = model.to_statespace()
+    e = noise * rng.standard_normal((T, model.n_outputs))
+
+    def body(x, inp):
+        uk, ek = inp
+        du = uk - ss.u0
+        return ss.A @ x + ss.B @ du + ss.K @ ek, ss.y0 + ss.C @ x + ss.D @ du + ek
+
+    _, y = jax.lax.scan(body, jnp.zeros(ss.A.shape[0]), (jnp.asarray(u), jnp.asarray(e)))
+    return from_arrays(u, np.asarray(y))
+
+
+def _fit_percent(y, yhat):
+    y, yhat = np.asarray(y), np.asarray(yhat)
+    return np.mean(100 * (1 - np.linalg.norm(y - yhat, axis=0) / np.linalg.norm(y - y.mean(0), axis=0)))
+
+
+def _true_models():
+    b = np.array([[[0.20, 0.05], [0.04, 0.01]], [[0.03, 0.01], [0.25, 0.06]]])   # (2, 2, 2)
+    f = np.array([[[-0.93]], [[-0.95]]])
+    return {
+        "armax": (ARMAX(np.array([[-0.93], [-0.95]]), b, np.array([[0.5], [0.3]]), nk=1,
+                        y0=[20.0, 21.0]), (1, 2, 1, 1)),
+        "oe": (OE(b, np.repeat(f, 2, axis=1), nk=1, y0=[20.0, 21.0]), (2, 1, 1)),
+        "bj": (BoxJenkins(b, np.array([[0.4], [0.2]]), np.array([[-0.8], [-0.7]]),
+                          np.repeat(f, 2, axis=1), nk=1, y0=[20.0, 21.0]), (2, 1, 1, 1, 1)),
+    }
+
+
+@pytest.mark.parametrize("family", ["armax", "oe", "bj"])
+def test_fit_recovers_known_model(family):
+    true, orders = _true_models()[family]
+    est = _family_data(true, 1500, seed=1)
+    val = _family_data(true, 1500, seed=2)
+    res = fit(est, family, orders, n_starts=2, seed=0)
+    assert res.family == family and res.orders["nk"] == 1
+    fit_true = _fit_percent(val.y, true.simulate(val.u))
+    fit_hat = _fit_percent(val.y, res.model.simulate(val.u))
+    assert fit_hat > fit_true - 1.5
+    # most true coefficients inside the reported 3-sigma intervals
+    err = np.abs(np.asarray(res.model.flat_coefficients() - true.flat_coefficients()))
+    assert np.mean(err < 3 * np.asarray(res.std)) >= 0.8
+    for poly in ("c", "d", "f"):
+        coeffs = np.asarray(getattr(res.model, poly)).reshape(-1, getattr(res.model, "n" + poly))
+        for row in coeffs:
+            if row.size:
+                assert np.max(np.abs(np.roots(np.r_[1.0, row]))) < 1.0
+
+
+def test_stable_parametrisation_is_stable():
+    k = jnp.tanh(jnp.asarray([5.0, -7.0, 3.0]))
+    assert np.max(np.abs(np.roots(np.r_[1.0, np.asarray(poly_from_reflection(k))]))) < 1.0

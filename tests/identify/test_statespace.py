@@ -58,7 +58,7 @@ def fitted():
 
 
 def test_pem_fit_close_to_true_model(fitted):
-    est, res = fitted
+    _, res = fitted
     val = _data(1500, 2)
     true = StateSpace(A_TRUE, B_TRUE, C_TRUE, K=K_TRUE, u0=np.full(2, 0.5), y0=np.full(2, 20.0))
     fit_true = _fit_percent(val.y, np.asarray(true.simulate(val.u)))

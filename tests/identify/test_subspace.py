@@ -51,7 +51,7 @@ def test_noise_free_poles_recovered():
 
 
 def test_noise_free_order_and_simulation():
-    data, (A, B, C, _) = _noise_free()
+    data, _ = _noise_free()
     model, svals = n4sid(data)            # order from the singular values
     assert model.A.shape == (3, 3)
     assert choose_order(svals) == 3
