@@ -384,7 +384,8 @@ def _write_report(root: Path, S: dict, figures: dict) -> Path:
     rep.heading("4. Gradient tuning")
     t = S.get("tuning")
     if t:
-        rep.para(f"Lambda-tuned diagonal PI, tuned by `jax.grad` of the mean closed-loop cost over "
+        rep.para(f"Lambda-tuned diagonal PI (designed on the printer's linearisation, "
+                 "`tune.printer_model`), tuned by `jax.grad` of the mean closed-loop cost over "
                  f"{t.get('rollouts')} vmapped disturbance rollouts for {t.get('steps')} Adam steps, "
                  f"evaluated on held-out seeds {t.get('held_out_seeds')}.")
         rep.table([{"start cost": t.get("start_cost"), "tuned cost": t.get("tuned_cost"),
@@ -396,7 +397,9 @@ def _write_report(root: Path, S: dict, figures: dict) -> Path:
     rep.heading("5. Test scenarios")
     if S.get("scenarios"):
         rep.para("Each controller against the virtual printer with every realistic effect on "
-                 "(not the model it was designed from), held-out disturbance seed; MSE in °C².")
+                 "(not the model it was designed from), held-out disturbance seed; MSE in °C². "
+                 f"Classical designs come from the {S.get('design_model', 'fitted')} model, the tuned "
+                 "one from section 4.")
         rep.table(S["scenarios"])
         figs("scenarios")
     rep.heading("6. Diagnosis of a concealed effect")

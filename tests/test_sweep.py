@@ -114,6 +114,7 @@ def test_summary_format():
     assert "[b]" in text.splitlines()[1]
 
 
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 def test_process_pool_matches_in_process(tmp_path):
     cfg = sweep.parse_config(CFG)
     sweep.run_sweep(cfg, tmp_path / "a.jsonl")
@@ -124,6 +125,7 @@ def test_process_pool_matches_in_process(tmp_path):
     assert a == b
 
 
+@pytest.mark.filterwarnings("ignore")
 def test_ray_local(tmp_path):
     ray = pytest.importorskip("ray")
     try:
@@ -142,6 +144,7 @@ def test_ray_local(tmp_path):
         ray.shutdown()
 
 
+@pytest.mark.filterwarnings("ignore")
 def test_ray_bad_address(tmp_path):
     pytest.importorskip("ray")
     cfg = sweep.parse_config(CFG)
