@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..errors import ModelError
+from ..errors import DataError, ModelError
 from ..models.polynomial import Polynomial, _as_nk, _delay_onehot, lagged
 
 
@@ -107,7 +107,7 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
         Phi = jnp.concatenate([Phi, jnp.ones(Phi.shape[:2] + (1,), Phi.dtype)], axis=2)
     n0 = first_row(na, nb, _as_nk(nk, ny, nu))
     if y.shape[0] - n0 <= Phi.shape[2]:
-        raise ModelError(f"arx_ls: {y.shape[0]} samples are too few for {Phi.shape[2]} parameters "
+        raise DataError(f"arx_ls: {y.shape[0]} samples are too few for {Phi.shape[2]} parameters "
                          "per output")
     theta, cov, rss = _solve(Phi, y, n0)
     p = m * na + nu * nb

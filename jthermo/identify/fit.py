@@ -192,8 +192,8 @@ def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
 def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
                    nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
                    offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
-                   max_steps: int = 200, ts: float = 1.0, covariance: bool = True,
-                   progress: Callable | None = None):
+                   max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
+                   covariance: bool = True, progress: Callable | None = None):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -260,7 +260,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     if progress:
         progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
     res = minimize_many(poly_residual, jnp.asarray(starts, y.dtype), args, solver=solver,
-                        max_steps=max_steps, covariance=covariance, throw=False)
+                        max_steps=max_steps, rtol=rtol, atol=atol, covariance=covariance,
+                        throw=False)
     if not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
@@ -361,6 +362,10 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
                              **kw)
         return _wrap_external(res, "ss", getattr(res, "orders", o or {}), t0)
     full_a = bool(kw.get("full_a", False))
+    allowed = {"full_a", "solver", "max_steps", "covariance", "offset", "rtol", "atol"}
+    unknown = set(kw) - allowed
+    if unknown:
+        raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")
     table = None
     if o is None:
         from .orders import select_orders
@@ -368,13 +373,10 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
             progress(f"choosing {family} orders by {criterion}")
         o, table = select_orders(data, family, criterion=criterion, full_a=full_a, seed=seed,
                                  n_starts=1)
-    require_samples(data, n_params_per_output(family, o, data.n_inputs, data.n_outputs, full_a),
-                    what=f"{family} model")
-    allowed = {"full_a", "solver", "max_steps", "covariance", "offset"}
-    unknown = set(kw) - allowed
-    if unknown:
-        raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")
     pk = _poly_kwargs(family, o)
+    n0 = max(pk["na"], pk["nk"] + max(pk["nb"], 1) - 1)     # rows lost to the regressors
+    require_samples(data, n_params_per_output(family, o, data.n_inputs, data.n_outputs, full_a)
+                    + n0 + 1, what=f"{family} model")
     model, info = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
                                  progress=progress, **pk, **kw)
     return FitResult(model=model, family=family, orders=o, converged=info["converged"],

@@ -3,3 +3,7 @@
 from ._base import AbstractModel as AbstractModel, StateSpace as StateSpace, is_stable as is_stable
 from .greybox import BedModel as BedModel, ExtendedBedModel as ExtendedBedModel
 from .statespace import InnovationsSS as InnovationsSS
+from .polynomial import (
+    ARMAX as ARMAX, ARX as ARX, BJ as BJ, OE as OE, BoxJenkins as BoxJenkins,
+    Polynomial as Polynomial,
+)

@@ -2,7 +2,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jthermo.errors import ModelError
+from jthermo.errors import DataError, ModelError
 from jthermo.identify.arx import arx_ls, first_row, perturb_starts
 from jthermo.models.polynomial import ARX
 
@@ -69,7 +69,7 @@ def test_arx_errors_and_starts():
     y = jnp.zeros((20, 1))
     with pytest.raises(ModelError, match="impossible"):
         arx_ls(y, y, 0, 0, 1)
-    with pytest.raises(ModelError, match="too few"):
+    with pytest.raises(DataError, match="too few"):
         arx_ls(y, y, 5, 10, 1)
     s = perturb_starts(np.ones((2, 3)), 4, seed=0)
     assert s.shape == (2, 4, 3)
