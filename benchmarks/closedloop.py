@@ -85,7 +85,9 @@ def jax_problem(wl, N, T, B, dtype=np.float64):
     """W2 as a fitted-model plant: Bw = I (the state jumps enter as measured signals), the PI,
     the lean `CompactScenario` (events, constant set point, no noise) and x0 = 0."""
     p = wl.make_plant(N, 0)
-    f = lambda a: jnp.asarray(a, dtype)   # noqa: E731
+    def f(a):
+        return jnp.asarray(a, dtype)
+
     model = StateSpace(f(p["A"]), f(p["B"]), f(np.eye(N)), Bw=f(np.eye(N)), u0=f(np.zeros(N)),
                        w0=f(np.zeros(N)), y0=f(np.zeros(N)))
     kp, ki = np.full(N, wl.KP0), np.full(N, wl.KI0)
@@ -208,7 +210,7 @@ def run(Ns, Bs, T, repeats, pc_rollouts, max_gb, traj_max_gb, scaling):
                 dargs = (args[0], args[1], sc, args[3])
                 Jd, _, row["dense_warm"] = timed(lambda: jax_costs(*dargs), repeats)
                 row["dense_mem"] = xla_bytes(jax_costs, *dargs)
-                _, tc, tw = timed(lambda: jax_traj_costs(*dargs), repeats)
+                _, _, tw = timed(lambda: jax_traj_costs(*dargs), repeats)
                 row["traj_warm"] = tw
                 row["traj_mem"] = xla_bytes(jax_traj_costs, *dargs)
                 checks.append(float(np.max(np.abs(np.asarray(Jd) - Jn))))

@@ -486,11 +486,11 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
 
     With a `CompactScenario` (set-point step, sparse state jumps, in-scan noise) nothing of
     size `T` is read either: the leanest path, for fitted-model plants. `unroll` (of the
-    time scan) defaults to 4 for a `CompactScenario`, 1 otherwise
-    (`benchmarks/closedloop.py` measured both)."""
+    time scan) defaults to 2 for a `CompactScenario`, 1 otherwise
+    (`experiments/closedloop_lean_profile.py` measured 1-16)."""
     if isinstance(scenario, CompactScenario):
         return _compact_cost(plant, controller, scenario, weights, x0, smoothing=smoothing,
-                             unroll=4 if unroll is None else unroll)
+                             unroll=2 if unroll is None else unroll)
     unroll = 1 if unroll is None else unroll
     w = _weights(weights)
     p = _prepare(plant)
@@ -682,6 +682,8 @@ def _compact_cost(plant, controller, sc: CompactScenario, weights, x0, *, smooth
     dt = sc.r0.dtype
     x0 = _model_steady_state(plant, sc.y0, sc.w) if x0 is None else x0
     ev = sc.events
+    if ev.time.shape[-1] and sc.w.shape[-1] == 0:
+        raise ConfigError("CompactScenario: events need measured signals `w` to act on (w is empty)")
     if type(plant).step is AbstractModel.step and type(plant).output is AbstractModel.output:
         # linear: x+ = A x + B u + c + G imp_k, built once outside the scan
         ss = plant.to_statespace()
