@@ -1,6 +1,6 @@
 """W2 benchmark: closed-loop rollouts per second, jthermo against NumPy and python-control.
 
-Workload (W2 of /work/shared/bench/workloads.py): an N-zone linear bed (diagonal A,
+Workload (W2 of ../shared/bench/workloads.py): an N-zone linear bed (diagonal A,
 grid-coupled B), diagonal discrete PI with clamping anti-windup, +4 °C reference step from
 ambient, random cold-layer drops (state jumps of −2 °C); B rollouts × T steps; the figure of
 merit is zone-steps per second = B·T·N / seconds. Each rollout returns its tracking cost
@@ -57,7 +57,7 @@ from jthermo.control.pi import DiagonalPI
 from jthermo.data import atomic_write_text
 from jthermo.models import StateSpace
 
-BENCH = Path(os.environ.get("JTHERMO_BENCH", "/work/shared/bench"))
+BENCH = Path(os.environ.get("JTHERMO_BENCH", Path(__file__).resolve().parents[1].parent / "shared" / "bench"))
 HERE = Path(__file__).resolve().parent
 TRACKING_ONLY = {"tracking": 1.0, "uniformity": 0.0, "effort": 0.0, "window": 0.0}
 

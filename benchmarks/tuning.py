@@ -1,6 +1,6 @@
 """W3 benchmark: seconds per gradient of the mean closed-loop cost with respect to the PI gains.
 
-Workload (W2/W3 of /work/shared/bench/workloads.py): a 16-zone linear bed, diagonal discrete
+Workload (W2/W3 of ../shared/bench/workloads.py): a 16-zone linear bed, diagonal discrete
 PI with clamping anti-windup, +4 °C reference step and random cold-layer drops, B = 256
 rollouts × T = 3600 steps. jthermo computes the gradient with respect to the 2N gains
 (`kp`, `ti` of `DiagonalPI`) by `jax.grad` through `closedloop.rollouts` (one scan, vmapped);
@@ -35,7 +35,7 @@ from jthermo.control.pi import DiagonalPI
 from jthermo.data import atomic_write_text
 from jthermo.models import StateSpace
 
-BENCH = Path(os.environ.get("JTHERMO_BENCH", "/work/shared/bench"))
+BENCH = Path(os.environ.get("JTHERMO_BENCH", Path(__file__).resolve().parents[1].parent / "shared" / "bench"))
 HERE = Path(__file__).resolve().parent
 
 

@@ -1,6 +1,6 @@
 """Fit ARX/ARMAX/OE/BJ to the reference workload: python experiments/polynomial_workload.py N T n_starts [families]."""
 import sys, time
-sys.path.insert(0, "/work/shared/bench")
+from pathlib import Path; sys.path.insert(0, str(Path(__file__).resolve().parents[1].parent / "shared" / "bench"))
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 import workloads as wl

@@ -191,7 +191,7 @@ def test_stable_parametrisation_is_stable():
 def test_workload_oe_bj_close_to_armax():
     """Printer-like reference workload (N = 4, T = 2000): OE and BJ within 3 points of ARMAX."""
     import sys
-    sys.path.insert(0, "/work/shared/bench")
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2].parent / "shared" / "bench"))
     workloads = pytest.importorskip("workloads")
     est, val = workloads.estimation_validation(4, 2000, 0)
     data = from_arrays(est["u"], est["y"])
