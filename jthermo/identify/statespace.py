@@ -130,7 +130,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
     `[pack(InnovationsSS), x0]` (then the output offset `dy0` in rest mode; in the basis
-    $C = [I\;0]$, before any eigenvalue projection), and `criterion_table` (the Hankel singular values when `n` was
+    $C = [I\\;0]$, before any eigenvalue projection), and `criterion_table` (the Hankel singular values when `n` was
     chosen automatically).
     """
     import time
