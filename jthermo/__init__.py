@@ -1,10 +1,14 @@
-"""jthermo: identify thermal models of multi-zone heated systems and tune their controllers in JAX."""
+"""jthermo: identify thermal models of multi-zone heated systems and tune their controllers in JAX.
+
+The top-level names are imported lazily (PEP 562), so `import jthermo` and `jthermo --help`
+do not pay for importing JAX; `jthermo.IOData` and friends load their module on first use.
+"""
+
+import importlib
 
 __version__ = "0.1.0"
 
-from . import data as data
-from .data import IOData as IOData
-from .errors import (
+from .errors import (  # noqa: E402 - JAX-free, cheap
     ConfigError as ConfigError,
     ControlError as ControlError,
     DataError as DataError,
@@ -12,10 +16,32 @@ from .errors import (
     JThermoError as JThermoError,
     ModelError as ModelError,
 )
-from .models import AbstractModel as AbstractModel, StateSpace as StateSpace
-from . import inputs as inputs
-from . import validate as validate
-from .inputs import prbs as prbs
-from .validate import compare as compare
-from .validate import fit_percent as fit_percent
-from .validate import residual_tests as residual_tests
+
+#: public name -> (module, attribute or None for the module itself)
+_LAZY = {
+    "data": ("jthermo.data", None),
+    "inputs": ("jthermo.inputs", None),
+    "validate": ("jthermo.validate", None),
+    "IOData": ("jthermo.data", "IOData"),
+    "AbstractModel": ("jthermo.models", "AbstractModel"),
+    "StateSpace": ("jthermo.models", "StateSpace"),
+    "prbs": ("jthermo.inputs", "prbs"),
+    "compare": ("jthermo.validate", "compare"),
+    "fit_percent": ("jthermo.validate", "fit_percent"),
+    "residual_tests": ("jthermo.validate", "residual_tests"),
+    "fit": ("jthermo.identify.fit", "fit"),
+}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'jthermo' has no attribute {name!r}")
+    module, attr = _LAZY[name]
+    value = importlib.import_module(module)
+    value = value if attr is None else getattr(value, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

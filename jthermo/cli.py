@@ -32,20 +32,12 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from .families import MODEL_FAMILIES as FAMILIES, ORDER_NAMES
+
 EXIT_OK = 0
 EXIT_ERROR = 2
 EXIT_INTERRUPT = 130
 
-FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
-#: MATLAB's order of `--orders` for each family
-ORDER_NAMES = {
-    "arx": ("na", "nb", "nk"),
-    "armax": ("na", "nb", "nc", "nk"),
-    "oe": ("nb", "nf", "nk"),
-    "bj": ("nb", "nc", "nd", "nf", "nk"),
-    "ss": ("n",),
-    "greybox": (),
-}
 SCENARIOS = ("tracking", "powder", "print", "preheat", "ensemble")
 MAX_ZONES = 256
 MAX_DURATION = 7 * 24 * 3600.0

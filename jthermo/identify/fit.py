@@ -25,6 +25,7 @@ from jaxtyping import Array, Float
 
 from ..data import IOData, require_excitation, require_samples
 from ..errors import ConfigError, DataError, FitError, ModelError
+from ..families import MODEL_FAMILIES, ORDER_NAMES
 from ..models.polynomial import (
     Polynomial, _as_nk, _delay_onehot, ar_filter, fir_monic, lagged, poly_from_reflection,
     reflection_from_poly,
@@ -32,15 +33,7 @@ from ..models.polynomial import (
 from .arx import arx_ls, perturb_starts
 from .pem import minimize_many
 
-FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
-ORDER_NAMES = {
-    "arx": ("na", "nb", "nk"),
-    "armax": ("na", "nb", "nc", "nk"),
-    "oe": ("nb", "nf", "nk"),
-    "bj": ("nb", "nc", "nd", "nf", "nk"),
-    "ss": ("n",),
-    "greybox": (),
-}
+FAMILIES = MODEL_FAMILIES
 CRITERIA = ("aic", "bic", "fpe")
 
 
@@ -169,21 +162,28 @@ def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
     return (yi, ysrc, ub, sel, spec)
 
 
-OFFSETS = ("auto", "mean", "estimate")
+OFFSETS = ("auto", "mean", "rest", "estimate")
+
+
+def _operating_point(mode: str, y, u):
+    """`(y0, u0, estimate_constant)` of an operating-point mode (see `fit_polynomial`)."""
+    if mode == "mean":
+        return jnp.mean(y, axis=0), jnp.mean(u, axis=0), False
+    return y[0], jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
 
 
 def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
-    """`"mean"` or `"estimate"`: whichever ARX(n_den, nb) simulates the estimation data better.
+    """The operating-point mode whose ARX(n_den, nb) simulates the estimation data best.
 
-    The two differ in the state the record is assumed to start from: at rest at the data's
-    mean operating point, or at rest with zero input (a cold machine, heaters off).
+    The modes differ in the state the record is assumed to start from: at rest at the data's
+    mean operating point, or at rest with zero input (a cold machine, heaters off) at the first
+    sample's temperature, that temperature either fixed or estimated with the rest.
     """
     errs = {}
-    for mode in ("mean", "estimate"):
-        yref = jnp.mean(y, axis=0) if mode == "mean" else y[0]
-        u0 = jnp.mean(u, axis=0) if mode == "mean" else jnp.zeros(u.shape[1], u.dtype)
+    for mode in OFFSETS[1:]:
+        yref, u0, est = _operating_point(mode, y, u)
         m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
-                   offset=mode == "estimate", ts=ts, u0=u0, y0=yref).model
+                   offset=est, ts=ts, u0=u0, y0=yref).model
         errs[mode] = float(jnp.mean((y - m.simulate(u)) ** 2))
     ok = {k: v for k, v in errs.items() if np.isfinite(v)}
     return min(ok, key=ok.get) if ok else "mean"
@@ -197,9 +197,10 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
-    means: the record is taken to start at rest there); `"estimate"` takes `u0 = 0` and
-    estimates `y0` with the other parameters (the record starts at rest with zero input, e.g.
-    a cold printer); `"auto"` picks the one whose ARX estimate simulates the data better.
+    means: the record is taken to start at rest there); `"rest"` takes `u0 = 0` and `y0` = the
+    first sample (the record starts at rest with zero input, e.g. a cold printer);
+    `"estimate"` is `"rest"` with `y0` estimated with the other parameters; `"auto"` picks the
+    one whose ARX estimate simulates the estimation data best.
 
     ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
     the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
@@ -220,9 +221,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     arx_full = full_a and nf == 0
     if offset == "auto":
         offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts)
-    est = offset == "estimate"
-    yref = y[0] if est else jnp.mean(y, axis=0)
-    u0 = jnp.zeros(nu, y.dtype) if est else jnp.mean(u, axis=0)
+    yref, u0, est = _operating_point(offset, y, u)
     dy, du = y - yref, u - u0
     if nc == 0 and nd == 0 and nf == 0:
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)

@@ -27,6 +27,7 @@ from typing import Any, Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import optax
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
@@ -96,7 +97,10 @@ def _solve_one(residual_fn, theta0, args, solver: str, max_steps: int, rtol: flo
         return jnp.reshape(r, (-1,)) / math.sqrt(r.size)
 
     if solver == "lm":
-        s = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+        # the damped normal equations (J'J + lambda I) are positive definite: a Cholesky solve of
+        # the p x p system is far cheaper than the default QR of the (T ny + p) x p stack
+        s = optx.LevenbergMarquardt(rtol=rtol, atol=atol,
+                                    linear_solver=lx.Normal(lx.Cholesky()))
     else:
         s = optx.GaussNewton(rtol=rtol, atol=atol)
     sol = optx.least_squares(fn, s, theta0, args, max_steps=max_steps, throw=False)
