@@ -301,7 +301,7 @@ def jsonable(x: Any) -> Any:
 def write_json(path: Path | None, report: dict) -> None:
     if path is None:
         return
-    from .data import atomic_write_text
+    from ._files import atomic_write_text
 
     atomic_write_text(path, json.dumps(jsonable(report), indent=2, allow_nan=False) + "\n")
 

@@ -11,13 +11,13 @@ import csv
 import io
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import equinox as eqx
 import numpy as np
 
+from ._files import atomic_write_text as atomic_write_text
 from .errors import DataError
 
 #: jitter allowed in logged time stamps before re-gridding is refused (fraction of Ts)
@@ -333,26 +333,6 @@ def to_columns(data: IOData) -> dict[str, np.ndarray]:
         for j, n in enumerate(names):
             cols[prefix + n] = arr[:, j]
     return cols
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write a file through a temporary file and a rename: no partial file is ever left behind."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    try:
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp makes 0600; the file gets the usual mode
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def save_csv(data: IOData, path: str | os.PathLike) -> None:

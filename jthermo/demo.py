@@ -335,7 +335,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     S["stages"] = st.records
     S.setdefault("report", str(root / "report.md"))
     from .cli import jsonable
-    from .data import atomic_write_text
+    from ._files import atomic_write_text
 
     atomic_write_text(root / "summary.json", json.dumps(jsonable(S), indent=2) + "\n")
     return S

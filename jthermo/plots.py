@@ -8,12 +8,12 @@ then a rename). Together with `report.py` this is the only module that imports m
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from ._files import atomic_write
 from .errors import DataError
 
 __all__ = [
@@ -33,34 +33,10 @@ __all__ = [
 MAX_PANELS = 4
 
 
-def _umask() -> int:
-    """The process umask, read without changing it (os.umask would race with other threads)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    return 0o022
-
-
 def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 110) -> Path:
     """Write `fig` to `path` (format from the suffix, PNG by default) through a temporary file."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fmt = p.suffix.lstrip(".").lower() or "png"
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format=fmt, dpi=dpi, bbox_inches="tight")
-        os.chmod(tmp, 0o666 & ~_umask())      # mkstemp makes 0600 files: use the usual mode
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return p
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=dpi, bbox_inches="tight"))
 
 
 def _finish(fig, path):

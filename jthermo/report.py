@@ -103,7 +103,7 @@ class Report:
         return "\n\n".join(b for b in blocks if b != "") + "\n"
 
     def write(self, path: str | os.PathLike) -> Path:
-        from .data import atomic_write_text
+        from ._files import atomic_write_text
 
         p = Path(path)
         atomic_write_text(p, self.render(p.parent))

@@ -1,23 +1,38 @@
 """End-to-end gradient tuning of controllers over vmapped closed-loop rollouts.
 
-The mean closed-loop cost over B disturbance rollouts (and optionally over a plant ensemble)
-is differentiated with `eqx.filter_value_and_grad` with respect to every inexact array leaf of
-the controller, and minimised with optax Adam in one jitted `make_step`; the loop over
-iterations and the progress report stay outside jit.
+The closed-loop cost over B disturbance rollouts of each test scenario, on one plant or on a
+plant ensemble, is differentiated with `eqx.filter_value_and_grad` with respect to every
+inexact array leaf of the controller, and minimised with optax Adam in one jitted `make_step`;
+the loop over iterations and the progress report stay outside jit.
+
+The rollouts run on a lean path (`rollout_terms`): one `lax.scan` per rollout that accumulates
+the cost terms and the measured-output MSE in its carry, so no `(B, T, n)` trajectory is stored.
+
+Robust objective (`tune(..., normalise=True)`, the default): for every plant $p$ and scenario
+$k$, the mean cost $J_{pk}$ and the measured MSE $m_{pk}$ are divided by the best value any
+reference design reaches there (the start and, e.g., every classical design), and
+
+$f = \\overline{\\rho} + \\tau \\big(\\log \\sum_i e^{\\rho_i/\\tau} - \\log n\\big)$,
+$\\rho \\in \\{\\log J_{pk}/J^*_{pk},\\ \\log m_{pk}/m^*_{pk}\\}$
+
+is minimised: the mean relative improvement plus a soft maximum that stops any scenario (or
+plant) from being sacrificed for another. A final guard checks the iterates kept along the way
+on *validation* seeds (distinct from the training seeds and from `HELD_OUT`) and returns the
+best one that beats the references in every scenario on every plant; when none does it returns
+the starting controller.
 
 Parameters stay valid by construction: every leaf whose entries are all positive at the start
 (gains, integral times, filter time constants, LQ weights) is optimised in log space,
 $\\theta = e^{z}$, so it stays positive and Adam's steps are relative; other leaves (e.g. a
 decoupling matrix with signs) are optimised as they are. Non-finite gradients are zeroed, and
-the best finite iterate seen is returned, so tuning never hands back a NaN or diverging
-controller.
+only finite iterates are kept, so tuning never hands back a NaN or diverging controller.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import equinox as eqx
@@ -25,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jaxtyping import Array, Float
 
 from .control._base import AbstractController
 from .errors import ControlError
@@ -36,13 +52,15 @@ from .errors import ControlError
 
 @dataclasses.dataclass(frozen=True)
 class TuneResult:
-    """Outcome of `tune`: the best controller found and the cost history."""
+    """Outcome of `tune`: the controller returned, the cost history and the guard's verdict."""
 
     controller: AbstractController
     history: np.ndarray          # training cost per iteration (before that iteration's update)
     start_cost: float            # training cost of the starting controller
     tuned_cost: float            # training cost of the returned controller
     seconds: float = 0.0         # wall time of the tuning loop, s
+    snapshots: tuple = ()        # (iteration, training cost, controller) kept for the guard
+    guard: dict | None = None    # validation check of `tune` (None: not run)
 
 
 def _log_mask(params):
@@ -64,7 +82,7 @@ def _finite_tree(tree) -> bool:
 
 def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequence[Any], *,
              steps: int = 100, lr: float = 0.05, progress: Callable[[int, float], None] | None
-             = None, filter_spec=eqx.is_inexact_array) -> TuneResult:
+             = None, filter_spec=eqx.is_inexact_array, snapshots: int = 0) -> TuneResult:
     """Minimise `loss(controller, batch)` over the controller's array leaves with Adam.
 
     **Arguments:**
@@ -73,10 +91,12 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
       so that `make_step` compiles once.
     - `steps`: iterations; `lr`: Adam learning rate (relative steps for log-space leaves).
     - `progress`: called as `progress(i, cost)` after each iteration (outside jit).
+    - `snapshots`: keep about this many finite iterates along the way (plus the start, the
+      best and the last) in `TuneResult.snapshots`, for a validation guard.
 
     **Returns:** `TuneResult` with the best finite iterate (by training cost).
     """
-    if steps < 0:
+    if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ControlError(f"tune: steps must be >= 0, got {steps}")
     if not batches:
         raise ControlError("tune: no training batch")
@@ -106,6 +126,8 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
     start = float(value(z, batches[0]))
     if not np.isfinite(start):
         raise ControlError("tune: the starting controller gives a non-finite cost")
+    every = max(1, steps // snapshots) if snapshots else 0
+    kept = [(0, start, z)] if snapshots else []
     for i in range(steps):
         batch = batches[i % len(batches)]
         z_new, opt_state, val = make_step(z, opt_state, batch)
@@ -114,6 +136,8 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         # `val` is the cost of `z` (before this update): keep the best finite iterate
         if np.isfinite(val) and val < best_val and len(batches) == 1:
             best_z, best_val = z, val
+        if every and i > 0 and i % every == 0 and np.isfinite(val):
+            kept.append((i, val, z))
         if progress is not None:
             progress(i, val)
         if not _finite_tree(z_new):
@@ -121,6 +145,8 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         z = z_new
     # the last iterate has not been evaluated yet; with several batches judge all on batch 0
     last = float(value(z, batches[0]))
+    if snapshots and np.isfinite(last):
+        kept.append((len(history), last, z))
     if len(batches) > 1:
         best_z, best_val = (z, last) if np.isfinite(last) else (_to_z(params, mask), start)
         if best_val > start:
@@ -129,21 +155,198 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         best_z, best_val = z, last
     if not np.isfinite(best_val):
         best_z, best_val = _to_z(params, mask), start
+    if snapshots and all(zz is not best_z for _, _, zz in kept):
+        kept.append((-1, best_val, best_z))
     tuned = eqx.combine(_from_z(best_z, mask), static)
+    snaps = tuple((i, v, eqx.combine(_from_z(zz, mask), static)) for i, v, zz in kept)
     return TuneResult(controller=tuned, history=np.asarray(history), start_cost=start,
-                      tuned_cost=float(best_val), seconds=time.perf_counter() - t0)
+                      tuned_cost=float(best_val), seconds=time.perf_counter() - t0,
+                      snapshots=snaps)
 
 
 # ----------------------------------------------------------------------------------------
-# closed-loop tuning on the virtual printer or a fitted model
+# the lean closed loop: cost terms accumulated in the scan carry
 # ----------------------------------------------------------------------------------------
 
 #: the thesis' three test scenarios, tuned for jointly and reported separately
 SCENARIOS = ("tracking", "powder", "print")
 #: default scenario length for tuning and evaluation, s
 DURATION = 600.0
-#: offset added to the seed for held-out evaluation disturbances
+#: offset added to the seed for held-out evaluation disturbances (never used in tuning)
 HELD_OUT = 10_000
+#: offset added to the seed for the guard's validation disturbances
+VALIDATION = 20_000
+
+
+def _weights(weights) -> dict[str, float]:
+    from .closedloop import DEFAULT_WEIGHTS
+
+    w = dict(DEFAULT_WEIGHTS)
+    if weights is not None:
+        bad = [k for k in weights if k not in DEFAULT_WEIGHTS]
+        if bad:
+            raise ControlError(f"tune: unknown cost weight `{bad[0]}` "
+                               f"(known: {', '.join(DEFAULT_WEIGHTS)})")
+        w.update(weights)
+    return w
+
+
+def _plant_functions(plant):
+    """`(step(x, u, d), measure(x, d) -> (y_clean, temperatures))` from public plant APIs,
+    with everything that does not change over time built once, outside the scan."""
+    from .models._base import AbstractModel
+    from .printer import Printer
+
+    if isinstance(plant, Printer):
+        disc = plant.discretise()
+        return disc.step, lambda x, d: (disc.output(x), disc.temperatures(x))
+    if isinstance(plant, AbstractModel):
+        m = plant
+        if type(plant).step is AbstractModel.step and type(plant).output is AbstractModel.output:
+            m = plant.to_statespace()
+
+        def step(x, u, d):
+            return m.step(x, u, d.w if d.w.shape[-1] else None)
+
+        def measure(x, d):
+            y = m.output(x) + d.dy
+            return y, y
+
+        return step, measure
+    raise ControlError(f"tune: unsupported plant {type(plant).__name__} "
+                       "(a Printer or a fitted model)")
+
+
+def simulate_terms(plant, controller: AbstractController, scenario, weights=None, *,
+                   smoothing: float = 0.1) -> Float[Array, "2"]:
+    """One closed-loop run reduced to `[cost, mse]` inside the scan (nothing of size T kept).
+
+    `cost` equals `closedloop.cost(simulate(...), scenario, weights)` and `mse` equals
+    `closedloop.metrics(...)["mse"]` (measured outputs against the set point), both
+    differentiable in the controller. `scenario` is one (unbatched) `closedloop.Scenario`.
+    """
+    from .closedloop import initial_state
+
+    w = _weights(weights)
+    step, measure = _plant_functions(plant)
+    x0 = initial_state(plant, scenario)
+    d0 = jax.tree.map(lambda a: a[0], scenario.d)
+    c0 = controller.init(measure(x0, d0)[0] + scenario.v[0], scenario.r[0])
+    edges = np.asarray(scenario.edges, int).reshape(-1, 2)
+    dt = scenario.r.dtype
+    eps = 0.1 * smoothing
+    T = scenario.r.shape[0]
+
+    def body(carry, inp):
+        x, c, u_prev, acc = carry
+        k, r, d, v = inp
+        y_clean, temps = measure(x, d)
+        y = y_clean + v
+        u, c = controller.step(c, y, r)
+        u = jnp.clip(u, 0.0, 1.0)
+        e = temps - r
+        unif = jnp.mean((temps[edges[:, 0]] - temps[edges[:, 1]]) ** 2) if edges.size \
+            else jnp.zeros((), dt)
+        du = jnp.where(k == 0, 0.0, jnp.mean((u - u_prev) ** 2))
+        win = jnp.mean(jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - scenario.window) / smoothing))
+        acc = acc + jnp.stack([jnp.mean(e ** 2), unif, du, win, jnp.mean((y - r) ** 2)])
+        return (step(x, u, d), c, u, acc), None
+
+    u_shape = jax.eval_shape(lambda: controller.step(c0, scenario.r[0], scenario.r[0])[0])
+    init = (x0, c0, jnp.zeros(u_shape.shape, dt), jnp.zeros((5,), dt))
+    (_, _, _, acc), _ = jax.lax.scan(
+        body, init, (jnp.arange(T), scenario.r, scenario.d, scenario.v))
+    J = (w["tracking"] * acc[0] + w["window"] * acc[3]) / T + w["effort"] * acc[2] / max(T - 1, 1)
+    if edges.size:
+        J = J + w["uniformity"] * acc[1] / T
+    return jnp.stack([J, acc[4] / T])
+
+
+def rollout_terms(plant, controller: AbstractController, scenarios, weights=None, *,
+                  smoothing: float = 0.1) -> Float[Array, "B 2"]:
+    """`simulate_terms` for each rollout of a batched `Scenario` (vmap): `(B, 2)` = cost, mse."""
+    if scenarios.r.ndim != 3:
+        raise ControlError("tune: scenarios need a leading rollout axis")
+    return jax.vmap(lambda sc: simulate_terms(plant, controller, sc, weights,
+                                              smoothing=smoothing))(scenarios)
+
+
+class _Group(eqx.Module):
+    """Items of a batch that share a scenario kind and a plant structure, stacked: the plants
+    (leading axis P, or one plant with `stacked=False`) and their scenarios `(P, B, ...)`."""
+
+    plants: Any
+    scenarios: Any
+    index: tuple = eqx.field(static=True)      # positions of these items in the batch
+    stacked: bool = eqx.field(static=True)
+
+
+def _same_structure(a, b) -> bool:
+    la, sa = eqx.partition(a, eqx.is_array)
+    lb, sb = eqx.partition(b, eqx.is_array)
+    if jax.tree.structure(la) != jax.tree.structure(lb):
+        return False
+    if any(x.shape != y.shape or x.dtype != y.dtype for x, y in
+           zip(jax.tree.leaves(la), jax.tree.leaves(lb))):
+        return False
+    return bool(eqx.tree_equal(sa, sb))
+
+
+def group_batch(batch) -> tuple[_Group, ...]:
+    """Stack the items `(plant, kind, scenarios)` of a batch that can share one vmapped
+    simulation (same kind and same plant structure, e.g. a `plant_ensemble`): one trace and
+    one compilation per group instead of per item."""
+    groups: list[list[int]] = []
+    for i, it in enumerate(batch):
+        for g in groups:
+            j = g[0]
+            if batch[j][1] == it[1] and _same_structure(batch[j][0], it[0]) and \
+                    _same_structure(batch[j][2], it[2]):
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    out = []
+    for g in groups:
+        if len(g) == 1:
+            out.append(_Group(batch[g[0]][0], batch[g[0]][2], (g[0],), False))
+            continue
+        stack = lambda *xs: jnp.stack(xs) if eqx.is_array(xs[0]) else xs[0]   # noqa: E731
+        out.append(_Group(jax.tree.map(stack, *[batch[i][0] for i in g]),
+                          jax.tree.map(stack, *[batch[i][2] for i in g]), tuple(g), True))
+    return tuple(out)
+
+
+@eqx.filter_jit
+def _group_terms(controller, groups, weights):
+    """`(items, 2)`: mean cost and mse over the rollouts of each item of a grouped batch."""
+    parts, order = [], []
+    for g in groups:
+        def one(p, sc):
+            return jnp.mean(rollout_terms(p, controller, sc, weights), axis=0)
+
+        if g.stacked:
+            arrays, static = eqx.partition(g.plants, eqx.is_array)
+            parts.append(jax.vmap(lambda a, sc: one(eqx.combine(a, static), sc))(arrays,
+                                                                                g.scenarios))
+        else:
+            parts.append(one(g.plants, g.scenarios)[None])
+        order += list(g.index)
+    terms = jnp.concatenate(parts, axis=0)
+    return terms[np.argsort(np.asarray(order))]
+
+
+def _batch_terms(controller, batch, weights):
+    """`(items, 2)`: mean cost and mse over the rollouts of each `(plant, kind, scenarios)`
+    (a list of items, or the groups `group_batch` made of one)."""
+    groups = batch if isinstance(batch, tuple) and batch and isinstance(batch[0], _Group) \
+        else group_batch(batch)
+    return _group_terms(controller, groups, weights)
+
+
+# ----------------------------------------------------------------------------------------
+# closed-loop tuning on the virtual printer or a fitted model
+# ----------------------------------------------------------------------------------------
 
 
 def _kinds(kind) -> tuple[str, ...]:
@@ -179,53 +382,158 @@ def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float =
 
 
 def batch_cost(controller, batch, weights=None):
-    """Mean closed-loop cost (`closedloop.cost`) over every `(plant, kind, scenarios[, scale])`
-    of a batch, each divided by its `scale` (default 1): the quantity `tune` minimises."""
-    from .closedloop import cost, rollouts
+    """Mean closed-loop cost over every `(plant, kind, scenarios[, scale])` of a batch, each
+    divided by its `scale` (default 1)."""
+    terms = _batch_terms(controller, group_batch([tuple(it[:3]) for it in batch]), weights)
+    scale = jnp.asarray([it[3] if len(it) > 3 else 1.0 for it in batch], terms.dtype)
+    return jnp.mean(terms[:, 0] / scale)
 
-    total = 0.0
-    for item in batch:
-        plant, _, sc = item[:3]
-        scale = item[3] if len(item) > 3 else 1.0
-        total = total + cost(rollouts(plant, controller, sc), sc, weights) / scale
-    return total / len(batch)
+
+def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"],
+                     tau: float = 0.02) -> Float[Array, ""]:
+    """$\\overline{\\rho} + \\tau(\\log\\sum e^{\\rho/\\tau} - \\log n)$ with
+    $\\rho = \\log(\\text{terms}/\\text{ref})$ (cost and mse of every plant and scenario):
+    zero at the references, negative where every entry improves."""
+    rho = jnp.log(terms / ref).ravel()
+    return jnp.mean(rho) + tau * (jax.nn.logsumexp(rho / tau) - jnp.log(rho.size))
+
+
+def _reference_terms(refs, batch, weights):
+    """Per item, the best (smallest finite) cost and mse over the reference controllers."""
+    vals = np.stack([np.asarray(_batch_terms(c, batch, weights)) for c in refs])
+    vals = np.where(np.isfinite(vals) & (vals > 0), vals, np.inf)
+    return vals, np.min(vals, axis=0)
+
+
+def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float = 15.0,
+                   seed: int = 0) -> list:
+    """`printer` and `n` perturbed copies of it for robust tuning. Each copy scales the zone
+    heat capacities, losses and heater gains by factors drawn uniformly within ±`spread` (one
+    factor per quantity times a ±`spread`/3 zone-to-zone jitter), the emissivity (radiative
+    loss) within ±`spread`/2, and moves the surroundings by up to ±`shift_c` °C, so that the
+    input holding the bed at the window centre differs from the design model's (as with another
+    powder or chamber); copies whose steady input leaves (0.1, 0.9) are redrawn. Only array
+    leaves change: the copies stack into one vmapped simulation. Works for any `Printer`."""
+    from .printer import Printer
+
+    if not isinstance(printer, Printer):
+        raise ControlError("plant_ensemble: needs a virtual printer (`Printer`)")
+    if not isinstance(n, (int, np.integer)) or n < 0:
+        raise ControlError(f"plant_ensemble: n must be a non-negative integer, got {n!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4242]))
+    out, tries = [printer], 0
+    n_z = printer.zones
+    while len(out) < n + 1 and tries < 20 * (n + 1):
+        tries += 1
+        f = 1.0 + spread * rng.uniform(-1, 1, 3)
+        jit_ = lambda: 1.0 + spread / 3 * rng.uniform(-1, 1, n_z)    # noqa: E731
+        p = eqx.tree_at(lambda q: (q.capacity, q.loss, q.gain, q.surroundings), printer,
+                        (printer.capacity * f[0] * jit_(), printer.loss * f[1] * jit_(),
+                         printer.gain * f[2] * jit_()[None, :],
+                         printer.surroundings + shift_c * rng.uniform(-1, 1)))
+        if printer.has("radiative_loss"):
+            p = eqx.tree_at(lambda q: q.effects["radiative_loss"]["emissivity"], p,
+                            p.effects["radiative_loss"]["emissivity"]
+                            * (1.0 + 0.5 * spread * rng.uniform(-1, 1)))
+        u = np.asarray(p.steady_input())[:n_z]
+        if np.all(np.isfinite(u)) and np.all((u > 0.1) & (u < 0.9)):
+            out.append(p)
+    return out
+
+
+def _guard(candidates, refs, start, batch, weights, margin, tau):
+    """Pick among `candidates` the one with the lowest robust objective on the validation
+    `batch` that beats every reference on mse (by `margin`) and the start on cost, in every
+    item (plant × scenario); relax the margin to 0, then fall back to `start`."""
+    ref_vals, best = _reference_terms(refs, batch, weights)
+    start_vals = np.asarray(_batch_terms(start, batch, weights))
+    rows = []
+    for i, (it, _, c) in enumerate(candidates):
+        v = np.asarray(_batch_terms(c, batch, weights))
+        ok = bool(np.all(np.isfinite(v)))
+        obj = float(robust_objective(jnp.asarray(v), jnp.asarray(best), tau)) if ok else np.inf
+        rows.append({"iteration": int(it), "objective": obj,
+                     "mse_ratio_worst": float(np.max(v[:, 1] / best[:, 1])) if ok else np.inf,
+                     "cost_ratio_worst": float(np.max(v[:, 0] / start_vals[:, 0])) if ok
+                     else np.inf})
+    chosen, level = None, None
+    for m in (margin, 0.0):
+        ok = [i for i, r in enumerate(rows)
+              if r["mse_ratio_worst"] <= 1.0 - m and r["cost_ratio_worst"] <= 1.0]
+        if ok:
+            chosen, level = min(ok, key=lambda i: rows[i]["objective"]), m
+            break
+    info = {"candidates": rows, "chosen": None if chosen is None else rows[chosen]["iteration"],
+            "margin": level, "passed": chosen is not None,
+            "reference_mse": best[:, 1].tolist(), "reference_cost": best[:, 0].tolist()}
+    return (start if chosen is None else candidates[chosen][2]), info
 
 
 def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=None,
-         rollouts: int = 8, steps: int = 100, lr: float = 0.05, weights=None, seed: int = 0,
-         plants=None, duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
+         rollouts: int = 8, steps: int = 100, lr: float = 0.05,
+         weights: Mapping[str, float] | None = None, seed: int = 0, plants=None,
+         duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
+         references: Sequence[AbstractController] = (), guard: bool = True,
+         margin: float = 0.01, tau: float = 0.02, snapshots: int = 10,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
-    Minimises the mean of `closedloop.cost` over `rollouts` disturbance realisations of each
-    scenario in `kind` (default the thesis' three tests), on `plant` or, for robust tuning, on
-    every plant of `plants` (an ensemble: e.g. printers with another powder, perturbed
-    parameters, fitted models). Gradients by `jax.grad` through the scanned simulations.
+    Minimises, over `rollouts` disturbance realisations of each scenario in `kind` (default
+    the thesis' three tests) on `plant` or on every plant of `plants` (an ensemble, e.g.
+    `plant_ensemble`), the robust objective of the module docstring (`normalise=True`) or the
+    plain mean of `closedloop.cost` (`normalise=False`). Gradients by `jax.grad` through the
+    scanned simulations (the lean `rollout_terms` path).
 
     **Arguments:**
-    - `controller`: the starting controller (a classical design).
+    - `controller`: the starting controller (a classical design; best: the best one).
     - `plant`: a `Printer` or a fitted model; ignored when `plants` is given.
     - `kind`: a scenario name or a sequence of them; `scenarios`: ready-made training batches
       (as `make_batches` returns) instead.
     - `rollouts`, `duration` (s), `n_batches`: size of the training set, drawn from `seed`.
     - `steps`, `lr`: Adam iterations and learning rate; `weights`: `closedloop.cost` weights.
-    - `normalise`: divide each scenario's cost by the starting controller's cost on it, so that
-      every scenario (and plant) counts by its relative improvement: a gain in one scenario
-      cannot buy a loss in another cheaply. Costs in the result are then relative (start = 1).
+    - `references`: designs the result must beat (with the start) in every scenario and plant;
+      the robust objective is relative to the best of them in each.
+    - `guard`: check the kept iterates on validation seeds (`seed + VALIDATION`) and return the
+      best that beats every reference's mse by `margin` (relative) and the start's cost in
+      every plant and scenario, else the start. `tau`: softness of the maximum.
     - `progress`: called as `progress(i, cost)` after each iteration.
 
-    **Returns:** `TuneResult` (the best finite iterate on the training batches).
+    **Returns:** `TuneResult` (training costs relative to the references when normalised).
     """
     pl = [plant] if plants is None else list(plants)
     if not pl:
         raise ControlError("tune: empty plant ensemble")
+    if not (0.0 <= margin < 1.0):
+        raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
     batches = scenarios if scenarios is not None else make_batches(
         pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches)
+    batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
+    refs = [controller, *references]
     if normalise:
-        batches = [[(p, k, sc, jax.lax.stop_gradient(_simulate_cost(p, controller, sc, weights)[1]))
-                    for p, k, sc, *_ in batch] for batch in batches]
-    return minimise(lambda c, b: batch_cost(c, b, weights), controller, batches, steps=steps,
-                    lr=lr, progress=progress)
+        # the references' best cost and mse per (plant, scenario), fixed (no gradient)
+        pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
+        if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
+            raise ControlError("tune: the reference designs give no finite cost on the training set")
+        res = minimise(lambda c, br: robust_objective(_batch_terms(c, br[0], weights), br[1], tau),
+                       controller, pairs, steps=steps, lr=lr, progress=progress,
+                       snapshots=snapshots if guard else 0)
+    else:
+        res = minimise(lambda c, b: jnp.mean(_batch_terms(c, b, weights)[:, 0]), controller,
+                       batches, steps=steps,
+                       lr=lr, progress=progress, snapshots=snapshots if guard else 0)
+    if not guard:
+        return res
+    t0 = time.perf_counter()
+    sc0 = batches[0][0].scenarios
+    B, T = (sc0.r.shape[1], sc0.r.shape[2]) if batches[0][0].stacked else sc0.r.shape[:2]
+    val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
+                                   seed=int(seed) + VALIDATION)[0])
+    chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau)
+    info["seconds"] = time.perf_counter() - t0
+    idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]
+    tuned_cost = res.snapshots[idx[0]][1] if idx else res.start_cost
+    return dataclasses.replace(res, controller=chosen, tuned_cost=float(tuned_cost), guard=info,
+                               seconds=res.seconds + info["seconds"])
 
 
 @eqx.filter_jit
@@ -261,28 +569,27 @@ def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_
 
 def printer_model(printer):
     """The printer linearised at the window centre as a `StateSpace` (the grey-box model with
-    the printer's known parameters): Jacobians of the continuous dynamics at the steady state,
-    zero-order hold at Ts, outputs the bed sensors, operating point the steady input and the
-    window-centre readings. Input delay is left out (a design model, not a plant)."""
+    the printer's known parameters): Jacobians of its one-sample map (`Printer.discretise`)
+    at the steady state with no recoat or laser, outputs the bed sensors, operating point the
+    steady input and the window-centre readings. Input delay is left out (a design model)."""
     from .models._base import StateSpace
-    from .models.greybox import zoh
+    from .printer import PrinterState
 
+    if printer.has_areas:
+        raise ControlError("printer_model: printers with areas 1–3 are not supported here")
     x0 = printer.initial_state()
     u0 = printer.steady_input()
-    A, Bp, bs, _ = printer.linear_system()
-    Ts = printer.surroundings
-    t_far = jnp.asarray(1e9, x0.z.dtype)
+    disc = printer.discretise()
+    d = printer.default_disturbance()
 
     def f(z, u):
-        return A @ z + Bp @ printer._power(u) + bs * Ts + printer._nonlinear(z, t_far, Ts)
+        buf = jnp.broadcast_to(u, x0.buffer.shape)        # the delay line holds u: no delay
+        return disc.step(PrinterState(z=z, buffer=buf, since=x0.since), u, d).z
 
-    Ac = jax.jacfwd(f, 0)(x0.z, u0)
-    Bc = jax.jacfwd(f, 1)(x0.z, u0)
-    Ad, Bd = zoh(Ac, Bc, printer.ts)
+    Ad = jax.jacfwd(f, 0)(x0.z, u0)
+    Bd = jax.jacfwd(f, 1)(x0.z, u0)
     n = printer.n_outputs
-    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:n] if not printer.has_areas else None
-    if C is None:
-        raise ControlError("printer_model: printers with areas 1–3 are not supported here")
+    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:n]
     return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=printer.output(x0))
 
 
@@ -303,14 +610,18 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
 def tune_report(controller_family: str, *, plant="printer", model=None, rollouts: int = 8,
                 steps: int = 200, seed: int = 0, lr: float = 0.05, zones: int = 4,
                 powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
-                eval_rollouts: int | None = None, weights=None,
+                eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
+                references: Sequence[str] = ("pi_lambda",),
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
     Starts from the classical design of `controller_family` (see `control.design`) on `model`
     (default: the printer linearised at the window centre, `printer_model`), tunes it on
-    disturbance seeds drawn from `seed`, and evaluates start, tuned and the lambda-tuned
-    diagonal PI on the held-out seed `seed + HELD_OUT` in the three scenarios.
+    disturbance seeds drawn from `seed` on the printer and, for a `Printer`, `ensemble`
+    perturbed copies of it (`plant_ensemble`), guarded on validation seeds against the start
+    and the designs named in `references` (families designed on the same model), and evaluates
+    start, tuned and the lambda-tuned diagonal PI on the held-out seed `seed + HELD_OUT` in
+    the three scenarios.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `scenarios`
@@ -319,6 +630,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     """
     from .control.design import design
     from .models._base import AbstractModel
+    from .printer import Printer
 
     t0 = time.perf_counter()
     pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
@@ -326,8 +638,11 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         model = pl if isinstance(pl, AbstractModel) else printer_model(pl)
     start = design(controller_family, model)
     lam_pi = design("pi_lambda", model)
-    res = tune(start, pl, rollouts=rollouts, steps=steps, lr=lr, seed=seed, duration=duration,
-               weights=weights, progress=progress)
+    refs = [design(f, model) for f in references if f != controller_family]
+    plants = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
+        ensemble else [pl]
+    res = tune(start, pl, plants=plants, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
+               duration=duration, weights=weights, references=refs, progress=progress)
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
     ev = {name: evaluate(c, pl, SCENARIOS, seeds, rollouts=er, duration=duration,
@@ -344,6 +659,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
             "tuned_cost": tuned, "lambda_pi_cost": lam_c,
             "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
+            "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
+            "ensemble": len(plants),
             "history": [float(h) for h in res.history], "rollouts": int(rollouts),
             "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds),
             "duration": float(duration), "zones": int(getattr(pl, "zones", 0) or 0),
