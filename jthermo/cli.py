@@ -52,12 +52,17 @@ class UsageError(Exception):
 # ---------------------------------------------------------------- argument types
 
 
+def _number(text: str, cast, what: str):
+    """`cast(text)`, or argparse's one-line error naming what was expected."""
+    try:
+        return cast(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+
+
 def _positive_int(limit: int):
     def conv(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+        v = _number(text, int, "a positive integer")
         if not 1 <= v <= limit:
             raise argparse.ArgumentTypeError(f"must lie in 1..{limit}, got {v}")
         return v
@@ -67,20 +72,14 @@ def _positive_int(limit: int):
 
 
 def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    v = _number(text, int, "an integer seed")
     if not 0 <= v < 2**32:
         raise argparse.ArgumentTypeError(f"seed must lie in 0..2**32-1, got {v}")
     return v
 
 
 def _duration(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    v = _number(text, float, "seconds")
     if not (math.isfinite(v) and 0 < v <= MAX_DURATION):
         raise argparse.ArgumentTypeError(f"duration must lie in (0, {MAX_DURATION:g}] s, got {text}")
     return v
