@@ -34,8 +34,14 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from jthermo.closedloop import (CompactScenario, Events, ModelDisturbance, Scenario, rollout_costs,
-                                rollouts)
+from jthermo.closedloop import (
+    CompactScenario,
+    Events,
+    ModelDisturbance,
+    Scenario,
+    rollout_costs,
+    rollouts,
+)
 from jthermo.control.pi import DiagonalPI
 from jthermo.data import atomic_write_text
 from jthermo.models import StateSpace

@@ -9,8 +9,12 @@
    untuned identical PI.
 3. Each controller runs against the *virtual printer* (not the model it came from) in the three
    test scenarios, on held-out disturbance seeds: MSE tables like the thesis' Tables 5.1–5.3.
-4. Gradient-tuned versions (`jthermo.tune.tune`) of the PI and the LQG, tuned on other
-   disturbance seeds of the same printer.
+4. Gradient-tuned versions (`jthermo.tune.tune`) of the PI and the LQG, started from their
+   classical design on the known model and tuned on other disturbance seeds of the PA12 printer
+   and `--ensemble` perturbed copies of it (`plant_ensemble`: capacities, losses, heater gains,
+   emissivity, surroundings), with the robust objective (every scenario and plant relative to
+   the best classical design there) and the validation guard (seed + VALIDATION) against every
+   classical design of the known model.
 5. Everything is repeated on a printer with another powder (PA11), which no design or tuning saw.
 
     python experiments/control_study.py            # writes experiments/results/control_study.md
@@ -30,13 +34,21 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from jthermo.closedloop import REALISTIC_EFFECTS  # noqa: E402
-from jthermo.control import design, rga  # noqa: E402
-from jthermo.data import atomic_write_text  # noqa: E402
-from jthermo.printer import generate, make_printer  # noqa: E402
-from jthermo.tune import HELD_OUT, SCENARIOS, evaluate, printer_model, tune  # noqa: E402
+from jthermo.closedloop import REALISTIC_EFFECTS
+from jthermo.control import design, rga
+from jthermo.data import atomic_write_text
+from jthermo.printer import generate, make_printer
+from jthermo.tune import (
+    HELD_OUT,
+    SCENARIOS,
+    VALIDATION,
+    evaluate,
+    plant_ensemble,
+    printer_model,
+    tune,
+)
 
 HERE = Path(__file__).resolve().parent
 CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg")
@@ -90,6 +102,7 @@ def main(argv=None):
                     help="comma list of SS4, ARX6, ARMAX2, grey-box, known")
     ap.add_argument("--tune", default="pi_lambda,lqg", help="families to tune")
     ap.add_argument("--out", default=str(HERE / "results" / "control_study.md"))
+    ap.add_argument("--ensemble", type=int, default=3, help="perturbed printers added in tuning")
     ap.add_argument("--tracking-weight", type=float, default=1.0,
                     help="weight of the tracking MSE in the tuning cost (evaluation keeps 1)")
     ap.add_argument("--resume", action="store_true",
@@ -161,12 +174,16 @@ def main(argv=None):
         if ("PA12", "tuned", fam) in results:
             continue
         start = design(fam, dm)
+        refs = [design(f, dm) for f in CLASSICAL if f != fam]
         t = time.perf_counter()
-        res = tune(start, pa12, rollouts=R, steps=K, lr=0.05, seed=args.seed, duration=D,
-                   weights={"tracking": args.tracking_weight},
+        res = tune(start, pa12, plants=plant_ensemble(pa12, args.ensemble, seed=args.seed),
+                   rollouts=R, steps=K, lr=0.05, seed=args.seed, duration=D,
+                   weights={"tracking": args.tracking_weight}, references=refs,
                    progress=lambda i, v: log(f"tune {fam} {i} {v:.4f}") if i % 25 == 0 else None)
+        g = res.guard or {}
         tuned[fam] = {"start_cost": res.start_cost, "tuned_cost": res.tuned_cost,
                       "iterations": len(res.history), "seconds": time.perf_counter() - t,
+                      "guard": {k: v for k, v in g.items() if k in ("chosen", "margin", "passed")},
                       "params": {k: np.asarray(v).tolist() for k, v in vars(res.controller).items()
                                  if k in ("kp", "ti", "q1", "q2", "qi", "qw")}}
         for pname, pl in (("PA12", pa12), ("PA11", pa11)):
@@ -190,11 +207,15 @@ def main(argv=None):
 
 def report(results, models, notes, rgas, tuned, dname, args, R, K, D, seconds):
     L = ["# Control study: the thesis' chapter 4–5 comparison on the virtual printer", "",
-         f"Command: `python experiments/control_study.py{' --quick' if args.quick else ''}`. "
+         f"Command: `python experiments/control_study.py {' '.join(sys.argv[1:])}`. "
          f"{args.zones}-zone virtual printer with {', '.join(REALISTIC_EFFECTS)}; scenarios "
          f"{D:.0f} s each, {R} held-out disturbance rollouts (seed {args.seed + HELD_OUT}) per "
          f"scenario; tuning: {K} Adam iterations on {R} rollouts per scenario from seed "
-         f"{args.seed}, tracking weight {args.tracking_weight:g} in the tuning cost. Total run time {seconds / 60:.1f} min.", "",
+         f"{args.seed} on the PA12 printer and {args.ensemble} perturbed copies (`plant_ensemble`), "
+         f"robust objective relative to the best classical design per scenario and plant, "
+         f"validation guard on seed {args.seed + VALIDATION}; tracking weight "
+         f"{args.tracking_weight:g} in the tuning cost. PA11 is never seen in design or tuning. "
+         f"Total run time {seconds / 60:.1f} min.", "",
          "Cost = `closedloop.cost` (tracking MSE + neighbour non-uniformity + input variation + "
          "smooth time outside ±1 °C), mean over the three scenarios. MSE = measured output vs "
          "set point, °C² (the thesis' tables).", "", "## Models", ""]
@@ -259,7 +280,8 @@ def report(results, models, notes, rgas, tuned, dname, args, R, K, D, seconds):
             continue
         L.append(f"- {LABELS[fam]}: training cost (relative to the start in each scenario) "
                  f"{t['start_cost']:.4f} → {t['tuned_cost']:.4f} in {t['iterations']} "
-                 f"iterations, {t['seconds']:.0f} s (includes compilation); tuned parameters "
+                 f"iterations, {t['seconds']:.0f} s (includes compilation); validation guard "
+                 f"{json.dumps(t.get('guard'))}; tuned parameters "
                  f"{json.dumps({k: np.round(v, 4).tolist() for k, v in t['params'].items()})}.")
     L.append("")
     return "\n".join(L)

@@ -12,14 +12,15 @@ Robust objective (`tune(..., normalise=True)`, the default): for every plant $p$
 $k$, the mean cost $J_{pk}$ and the measured MSE $m_{pk}$ are divided by the best value any
 reference design reaches there (the start and, e.g., every classical design), and
 
-$f = \\overline{\\rho} + \\tau \\big(\\log \\sum_i e^{\\rho_i/\\tau} - \\log n\\big)$,
-$\\rho \\in \\{\\log J_{pk}/J^*_{pk},\\ \\log m_{pk}/m^*_{pk}\\}$
+$f = \\overline{\\rho^J} + \\overline{\\rho^m}
+ + \\tau \\big(\\log \\sum e^{\\rho^m/\\tau} - \\log n\\big)$,
+$\\rho^J = \\log J_{pk}/J^*_{pk}$, $\\rho^m = \\log m_{pk}/m^*_{pk}$
 
-is minimised: the mean relative improvement plus a soft maximum that stops any scenario (or
-plant) from being sacrificed for another. A final guard checks the iterates kept along the way
-on *validation* seeds (distinct from the training seeds and from `HELD_OUT`) and returns the
-best one that beats the references in every scenario on every plant; when none does it returns
-the starting controller.
+is minimised: the mean relative improvement plus a soft maximum of the relative MSE that stops
+any scenario (or plant) from being sacrificed for another. A final guard checks the iterates
+kept along the way on *validation* seeds (distinct from the training seeds and from
+`HELD_OUT`) and returns the best one that beats the references' MSE in every scenario on
+every plant without raising the total cost; when none does it returns the starting controller.
 
 Parameters stay valid by construction: every leaf whose entries are all positive at the start
 (gains, integral times, filter time constants, LQ weights) is optimised in log space,
@@ -218,7 +219,7 @@ def _plant_functions(plant):
 
 
 def simulate_terms(plant, controller: AbstractController, scenario, weights=None, *,
-                   smoothing: float = 0.1) -> Float[Array, "2"]:
+                   smoothing: float = 0.1) -> Float[Array, 2]:
     """One closed-loop run reduced to `[cost, mse]` inside the scan (nothing of size T kept).
 
     `cost` equals `closedloop.cost(simulate(...), scenario, weights)` and `mse` equals
@@ -311,7 +312,7 @@ def group_batch(batch) -> tuple[_Group, ...]:
         if len(g) == 1:
             out.append(_Group(batch[g[0]][0], batch[g[0]][2], (g[0],), False))
             continue
-        stack = lambda *xs: jnp.stack(xs) if eqx.is_array(xs[0]) else xs[0]   # noqa: E731
+        stack = lambda *xs: jnp.stack(xs) if eqx.is_array(xs[0]) else xs[0]
         out.append(_Group(jax.tree.map(stack, *[batch[i][0] for i in g]),
                           jax.tree.map(stack, *[batch[i][2] for i in g]), tuple(g), True))
     return tuple(out)
@@ -327,8 +328,8 @@ def _group_terms(controller, groups, weights):
 
         if g.stacked:
             arrays, static = eqx.partition(g.plants, eqx.is_array)
-            parts.append(jax.vmap(lambda a, sc: one(eqx.combine(a, static), sc))(arrays,
-                                                                                g.scenarios))
+            parts.append(jax.vmap(lambda a, sc, st=static: one(eqx.combine(a, st), sc))(
+                arrays, g.scenarios))
         else:
             parts.append(one(g.plants, g.scenarios)[None])
         order += list(g.index)
@@ -391,11 +392,14 @@ def batch_cost(controller, batch, weights=None):
 
 def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"],
                      tau: float = 0.02) -> Float[Array, ""]:
-    """$\\overline{\\rho} + \\tau(\\log\\sum e^{\\rho/\\tau} - \\log n)$ with
-    $\\rho = \\log(\\text{terms}/\\text{ref})$ (cost and mse of every plant and scenario):
-    zero at the references, negative where every entry improves."""
-    rho = jnp.log(terms / ref).ravel()
-    return jnp.mean(rho) + tau * (jax.nn.logsumexp(rho / tau) - jnp.log(rho.size))
+    """$\\overline{\\rho^J} + \\overline{\\rho^m} + \\tau(\\log\\sum e^{\\rho^m/\\tau} - \\log n)$
+    with $\\rho = \\log(\\text{terms}/\\text{ref})$ per item (plant × scenario): the mean
+    relative cost and mse plus a soft maximum of the relative mse, so that no scenario's mse is
+    given up for another's. Zero at the references, negative where everything improves."""
+    rho = jnp.log(terms / ref)
+    rm = rho[:, 1]
+    return jnp.mean(rho[:, 0]) + jnp.mean(rm) + tau * (jax.nn.logsumexp(rm / tau)
+                                                       - jnp.log(rm.size))
 
 
 def _reference_terms(refs, batch, weights):
@@ -426,7 +430,7 @@ def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float 
     while len(out) < n + 1 and tries < 20 * (n + 1):
         tries += 1
         f = 1.0 + spread * rng.uniform(-1, 1, 3)
-        jit_ = lambda: 1.0 + spread / 3 * rng.uniform(-1, 1, n_z)    # noqa: E731
+        jit_ = lambda: 1.0 + spread / 3 * rng.uniform(-1, 1, n_z)
         p = eqx.tree_at(lambda q: (q.capacity, q.loss, q.gain, q.surroundings), printer,
                         (printer.capacity * f[0] * jit_(), printer.loss * f[1] * jit_(),
                          printer.gain * f[2] * jit_()[None, :],
@@ -443,9 +447,10 @@ def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float 
 
 def _guard(candidates, refs, start, batch, weights, margin, tau):
     """Pick among `candidates` the one with the lowest robust objective on the validation
-    `batch` that beats every reference on mse (by `margin`) and the start on cost, in every
-    item (plant × scenario); relax the margin to 0, then fall back to `start`."""
-    ref_vals, best = _reference_terms(refs, batch, weights)
+    `batch` that beats every reference on mse (by `margin`) in every item (plant × scenario)
+    and does not raise the total cost above the start's; relax the margin to 0, then fall back
+    to `start`."""
+    _, best = _reference_terms(refs, batch, weights)
     start_vals = np.asarray(_batch_terms(start, batch, weights))
     rows = []
     for i, (it, _, c) in enumerate(candidates):
@@ -454,12 +459,13 @@ def _guard(candidates, refs, start, batch, weights, margin, tau):
         obj = float(robust_objective(jnp.asarray(v), jnp.asarray(best), tau)) if ok else np.inf
         rows.append({"iteration": int(it), "objective": obj,
                      "mse_ratio_worst": float(np.max(v[:, 1] / best[:, 1])) if ok else np.inf,
-                     "cost_ratio_worst": float(np.max(v[:, 0] / start_vals[:, 0])) if ok
+                     "cost_ratio": float(np.sum(v[:, 0]) / np.sum(start_vals[:, 0])) if ok
                      else np.inf})
     chosen, level = None, None
     for m in (margin, 0.0):
         ok = [i for i, r in enumerate(rows)
-              if r["mse_ratio_worst"] <= 1.0 - m and r["cost_ratio_worst"] <= 1.0]
+              if (r["mse_ratio_worst"] <= 1.0 - m if m > 0 else r["mse_ratio_worst"] < 1.0)
+              and r["cost_ratio"] <= 1.0]
         if ok:
             chosen, level = min(ok, key=lambda i: rows[i]["objective"]), m
             break
@@ -474,7 +480,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          weights: Mapping[str, float] | None = None, seed: int = 0, plants=None,
          duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
          references: Sequence[AbstractController] = (), guard: bool = True,
-         margin: float = 0.01, tau: float = 0.02, snapshots: int = 10,
+         margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -494,8 +500,11 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     - `references`: designs the result must beat (with the start) in every scenario and plant;
       the robust objective is relative to the best of them in each.
     - `guard`: check the kept iterates on validation seeds (`seed + VALIDATION`) and return the
-      best that beats every reference's mse by `margin` (relative) and the start's cost in
-      every plant and scenario, else the start. `tau`: softness of the maximum.
+      best that beats every reference's mse by `margin` (relative) in every plant and scenario
+      without raising the total cost above the start's, else the start. `validation`: the
+      guard's batch (a list of `(plant, kind, scenarios)`); default fresh draws from
+      `seed + VALIDATION`, or the first training batch when `scenarios` are given. `tau`:
+      softness of the maximum over the relative mse.
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (training costs relative to the references when normalised).
@@ -524,10 +533,15 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     if not guard:
         return res
     t0 = time.perf_counter()
-    sc0 = batches[0][0].scenarios
-    B, T = (sc0.r.shape[1], sc0.r.shape[2]) if batches[0][0].stacked else sc0.r.shape[:2]
-    val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
-                                   seed=int(seed) + VALIDATION)[0])
+    if validation is not None:
+        val = group_batch([tuple(it[:3]) for it in validation])
+    elif scenarios is not None:      # custom scenarios: no generator to draw fresh ones from
+        val = batches[0]
+    else:
+        sc0 = batches[0][0].scenarios
+        B, T = (sc0.r.shape[1], sc0.r.shape[2]) if batches[0][0].stacked else sc0.r.shape[:2]
+        val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
+                                       seed=int(seed) + VALIDATION)[0])
     chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau)
     info["seconds"] = time.perf_counter() - t0
     idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]
