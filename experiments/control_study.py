@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import traceback
@@ -55,6 +56,10 @@ CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "l
 LABELS = {"pi_untuned": "original PI (untuned)", "pi_lambda": "diagonal PI (lambda)",
           "pi_decoupled": "decoupled PI (CB)⁻¹", "feedforward": "feed-forward (neutral)",
           "imc": "IMC", "lqg": "LQG + integral", "gated_pi": "gated PI"}
+#: the fields tuned per family (default: every array leaf); the LQG keeps its design model and
+#: operating point and tunes its Riccati weights with the set-point weight of its reference
+#: model (the second degree of freedom, for set-point steps)
+TUNED_FIELDS = {"lqg": ("q1", "q2", "qi", "qw", "b0", "tau_r")}
 FITS = {"SS4": ("ss", (4,)), "ARX6": ("arx", (6, 6, 1)), "ARMAX2": ("armax", (2, 2, 2, 1)),
         "grey-box (fitted)": ("greybox", ())}
 
@@ -109,6 +114,9 @@ def main(argv=None):
                     help="reuse the results in the JSON next to --out and compute only the rest")
     ap.add_argument("--fitted-pa12-only", action="store_true",
                     help="evaluate designs from fitted models on the PA12 printer only")
+    ap.add_argument("--seed-sets", type=int, default=3,
+                    help="held-out seed sets (seed + HELD_OUT + j) on which the tuned "
+                         "controllers are compared with every classical design of the known model")
     args = ap.parse_args(argv)
     args.models = args.models.split(",")
     R = args.rollouts or (2 if args.quick else 4)
@@ -117,6 +125,7 @@ def main(argv=None):
     args.ident_duration = 1200.0 if args.quick else 1800.0
     args.n_starts = 2 if args.quick else 4
     t0 = time.perf_counter()
+    args.load_start = os.getloadavg()
 
     pa12 = make_printer(args.zones, REALISTIC_EFFECTS, powder="PA12", seed=args.seed)
     pa11 = make_printer(args.zones, REALISTIC_EFFECTS, powder="PA11", seed=args.seed)
@@ -164,6 +173,32 @@ def main(argv=None):
                                                             rollouts=R, duration=D)
             log(f"{mname:28s} {fam:14s} PA12 cost {results[('PA12', mname, fam)]['cost']:.4f}")
 
+    def seed_sets(ctrl, dm, fam):
+        """MSE per scenario of `ctrl`, its classical start and the best classical design of
+        the known model, on each held-out seed set (the first is the main tables' seed)."""
+        out = {}
+        for pname, pl in (("PA12", pa12), ("PA11", pa11)):
+            for j in range(args.seed_sets):
+                s = args.seed + HELD_OUT + j
+                ev = {f: results[(pname, design_model_name, f)] if j == 0 else
+                      evaluate(design(f, dm), pl, SCENARIOS, (s,), rollouts=R, duration=D)
+                      for f in CLASSICAL}
+                ev["tuned"] = results[(pname, "tuned", fam)] if j == 0 else \
+                    evaluate(ctrl, pl, SCENARIOS, (s,), rollouts=R, duration=D)
+                row = {}
+                for k in SCENARIOS:
+                    best = min(CLASSICAL, key=lambda f: ev[f]["scenarios"][k]["mse"])
+                    row[k] = {"tuned": ev["tuned"]["scenarios"][k]["mse"],
+                              "start": ev[fam]["scenarios"][k]["mse"],
+                              "best_classical": ev[best]["scenarios"][k]["mse"],
+                              "best_family": best}
+                row["cost"] = {"tuned": ev["tuned"]["cost"], "pi_lambda": ev["pi_lambda"]["cost"]}
+                out[f"{pname}|{s}"] = row
+                log(f"seed set {pname} {s}: " + ", ".join(
+                    f"{k} {row[k]['tuned']:.4f} vs {row[k]['best_classical']:.4f}"
+                    for k in SCENARIOS))
+        return out
+
     # 1. the known grey-box first: classical designs and the gradient-tuned versions
     design_model_name = "printer grey-box (known)"
     dm = printer_model(pa12)
@@ -179,19 +214,21 @@ def main(argv=None):
         res = tune(start, pa12, plants=plant_ensemble(pa12, args.ensemble, seed=args.seed),
                    rollouts=R, steps=K, lr=0.05, seed=args.seed, duration=D,
                    weights={"tracking": args.tracking_weight}, references=refs,
+                   params=TUNED_FIELDS.get(fam),
                    progress=lambda i, v: log(f"tune {fam} {i} {v:.4f}") if i % 25 == 0 else None)
         g = res.guard or {}
         tuned[fam] = {"start_cost": res.start_cost, "tuned_cost": res.tuned_cost,
                       "iterations": len(res.history), "seconds": time.perf_counter() - t,
                       "guard": {k: v for k, v in g.items() if k in ("chosen", "margin", "passed")},
                       "params": {k: np.asarray(v).tolist() for k, v in vars(res.controller).items()
-                                 if k in ("kp", "ti", "q1", "q2", "qi", "qw")}}
+                                 if k in ("kp", "ti", "q1", "q2", "qi", "qw", "b0", "tau_r")}}
         for pname, pl in (("PA12", pa12), ("PA11", pa11)):
             results[(pname, "tuned", fam)] = evaluate(res.controller, pl, SCENARIOS, held,
                                                       rollouts=R, duration=D)
         log(f"tuned {fam}: train {res.start_cost:.4f} -> {res.tuned_cost:.4f}; held-out PA12 "
             f"{results[('PA12', 'tuned', fam)]['cost']:.4f} PA11 "
             f"{results[('PA11', 'tuned', fam)]['cost']:.4f}")
+        tuned[fam]["seed_sets"] = seed_sets(res.controller, dm, fam)
         write()
     # 2. models fitted on virtual-printer data, one at a time (the report grows as they finish)
     fitted, fnotes = fit_models(pa12, args)
@@ -215,7 +252,9 @@ def report(results, models, notes, rgas, tuned, dname, args, R, K, D, seconds):
          f"robust objective relative to the best classical design per scenario and plant, "
          f"validation guard on seed {args.seed + VALIDATION}; tracking weight "
          f"{args.tracking_weight:g} in the tuning cost. PA11 is never seen in design or tuning. "
-         f"Total run time {seconds / 60:.1f} min.", "",
+         f"Total run time {seconds / 60:.1f} min; `os.getloadavg()` (1/5/15 min) "
+         f"{'/'.join(f'{x:.2f}' for x in args.load_start)} at the start, "
+         f"{'/'.join(f'{x:.2f}' for x in os.getloadavg())} at the end.", "",
          "Cost = `closedloop.cost` (tracking MSE + neighbour non-uniformity + input variation + "
          "smooth time outside ±1 °C), mean over the three scenarios. MSE = measured output vs "
          "set point, °C² (the thesis' tables).", "", "## Models", ""]
@@ -284,6 +323,26 @@ def report(results, models, notes, rgas, tuned, dname, args, R, K, D, seconds):
                  f"{json.dumps(t.get('guard'))}; tuned parameters "
                  f"{json.dumps({k: np.round(v, 4).tolist() for k, v in t['params'].items()})}.")
     L.append("")
+    for fam, t in tuned.items():
+        if not t.get("seed_sets"):
+            continue
+        L += [f"### {LABELS[fam]}, gradient-tuned, on {args.seed_sets} held-out seed sets", "",
+              (f"MSE (°C²) of the tuned controller, of its classical start and of the best "
+               f"classical design of the known model, {R} rollouts per seed set and scenario; "
+               f"margin = 100·(1 − tuned/best classical)."), "",
+              ("| printer | seed | scenario | tuned | classical start | best classical (family) "
+               "| margin vs best, % | cost: tuned vs lambda PI, % lower |"),
+              "|---|---|---|---|---|---|---|---|"]
+        for key, row in t["seed_sets"].items():
+            pname, s = key.split("|")
+            c = row["cost"]
+            for k in SCENARIOS:
+                v = row[k]
+                L.append(f"| {pname} | {s} | {k} | {v['tuned']:.4f} | {v['start']:.4f} | "
+                         f"{v['best_classical']:.4f} ({v['best_family']}) | "
+                         f"{100 * (1 - v['tuned'] / v['best_classical']):+.2f} | "
+                         f"{100 * (1 - c['tuned'] / c['pi_lambda']):.1f} |")
+        L.append("")
     return "\n".join(L)
 
 

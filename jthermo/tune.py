@@ -475,12 +475,29 @@ def _guard(candidates, refs, start, batch, weights, margin, tau):
     return (start if chosen is None else candidates[chosen][2]), info
 
 
+def _field_filter(controller, names):
+    """`eqx.partition` filter selecting the array leaves of the named fields (all: None)."""
+    if names is None:
+        return eqx.is_inexact_array
+    names = (names,) if isinstance(names, str) else tuple(names)
+    fields = {f.name for f in dataclasses.fields(controller)}
+    bad = [n for n in names if n not in fields]
+    if bad or not names:
+        raise ControlError(f"tune: {type(controller).__name__} has no field `{bad[0]}`" if bad
+                           else "tune: `params` names no field")
+    spec = jax.tree.map(lambda _: False, controller)
+    return eqx.tree_at(lambda c: tuple(getattr(c, n) for n in names), spec,
+                       replace=tuple(jax.tree.map(eqx.is_inexact_array, getattr(controller, n))
+                                     for n in names))
+
+
 def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=None,
          rollouts: int = 8, steps: int = 100, lr: float = 0.05,
          weights: Mapping[str, float] | None = None, seed: int = 0, plants=None,
          duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
          references: Sequence[AbstractController] = (), guard: bool = True,
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
+         params: Sequence[str] | None = None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -505,6 +522,9 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       guard's batch (a list of `(plant, kind, scenarios)`); default fresh draws from
       `seed + VALIDATION`, or the first training batch when `scenarios` are given. `tau`:
       softness of the maximum over the relative mse.
+    - `params`: names of the controller fields to tune (e.g. `("q1", "q2", "qi", "qw", "b0",
+      "tau_r")` for an LQG: its weights, not its design model or operating point); default
+      every array leaf.
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (training costs relative to the references when normalised).
@@ -514,6 +534,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         raise ControlError("tune: empty plant ensemble")
     if not (0.0 <= margin < 1.0):
         raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
+    spec = _field_filter(controller, params)
     batches = scenarios if scenarios is not None else make_batches(
         pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches)
     batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
@@ -525,11 +546,11 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
             raise ControlError("tune: the reference designs give no finite cost on the training set")
         res = minimise(lambda c, br: robust_objective(_batch_terms(c, br[0], weights), br[1], tau),
                        controller, pairs, steps=steps, lr=lr, progress=progress,
-                       snapshots=snapshots if guard else 0)
+                       snapshots=snapshots if guard else 0, filter_spec=spec)
     else:
         res = minimise(lambda c, b: jnp.mean(_batch_terms(c, b, weights)[:, 0]), controller,
-                       batches, steps=steps,
-                       lr=lr, progress=progress, snapshots=snapshots if guard else 0)
+                       batches, steps=steps, lr=lr, progress=progress,
+                       snapshots=snapshots if guard else 0, filter_spec=spec)
     if not guard:
         return res
     t0 = time.perf_counter()

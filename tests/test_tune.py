@@ -202,3 +202,22 @@ def test_tune_guard_never_returns_worse_or_nan():
     assert np.all(np.isfinite(ys)) and np.max(np.abs(ys[-1] - plant.y0 - 0.5)) < 1e-2
     with pytest.raises(ControlError, match="margin"):
         tune(start, plant, scenarios=batch, steps=1, margin=1.5)
+
+
+def test_tune_only_the_named_fields():
+    """`params` tunes the LQG's set-point weight with its Riccati weights held: the held
+    leaves come back unchanged and the step response still settles at the set point."""
+    plant = bed_plant(2, seed=1)
+    batch = [[(plant, "custom", _scenarios(plant, seed=0, step=1.0))]]
+    start = design("lqg", plant)
+    res = tune(start, plant, scenarios=batch, steps=8, lr=0.1, guard=False,
+               params=("b0", "tau_r"))
+    c = res.controller
+    for k in ("q1", "q2", "qi", "qw", "A"):
+        np.testing.assert_array_equal(np.asarray(getattr(c, k)), np.asarray(getattr(start, k)))
+    assert np.any(np.asarray(c.b0) != 0.0) and np.all(np.asarray(c.tau_r) > 0)
+    assert res.tuned_cost <= res.start_cost
+    ys, _ = closed_loop(c, plant, step_reference(plant, 600, 0.5))
+    assert np.max(np.abs(ys[-1] - plant.y0 - 0.5)) < 1e-2
+    with pytest.raises(ControlError, match="no field `gain`"):
+        tune(start, plant, scenarios=batch, steps=1, params=("gain",))

@@ -13,6 +13,17 @@ $L_0 = [C (I - A + B L_x)^{-1} B]^{-1}$ (unit static gain without the integrator
 observer is the steady-state Kalman filter for process noise $q_w I$ and measurement noise
 $I$, fed with the saturated input. Anti-windup: an integrator holds while its input channel is
 saturated in the direction its error pushes.
+
+Second degree of freedom (set-point weighting against a reference model; Åström & Hägglund
+2006, §3.4): a first-order reference model $r^m_{k+1} = r^m_k + (1 - e^{-T_s/\\tau_r})
+(r_k - r^m_k)$, started at the first measurement (the plant is taken at steady state there, as
+by the observer), gives the lag $\\delta = r - r^m$ of the reference behind its model, and the
+static path sees $r - b_0 \\delta$ instead of $r$. The weight starts at 0 (the classical
+design); the lag vanishes in steady state and under a constant set point that the plant
+already sits at, so the handle shapes the response to set-point changes (when the heaters
+come off full power, the overshoot) and leaves disturbance rejection to the LQG feedback.
+The integrators keep the plain error $r - y$: weighting their input too slows the removal of
+a steady-state mismatch on a plant other than the design model.
 """
 
 from __future__ import annotations
@@ -76,16 +87,20 @@ class LQGGains(eqx.Module):
 class LQGState(eqx.Module):
     x: Float[Array, " nx"]         # predicted state x̂(k|k-1)
     xi: Float[Array, " ny"]        # tracking-error integrators, °C·s
+    rm: Float[Array, " ny"]        # reference-model output, °C
     gains: LQGGains                # computed once per rollout in `init` (from Q1, Q2, qw)
 
 
 class LQG(AbstractController):
-    """LQG with integral action; tunable leaves: the (positive) diagonal weights."""
+    """LQG with integral action; tunable leaves: the (positive) diagonal weights and the
+    set-point weight `b0` with the reference-model time constant `tau_r`."""
 
     q1: Float[Array, " ny"]        # output weight, 1/°C², tunable
     q2: Float[Array, " nu"]        # input weight, tunable
     qi: Float[Array, " ny"]        # integrator weight, tunable
     qw: Float[Array, ""]           # process-noise intensity relative to measurement noise
+    b0: Float[Array, " ny"]        # set-point weight on the model lag, static path (0: classical)
+    tau_r: Float[Array, " ny"]     # reference-model time constant, s (positive)
     A: Float[Array, "nx nx"]       # design model (fixed)
     B: Float[Array, "nx nu"]
     C: Float[Array, "ny nx"]
@@ -119,22 +134,28 @@ class LQG(AbstractController):
         # start in the steady state that produces y0 under the static feed-through
         u_ss = g.L0 @ (y0 - sg(self.y_op))
         x0 = jnp.linalg.solve(jnp.eye(nx, dtype=A.dtype) - A + B @ g.Lx, B @ u_ss)
-        return LQGState(x=x0, xi=jnp.zeros_like(y0 * self.q1), gains=g)
+        # the reference model starts where the plant is: no lag until the set point moves
+        rm = y0 + jnp.zeros_like(self.tau_r)
+        return LQGState(x=x0, xi=jnp.zeros_like(y0 * self.q1), rm=rm, gains=g)
 
     def step(self, state: LQGState, y: Output, r: Setpoint) -> tuple[Input, LQGState]:
         g = state.gains
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
         x_f = state.x + g.M @ (y - sg(self.y_op) - C @ state.x)
+        lag = r - state.rm                       # reference ahead of its model, °C
         e = r - y
-        u_req = self.u_op + g.L0 @ (r - sg(self.y_op)) - g.Lx @ x_f - g.Li @ state.xi
+        u_req = (self.u_op + g.L0 @ (r - self.b0 * lag - sg(self.y_op)) - g.Lx @ x_f
+                 - g.Li @ state.xi)
         u = jnp.clip(u_req, U_MIN, U_MAX)
         hold = ((u_req > U_MAX) & (e > 0)) | ((u_req < U_MIN) & (e < 0))
         xi = jnp.where(hold, state.xi, state.xi + self.ts * e)
         x_next = A @ x_f + B @ (u - self.u_op)
-        return u, LQGState(x=x_next, xi=xi, gains=g)
+        rm = state.rm + (1.0 - jnp.exp(-self.ts / self.tau_r)) * lag
+        return u, LQGState(x=x_next, xi=xi, rm=rm, gains=g)
 
 
-def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, iters: int = 40) -> LQG:
+def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
+               iters: int = 40) -> LQG:
     """LQG with integral action from a model.
 
     **Arguments:**
@@ -142,6 +163,8 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, iters: int = 40) -> LQ
     - `Q2`: weight on the input (per unit power fraction squared), scalar or per input.
     - `Qi`: weight on the error integrators, scalar or per output.
     - `qw`: process-noise intensity of the Kalman observer relative to unit measurement noise.
+    - `tau_r`: time constant of the reference model (s), scalar or per output; the set-point
+      weight on its lag starts at 0, so it only matters once that is tuned.
     """
     ss = _as_ss(model)
     ny, nu = ss.C.shape[0], ss.B.shape[1]
@@ -154,9 +177,11 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, iters: int = 40) -> LQ
         return a
 
     q1, q2, qi = vec(Q1, ny, "Q1"), vec(Q2, nu, "Q2"), vec(Qi, ny, "Qi")
+    tau = vec(tau_r, ny, "tau_r")
     if not np.isfinite(qw) or qw <= 0:
         raise ControlError(f"design_lqg: qw must be positive, got {qw}")
-    ctrl = LQG(q1=_f(q1), q2=_f(q2), qi=_f(qi), qw=_f(qw), A=_f(ss.A), B=_f(ss.B), C=_f(ss.C),
+    ctrl = LQG(q1=_f(q1), q2=_f(q2), qi=_f(qi), qw=_f(qw), b0=_f(np.zeros(ny)),
+               tau_r=_f(tau), A=_f(ss.A), B=_f(ss.B), C=_f(ss.C),
                u_op=_f(ss.u0), y_op=_f(ss.y0), ts=ss.ts, iters=iters)
     g = ctrl.gains()
     if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(g)):

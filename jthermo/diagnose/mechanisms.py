@@ -10,7 +10,7 @@ Each mechanism adds states, terms or input transformations with physically const
 | mechanism | augmentation |
 | --- | --- |
 | `lateral_conduction` | $+\\sum_{j} k_{ij}(T_j - T_i)$, $k_{ij} = k_{ji} \\ge 0$ for every pair of zones |
-| `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$ |
+| `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$, set by its share of the tangent loss (`loss_split`) |
 | `heat_accumulation` | a slow shared wall: $\\tau_w \\dot T_w = \\bar T - T_w + \\gamma (T_s - T_w)$, zones $+c_i (T_w - T_i)$; $\\tau_w > 200$ s, $0 < \\gamma < 4$ |
 | `heater_lag` | lamps $\\tau_h \\dot p_j = u_j - p_j$ drive the zones instead of $u$ |
 | `input_delay` | $u(t - d)$, $d$ whole samples (chosen on a grid, not by gradient) |
@@ -24,9 +24,9 @@ fitted by one compiled, vmapped solver. Fitting is per zone (`simulate_zone`, se
 form: a zone's neighbours and the bed's mean temperature enter as their measured values, the
 zone itself is simulated), which makes every zone and candidate a small independent problem;
 `simulate_full` then couples the fitted zone models (neighbours simulated) for validation.
-The linear part (zone, wall) is discretised exactly (zero-order hold); radiation enters through
-the exponential-Euler integral of its rate over the sample; the lamp lag is a discrete
-first-order filter of the (delayed, transformed) command.
+The linear part (zone, wall, lamp) is discretised exactly (zero-order hold), so the lamp model
+tends to the lag-free one as τ_h → 0; radiation enters through the exponential-Euler integral
+of its rate over the sample.
 """
 
 from __future__ import annotations
@@ -41,7 +41,6 @@ import numpy as np
 MECHANISMS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
               "input_delay", "input_nonlinearity", "recoat_cooling", "ambient_variation")
 KELVIN = 273.15
-RAD_SCALE = 1e-11          # 1/(s K^3): r_i = RAD_SCALE * exp(theta); εσA/C ≈ 1.4e-11 on PA12
 DRIFT_SPACING = 300.0      # s between the knots of the piecewise-linear surroundings drift
 UNROLL = 1                 # scan unrolling: per-step overhead dominates on CPU
 
@@ -76,7 +75,7 @@ def make_layout(n: int, nu: int, n_drift: int) -> Layout:
     """Per-zone parameter layout: zone i's model is fitted on its own (its neighbours enter
     through their measured temperatures), so every zone has the same vector."""
     sizes = [("log_a", 1), ("log_b", nu), ("x0", 1), ("ts0", 1), ("log_k", max(n - 1, 1)),
-             ("log_r", 1), ("log_tauw", 1), ("log_gamma", 1), ("log_c", 1), ("xw0", 1),
+             ("rad_share", 1), ("log_tauw", 1), ("log_gamma", 1), ("log_c", 1), ("xw0", 1),
              ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("drift", n_drift)]
     out, a = [], 0
     for nm, s in sizes:
@@ -88,7 +87,7 @@ def make_layout(n: int, nu: int, n_drift: int) -> Layout:
 #: parameter groups each mechanism adds (beyond the baseline's log_a, log_b, x0 [, ts0])
 MECH_PARAMS = {
     "lateral_conduction": ("log_k",),
-    "radiative_loss": ("log_r",),
+    "radiative_loss": ("rad_share",),
     "heat_accumulation": ("log_tauw", "log_gamma", "log_c", "xw0"),
     "heater_lag": ("log_tauh",),
     "input_delay": (),
@@ -124,13 +123,51 @@ def wall_parameters(log_tauw, log_gamma):
     return TAUW_MIN + xp.exp(log_tauw), GAMMA_MAX / (1.0 + xp.exp(-log_gamma))
 
 
+#: the lamp time constant is at least this (s): keeps the lamp's rate finite as τ_h → 0, where
+#: the lamp model tends to the lag-free one
+TAUH_MIN = 0.05
+
+
+def lamp_tau(log_tauh):
+    """Lamp time constant τ_h (s) from its unconstrained parameter: τ_h > TAUH_MIN."""
+    xp = jnp if isinstance(log_tauh, jax.Array) else np
+    return TAUH_MIN + xp.exp(log_tauh)
+
+
+def _expm(Mt, squarings: int = 10, order: int = 10):
+    """$e^{M}$ by a fixed Taylor series and squaring: branch-free (cheap to compile and vmap);
+    accurate to round-off for $\\|M\\| \\lesssim 100$, far above the rates used here."""
+    n = Mt.shape[-1]
+    X = Mt / (2.0 ** squarings)
+    eye = jnp.eye(n, dtype=Mt.dtype)
+    term, out = eye, eye
+    for k in range(1, order + 1):
+        term = term @ X / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def _zoh(A, Bc, ts):
+    """Exact zero-order-hold matrices of $\\dot s = A s + B_c w$: $(E, B_d, P_1)$ with
+    $P_1 = \\int_0^{t_s} e^{A\\tau} d\\tau$ (what a rate held over the sample adds)."""
+    m = A.shape[0]
+    dt = A.dtype
+    Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
+    F = _expm(Mt * ts)
+    E, P1 = F[:m, :m], F[:m, m:]
+    return E, P1 @ Bc, P1
+
+
 def _safe_pow(u, e):
     pos = u > 1e-12
     return jnp.where(pos, jnp.where(pos, u, 1.0) ** e, 0.0)
 
 
 def _inputs(theta, on, u, u_pad, delay, lay):
-    """Heater inputs after dead time, lamp nonlinearity and lamp lag: `(T, nu)` per zone model."""
+    """Heater inputs after dead time and lamp nonlinearity: `(T, nu)` per zone model, and the
+    (transformed) input before the record `(nu,)`."""
     g = lambda nm: theta[lay.sl(nm)]
     nu = lay.nu
     T = u.shape[0]
@@ -139,34 +176,47 @@ def _inputs(theta, on, u, u_pad, delay, lay):
     upad = jnp.concatenate([jnp.broadcast_to(u_pad, (32, nu)).astype(dt), u.astype(dt)], axis=0)
     u = jax.lax.dynamic_slice(upad, (32 - d, jnp.zeros((), jnp.int32)), (T, nu))
     e = 1.0 + on[5] * (jnp.exp(g("log_e")[0]) - 1.0)
-    u = _safe_pow(u, e)
-    return u, e
+    return _safe_pow(u, e), _safe_pow(u_pad.astype(dt), e)
 
 
-def _lamp(u, p0, alpha, on_lag):
-    def body(p, uk):
-        return alpha * p + (1.0 - alpha) * uk, p
+def loss_split(log_a, rad_share, on_rad, t_ref):
+    """(linear loss rate $a_{lin}$ in 1/s, radiative coefficient $r$ in 1/(s K³)) of a zone.
 
-    _, ps = jax.lax.scan(body, p0, u, unroll=UNROLL)
-    return on_lag * ps + (1.0 - on_lag) * u
+    Radiation is parametrised by its share $\\rho = \\mathrm{sigmoid}(\\theta)$ of the *tangent*
+    loss rate $e^{\\log a}$ at the reference temperature `t_ref` (°C, the record's mean):
+    $a_{lin} = (1 - \\rho) e^{\\log a}$, $4 r (T_{ref} + 273.15)^3 = \\rho e^{\\log a}$. Moving
+    $\\rho$ keeps the small-signal dynamics and changes only the loss's curvature and level,
+    which makes the fit well conditioned (a raw coefficient trades with $a$ along a curved valley)."""
+    xp = jnp if isinstance(log_a, jax.Array) else np
+    a = xp.exp(log_a)
+    rho = on_rad / (1.0 + xp.exp(-rad_share))
+    return a * (1.0 - rho), rho * a / (4.0 * (t_ref + KELVIN) ** 3)
 
 
-def _zone_matrices(theta, on, lay, ts):
-    """Continuous 2-state (zone, wall) model of one zone and its exact ZOH matrices.
+def _zone_matrices(theta, on, lay, ts, a_lin):
+    """Continuous 3-state (zone, wall, lamp) model of one zone and its exact ZOH matrices.
 
-    Inputs per sample: [heater heat rate v, surroundings Ts, Σ_j k_j T_j, mean zone T]."""
+    Inputs per sample: [heater heat rate v, surroundings Ts, Σ_j k_j T_j, mean zone T]. The lamp
+    state follows v with lag τ_h; the zone sees the lamp (lag on) or v itself (lag off). The zone
+    loses heat at the whole tangent rate $a$ (radiation's tangent at `t_ref` included, so that
+    it is discretised exactly too); the surroundings enter through the linear part $a_{lin}$."""
     g = lambda nm: theta[lay.sl(nm)]
     dt = theta.dtype
     a = jnp.exp(g("log_a")[0])
     ksum = on[0] * jnp.sum(jnp.exp(g("log_k")))
     c = on[2] * jnp.exp(g("log_c")[0])
     tauw, gam = wall_parameters(g("log_tauw")[0], g("log_gamma")[0])
-    A = jnp.array([[-(a + ksum + c), c], [0.0, -(1.0 + gam) / tauw]], dtype=dt)
-    Bc = jnp.array([[1.0, a, 1.0, 0.0], [0.0, gam / tauw, 0.0, 1.0 / tauw]], dtype=dt)
-    M = jnp.zeros((4, 4), dt).at[:2, :2].set(A).at[:2, 2:].set(jnp.eye(2, dtype=dt))
-    F = jax.scipy.linalg.expm(M * ts)
-    E, P1 = F[:2, :2], F[:2, 2:]
-    return E, P1 @ Bc, P1[:, 0]
+    lag = on[3]
+    ih = 1.0 / jnp.where(lag > 0, lamp_tau(g("log_tauh")[0]), 1.0)
+    z = jnp.zeros((), dt)
+    A = jnp.stack([jnp.stack([-(a + ksum + c), c, lag + z]),
+                   jnp.stack([z, -(1.0 + gam) / tauw, z]),
+                   jnp.stack([z, z, -ih])])
+    Bc = jnp.stack([jnp.stack([1.0 - lag + z, a_lin, 1.0 + z, z]),
+                    jnp.stack([z, gam / tauw, z, 1.0 / tauw]),
+                    jnp.stack([ih, z, z, z])])
+    E, Bd, P1 = _zoh(A, Bc, ts)
+    return E, Bd, P1[:, 0]
 
 
 def simulate_zone(theta, on, z, lay: Layout):
@@ -178,34 +228,38 @@ def simulate_zone(theta, on, z, lay: Layout):
       order of `MECHANISMS`.
     - `z`: dict with `u (T, nu)`, `ynb (T, n-1)` the other zones' measured temperatures,
       `ybar (T,)` the mean measured zone temperature, `events (T,)` recoat flags of this zone,
-      `ts_level`, `ts_free`, `wdev (T,)`, `Phi (T, K)`, `delay`, `u_pad (nu,)`, `ts`.
+      `ts_level`, `ts_free`, `wdev (T,)`, `Phi (T, K)`, `delay`, `u_pad (nu,)`, `ts`, `t_ref`.
     """
     g = lambda nm: theta[lay.sl(nm)]
-    dt = theta.dtype
     ts_level = z["ts_level"] + z["ts_free"] * g("ts0")[0]
     # the drift has no mean on the estimation record: a constant offset would trade with the
     # heater gains and make each zone's drift a different, meaningless level
     dr = g("drift") - jnp.mean(g("drift"))
     ts_seq = ts_level + on[7] * (z["wdev"] + z["Phi"] @ dr)
-    u, e = _inputs(theta, on, z["u"], z["u_pad"], z["delay"], lay)
-    alpha = jnp.exp(-z["ts"] / jnp.exp(g("log_tauh")[0]))
-    u = _lamp(u, _safe_pow(z["u_pad"].astype(dt), e), alpha, on[3])
-    v = u @ jnp.exp(g("log_b"))
+    u, u0 = _inputs(theta, on, z["u"], z["u_pad"], z["delay"], lay)
+    b = jnp.exp(g("log_b"))
+    v = u @ b
     nb = on[0] * (z["ynb"] @ jnp.exp(g("log_k"))[: z["ynb"].shape[1]])
-    E, Bd, pz = _zone_matrices(theta, on, lay, z["ts"])
-    r = on[1] * RAD_SCALE * jnp.exp(g("log_r")[0])
+    a_lin, r = loss_split(g("log_a")[0], g("rad_share")[0], on[1], z["t_ref"])
+    a_rad = jnp.exp(g("log_a")[0]) - a_lin           # radiation's tangent rate at t_ref
+    E, Bd, pz = _zone_matrices(theta, on, lay, z["ts"], a_lin)
     drop = on[6] * jnp.exp(g("log_drop")[0])
-    s0 = jnp.stack([g("x0")[0], g("xw0")[0] + ts_level])
+    # everything that does not depend on the state is computed here, outside the scan: the
+    # scan body is a handful of scalar multiply-adds (per-step overhead dominates on CPU)
     W = jnp.stack([v, ts_seq, nb, z["ybar"]], axis=1)
+    Fz = W @ Bd.T
+    Fz = Fz.at[:, 0].add(-drop * z["events"])
+    sk4 = (ts_seq + KELVIN) ** 4
+    s0 = jnp.stack([g("x0")[0], g("xw0")[0] + ts_level, u0 @ b])
 
     def body(s, inp):
-        wk, sk, ev = inp
-        q = -r * ((s[0] + KELVIN) ** 4 - (sk + KELVIN) ** 4)
-        sn = E @ s + Bd @ wk + pz * q
-        sn = sn.at[0].add(-drop * ev)
+        fk, s4 = inp
+        # radiation beyond its tangent (which the exact linear part already carries)
+        q = a_rad * s[0] - r * ((s[0] + KELVIN) ** 4 - s4)
+        sn = E[:, 0] * s[0] + E[:, 1] * s[1] + E[:, 2] * s[2] + fk + pz * q
         return sn, s[0]
 
-    _, ys = jax.lax.scan(body, s0, (W, ts_seq, z["events"]), unroll=UNROLL)
+    _, ys = jax.lax.scan(body, s0, (Fz, sk4), unroll=UNROLL)
     return ys
 
 
@@ -215,7 +269,8 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
 
     `Theta (n, P)` per-zone parameters; `rec` = [x0 (n), wall0 (n), drift (Kv)] the record's
     own initial states (°C) and surroundings drift; `f` dict with `u`, `events (T, n)`,
-    `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`, `ts`.
+    `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`, `ts`, `t_ref`. The lamps start at
+    their steady state for `u_pad`.
     """
     n = lay.n
     dt = Theta.dtype
@@ -225,45 +280,49 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     ts_seq = ts_level + on[7] * (f["wdev"] + f["Phi"] @ dr)
 
     def zone_input(th):
-        u, e = _inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
-        alpha = jnp.exp(-f["ts"] / jnp.exp(th[lay.sl("log_tauh")][0]))
-        u = _lamp(u, _safe_pow(f["u_pad"].astype(dt), e), alpha, on[3])
-        return u @ jnp.exp(th[lay.sl("log_b")])
+        u, u0 = _inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
+        b = jnp.exp(th[lay.sl("log_b")])
+        return u @ b, u0 @ b
 
-    V = jax.vmap(zone_input, out_axes=1)(Theta)                  # (T, n)
+    V, p0 = jax.vmap(zone_input, out_axes=(1, 0))(Theta)           # (T, n), (n,)
+    a_lin, r = loss_split(g("log_a")[:, 0], g("rad_share")[:, 0], on[1], f["t_ref"])
     a = jnp.exp(g("log_a")[:, 0])
+    a_rad = a - a_lin
     c = on[2] * jnp.exp(g("log_c")[:, 0])
     tauw, gam = wall_parameters(g("log_tauw")[:, 0], g("log_gamma")[:, 0])
+    lag = on[3]
+    ih = 1.0 / jnp.where(lag > 0, lamp_tau(g("log_tauh")[:, 0]), 1.0)
     kk = on[0] * jnp.exp(g("log_k"))                             # (n, n-1): row i, others
     K = jnp.zeros((n, n), dt)
     if n > 1:
         cols = np.array([[j for j in range(n) if j != i] for i in range(n)])
         K = K.at[np.repeat(np.arange(n), n - 1), cols.ravel()].set(kk[:, : n - 1].ravel())
     iz = jnp.arange(n)
-    A = jnp.zeros((2 * n, 2 * n), dt)
+    A = jnp.zeros((3 * n, 3 * n), dt)
     A = A.at[:n, :n].set(K - jnp.diag(a + jnp.sum(K, axis=1) + c))
     A = A.at[iz, n + iz].set(c)
-    A = A.at[n:, :n].set(jnp.broadcast_to((1.0 / (n * tauw))[:, None], (n, n)))
+    A = A.at[iz, 2 * n + iz].set(lag)
+    A = A.at[n:2 * n, :n].set(jnp.broadcast_to((1.0 / (n * tauw))[:, None], (n, n)))
     A = A.at[n + iz, n + iz].set(-(1.0 + gam) / tauw)
-    Bc = jnp.zeros((2 * n, n + 1), dt).at[iz, iz].set(1.0).at[:n, n].set(a).at[n:, n].set(gam / tauw)
-    M = jnp.zeros((4 * n, 4 * n), dt).at[:2 * n, :2 * n].set(A).at[:2 * n, 2 * n:].set(
-        jnp.eye(2 * n, dtype=dt))
-    F = jax.scipy.linalg.expm(M * f["ts"])
-    E, P1 = F[:2 * n, :2 * n], F[:2 * n, 2 * n:]
-    Bd = P1 @ Bc
+    A = A.at[2 * n + iz, 2 * n + iz].set(-ih)
+    Bc = jnp.zeros((3 * n, n + 1), dt)
+    Bc = Bc.at[iz, iz].set(1.0 - lag).at[:n, n].set(a_lin).at[n:2 * n, n].set(gam / tauw)
+    Bc = Bc.at[2 * n + iz, iz].set(ih)
+    E, Bd, P1 = _zoh(A, Bc, f["ts"])
     Pz = P1[:, :n]
-    r = on[1] * RAD_SCALE * jnp.exp(g("log_r")[:, 0])
     drop = on[6] * jnp.exp(g("log_drop")[:, 0])
-    s0 = jnp.concatenate([x0, w0])
+    Fz = jnp.concatenate([V, ts_seq[:, None]], axis=1) @ Bd.T
+    Fz = Fz.at[:, :n].add(-drop[None, :] * f["events"])
+    sk4 = (ts_seq + KELVIN) ** 4
+    s0 = jnp.concatenate([x0, w0, p0])
 
     def body(s, inp):
-        vk, sk, ev = inp
-        q = -r * ((s[:n] + KELVIN) ** 4 - (sk + KELVIN) ** 4)
-        sn = E @ s + Bd @ jnp.concatenate([vk, sk[None]]) + Pz @ q
-        sn = sn.at[:n].add(-drop * ev)
+        fk, s4 = inp
+        q = a_rad * s[:n] - r * ((s[:n] + KELVIN) ** 4 - s4)
+        sn = jnp.sum(E * s[None, :], axis=1) + jnp.sum(Pz * q[None, :], axis=1) + fk
         return sn, s[:n]
 
-    _, ys = jax.lax.scan(body, s0, (V, ts_seq, f["events"]), unroll=UNROLL)
+    _, ys = jax.lax.scan(body, s0, (Fz, sk4), unroll=UNROLL)
     return ys
 
 
@@ -287,7 +346,7 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     th[lay.sl("ts0")] = ts0
     a = float(np.exp(log_a))
     th[lay.sl("log_k")] = np.log(0.05 * a)
-    th[lay.sl("log_r")] = np.log(0.5)
+    th[lay.sl("rad_share")] = 0.0                          # half of the loss
     th[lay.sl("log_tauw")] = np.log(1000.0 - TAUW_MIN)
     th[lay.sl("log_gamma")] = np.log(1.0 / (GAMMA_MAX - 1.0))      # γ = 1
     th[lay.sl("log_c")] = np.log(0.3 * a)
@@ -315,19 +374,17 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
         return {"strongest_neighbour": strongest,
                 "coupling_to_loss_ratio": float(np.median(np.max(k, axis=1) / a))}
     if mech == "radiative_loss":
-        r = RAD_SCALE * np.exp(g("log_r")[:, 0])
         tm = extra.get("t_mean", 20.0)
-        lin = 4 * r * (tm + KELVIN) ** 3
-        a = np.exp(g("log_a")[:, 0])
-        return {"coefficient_per_s_K3": [float(v) for v in r],
-                "share_of_loss": med(lin / (lin + a))}
+        _, r = loss_split(g("log_a")[:, 0], g("rad_share")[:, 0], 1.0, tm)
+        share = 1.0 / (1.0 + np.exp(-g("rad_share")[:, 0]))
+        return {"coefficient_per_s_K3": [float(v) for v in r], "share_of_loss": med(share)}
     if mech == "heat_accumulation":
         tauw, gam = wall_parameters(g("log_tauw")[:, 0], g("log_gamma")[:, 0])
         c = np.exp(g("log_c")[:, 0])
         a = np.exp(g("log_a")[:, 0])
         return {"time_constant_s": med(tauw / (1.0 + gam)), "share": med(c / (c + a))}
     if mech == "heater_lag":
-        return {"time_constant_s": med(np.exp(g("log_tauh")[:, 0]))}
+        return {"time_constant_s": med(lamp_tau(g("log_tauh")[:, 0]))}
     if mech == "input_delay":
         return {"delay_s": float(extra.get("delay", 0) * ts)}
     if mech == "input_nonlinearity":

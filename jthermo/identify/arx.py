@@ -61,18 +61,24 @@ def _regressors(y, u, sel, na, full_a):
     return jnp.concatenate([Ya, Ub], axis=2)
 
 
-@partial(jax.jit, static_argnums=(2,))
-def _solve(Phi, Y, n0):
-    def one(P, yi):
+def _solve(Phi, Y, n0, offset):
+    """Per-output least squares on rows `n0..T-1` (NumPy: a closed-form problem, solved in
+    milliseconds, that would otherwise compile once per candidate order)."""
+    Phi = np.asarray(Phi, np.float64)
+    Y = np.asarray(Y, np.float64)
+    if offset:
+        Phi = np.concatenate([Phi, np.ones(Phi.shape[:2] + (1,))], axis=2)
+    thetas, covs, rsss = [], [], []
+    for P, yi in zip(Phi, Y.T):
         P, yi = P[n0:], yi[n0:]
-        theta, *_ = jnp.linalg.lstsq(P, yi)
+        theta = np.linalg.lstsq(P, yi, rcond=None)[0]
         r = yi - P @ theta
         T, p = P.shape
-        sigma2 = jnp.sum(r**2) / max(T - p, 1)
-        cov = sigma2 * jnp.linalg.pinv(P.T @ P, hermitian=True)
-        return theta, cov, jnp.sum(r**2)
-
-    return jax.vmap(one)(Phi, Y.T)
+        sigma2 = np.sum(r**2) / max(T - p, 1)
+        thetas.append(theta)
+        covs.append(sigma2 * np.linalg.pinv(P.T @ P, hermitian=True))
+        rsss.append(np.sum(r**2))
+    return np.stack(thetas), np.stack(covs), np.asarray(rsss)
 
 
 def first_row(na: int, nb: int, nk) -> int:
@@ -103,24 +109,30 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
     ny, nu = y.shape[1], u.shape[1]
     m = ny if (full_a and ny > 1) else 1
     Phi = arx_regressors(y, u, na, nb, nk, full_a=full_a)
-    if offset:
-        Phi = jnp.concatenate([Phi, jnp.ones(Phi.shape[:2] + (1,), Phi.dtype)], axis=2)
     n0 = first_row(na, nb, _as_nk(nk, ny, nu))
-    if y.shape[0] - n0 <= Phi.shape[2]:
-        raise DataError(f"arx_ls: {y.shape[0]} samples are too few for {Phi.shape[2]} parameters "
+    n_par = Phi.shape[2] + int(bool(offset))
+    if y.shape[0] - n0 <= n_par:
+        raise DataError(f"arx_ls: {y.shape[0]} samples are too few for {n_par} parameters "
                          "per output")
-    theta, cov, rss = _solve(Phi, y, n0)
+    # the solve and the small post-processing run in NumPy: jitted or eager jnp ops would
+    # compile once per shape, which dominated order searches over many candidate (na, nb)
+    theta, cov, rss = _solve(Phi, y, n0, bool(offset))
     p = m * na + nu * nb
     a = theta[:, :m * na].reshape(ny, m, na)
     b = theta[:, m * na:p].reshape(ny, nu, nb)
-    y0 = jnp.zeros(ny, y.dtype) if y0 is None else jnp.asarray(y0, y.dtype)
-    model = Polynomial(a=a, b=b, nk=nk, ts=ts, u0=u0, y0=y0)
+    y0 = np.zeros(ny) if y0 is None else np.asarray(y0, np.float64)
     if offset:
-        A1 = jnp.eye(ny, dtype=y.dtype) + jnp.sum(model.a_matrices(), axis=0)
-        model = eqx.tree_at(lambda mm: mm.y0, model, y0 + jnp.linalg.solve(A1, theta[:, p]))
+        Am = np.moveaxis(a, 2, 0) if m == ny else \
+            np.einsum("ik,ij->kij", a[:, 0, :], np.eye(ny))
+        A1 = np.eye(ny) + Am.sum(axis=0)
+        y0 = y0 + np.linalg.solve(A1, theta[:, p])
         cov = cov[:, :p, :p]
-    std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
-    return ARXResult(model=model, covariance=cov, std=std, cost=jnp.sum(rss) / (ny * (y.shape[0] - n0)))
+    dt = y.dtype
+    model = Polynomial(a=jnp.asarray(a, dt), b=jnp.asarray(b, dt), nk=nk, ts=ts,
+                       u0=None if u0 is None else jnp.asarray(u0, dt), y0=jnp.asarray(y0, dt))
+    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
+    return ARXResult(model=model, covariance=jnp.asarray(cov, dt), std=jnp.asarray(std, dt),
+                     cost=jnp.asarray(rss.sum() / (ny * (y.shape[0] - n0)), dt))
 
 
 def perturb_starts(theta0: np.ndarray, n_starts: int, seed: int, scale: float = 0.2) -> np.ndarray:

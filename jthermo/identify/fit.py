@@ -3,11 +3,13 @@
 Orders follow MATLAB's System Identification Toolbox: arx `(na, nb, nk)`, armax
 `(na, nb, nc, nk)`, oe `(nb, nf, nk)`, bj `(nb, nc, nd, nf, nk)`, ss `(n,)`, greybox `()`.
 
-Polynomial families are fitted on deviations from the estimation data's means (stored as the
-model's operating point `u0`, `y0`, so `model.simulate(u)` is in absolute units): ARX by linear
+Polynomial families are fitted on deviations from an operating point (the data's means, or
+rest at zero input: see `fit_polynomial`'s `offset`; stored as the model's `u0`, `y0`, so
+`model.simulate(u)` is in absolute units): ARX by linear
 least squares, ARMAX/OE/BJ by prediction-error minimisation (Levenberg–Marquardt, one MISO
 problem per output, all outputs and all start points solved together under `vmap`) started
-from the ARX estimate and `n_starts - 1` perturbed copies of it. C, D and F are parametrised by
+from the ARX estimate and `n_starts - 1` perturbed copies of it; every start gets
+`screen_steps` steps and only the best is solved to convergence. C, D and F are parametrised by
 reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are stable.
 """
 
@@ -172,6 +174,11 @@ def _operating_point(mode: str, y, u):
     return y[0], jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
 
 
+@eqx.filter_jit
+def _simulation_mse(model: Polynomial, y, u):
+    return jnp.mean((y - model.simulate(u)) ** 2)
+
+
 def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
     """The operating-point mode whose ARX(n_den, nb) simulates the estimation data best.
 
@@ -184,7 +191,7 @@ def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
         yref, u0, est = _operating_point(mode, y, u)
         m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
                    offset=est, ts=ts, u0=u0, y0=yref).model
-        errs[mode] = float(jnp.mean((y - m.simulate(u)) ** 2))
+        errs[mode] = float(_simulation_mse(m, y, u))
     ok = {k: v for k, v in errs.items() if np.isfinite(v)}
     return min(ok, key=ok.get) if ok else "mean"
 
@@ -193,7 +200,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
                    offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
-                   covariance: bool = True, progress: Callable | None = None):
+                   covariance: bool = True, progress: Callable | None = None,
+                   screen_steps: int = 10, batch: str = "vmap"):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -204,10 +212,13 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
 
     ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
     the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
-    and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added.
+    and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added;
+    every start is solved for `screen_steps` Levenberg–Marquardt steps and the best one is then
+    solved to convergence (`screen_steps=0`: all to convergence). `batch`: `"vmap"` or `"map"`
+    over the start points (see `jthermo.identify.pem.minimize`).
 
     **Returns:** `(model, info)` where `info` has `converged`, `cost`, `covariance`, `std`,
-    `start_costs`, `n_steps`, `offset`.
+    `start_costs`, `start_steps`, `n_steps`, `offset`.
     """
     y = jnp.asarray(y)
     u = jnp.asarray(u, y.dtype)
@@ -260,7 +271,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
     res = minimize_many(poly_residual, jnp.asarray(starts, y.dtype), args, solver=solver,
                         max_steps=max_steps, rtol=rtol, atol=atol, covariance=covariance,
-                        throw=False)
+                        throw=False, screen_steps=screen_steps, batch=batch)
     if not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
@@ -277,7 +288,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
     return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
-                       n_steps=np.asarray(res.n_steps), offset=offset)
+                       n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
+                       offset=offset)
 
 
 # ----------------------------------------------------------------------- dispatcher
@@ -361,7 +373,8 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
                              **kw)
         return _wrap_external(res, "ss", getattr(res, "orders", o or {}), t0)
     full_a = bool(kw.get("full_a", False))
-    allowed = {"full_a", "solver", "max_steps", "covariance", "offset", "rtol", "atol"}
+    allowed = {"full_a", "solver", "max_steps", "covariance", "offset", "rtol", "atol",
+               "screen_steps", "batch"}
     unknown = set(kw) - allowed
     if unknown:
         raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")

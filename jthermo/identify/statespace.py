@@ -48,13 +48,22 @@ def ss_residuals_offset(theta: Float[Array, " p"], args: Any) -> Float[Array, "T
     return innovations(model, y - theta[p + nx:p + nx + ny], du, dw, theta[p:p + nx])
 
 
+def ss_residuals_level(theta: Float[Array, " p"], args: Any) -> Float[Array, "T ny"]:
+    """As `ss_residuals` with x0 = 0 and the output level estimated: theta = [pack, dy0]."""
+    template, y, du, dw = args
+    p = template.n_params()
+    model = unpack(theta[:p], template)
+    return innovations(model, y - theta[p:], du, dw, None)
+
+
 def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
     """Mean squared residual $V(\\theta) = \\frac{1}{T n_y}\\sum \\|\\varepsilon\\|^2$."""
     return jnp.mean(ss_residuals(theta, args) ** 2)
 
 
-def _sim_error(ss, data: IOData) -> float:
-    """Simulation error on `data` with the least-squares initial state (NumPy)."""
+def _sim_error(ss, data: IOData, free_x0: bool = True) -> float:
+    """Simulation error on `data` with the least-squares initial state (`free_x0`) or from
+    rest (x0 = 0, the output level fitted by least squares) (NumPy)."""
     A, C = np.asarray(ss.A), np.asarray(ss.C)
     w = data.w if ss.Bw.shape[1] else None
     y_free = np.asarray(ss.simulate(data.u, w))
@@ -63,7 +72,11 @@ def _sim_error(ss, data: IOData) -> float:
     for k in range(data.n_samples):
         O[k] = M
         M = M @ A
-    r = (data.y - y_free).ravel()
+    r = data.y - y_free
+    if not free_x0:
+        err = float(np.sum((r - r.mean(axis=0)) ** 2))
+        return err if np.isfinite(err) else float("inf")
+    r = r.ravel()
     Om = O.reshape(-1, A.shape[0])
     x0 = np.linalg.lstsq(Om, r, rcond=None)[0]
     err = float(np.sum((r - Om @ x0) ** 2))
@@ -71,11 +84,13 @@ def _sim_error(ss, data: IOData) -> float:
 
 
 def choose_operating_point(data: IOData, n: int, horizon: int | None = None) -> str:
-    """`"mean"` or `"rest"`: whichever N4SID estimate simulates the estimation data better."""
+    """`"mean"` or `"rest"`: whichever N4SID estimate simulates the estimation data better
+    (mean: with the least-squares initial state; rest: from rest, x0 = 0)."""
     errs = {}
     for op in OPERATING_POINTS:
         try:
-            errs[op] = _sim_error(n4sid(data, n, horizon, operating_point=op)[0], data)
+            errs[op] = _sim_error(n4sid(data, n, horizon, operating_point=op)[0], data,
+                                  free_x0=op == "mean")
         except JThermoError:
             errs[op] = float("inf")
     return min(errs, key=errs.get)
@@ -107,8 +122,9 @@ def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
 
 def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_starts: int = 4,
                    focus: str = "prediction", horizon: int | None = None, max_steps: int = 100,
-                   solver: str = "lm", covariance: bool = True, estimate_x0: bool = True,
-                   max_order: int | None = None, operating_point: str = "auto"):
+                   solver: str = "lm", covariance: bool = True, estimate_x0: bool | None = None,
+                   max_order: int | None = None, operating_point: str = "auto",
+                   screen_steps: int = 10):
     """Estimate an innovations state space of order `n` by N4SID + PEM.
 
     $\\hat\\theta = \\arg\\min \\frac{1}{T n_y}\\sum_t \\|y_t - \\hat y(t|t-1;\\theta)\\|^2$
@@ -122,16 +138,21 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
       horizons, then perturbations).
     - `focus`: `"prediction"` (one-step error, K estimated) or `"simulation"` (K = 0).
     - `horizon`, `max_steps`, `solver`, `covariance`: passed to `n4sid` / `minimize`.
-    - `estimate_x0`: estimate the initial state (otherwise x0 = 0, the operating point).
-    - `operating_point`: `"mean"` (u0, y0 = the data's means), `"rest"` (the record starts at
-      rest with zero input: u0 = 0, y0 estimated with the other parameters, from y(0)), or
+    - `estimate_x0`: estimate the initial state and the output level `dy0` (otherwise x0 = 0,
+      the operating point, and in mean mode y0 fixed). Default: True in mean mode; False in
+      rest mode, whose meaning is x0 = 0 (only the output level `dy0` is estimated).
+    - `screen_steps`: solve every start for this many steps, then the best to convergence.
+    - `operating_point`: `"mean"` (u0 = the data's means, x0 and the output level estimated),
+      `"rest"` (the record starts at rest with zero input: u0 = 0, x0 = 0, the output level
+      estimated with the other parameters, starting from y(0)), or
       `"auto"` (whichever N4SID estimate simulates the estimation data better).
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
-    `[pack(InnovationsSS), x0]` (then the output offset `dy0` in rest mode; in the basis
-    $C = [I\\;0]$, before any eigenvalue projection), and `criterion_table` (the Hankel singular values when `n` was
-    chosen automatically).
+    `[pack(InnovationsSS), x0, dy0]` (`x0` left out where it is not estimated, `dy0` the
+    estimated output offset, left out when neither is estimated; in the basis $C = [I\\;0]$,
+    before any eigenvalue projection), and `criterion_table` (the Hankel singular values when
+    `n` was chosen automatically).
     """
     import time
 
@@ -160,7 +181,10 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon,
                                 operating_point)
     rest = operating_point == "rest"
-    n_par = template.n_params() + (n if estimate_x0 else 0) + (data.n_outputs if rest else 0)
+    if estimate_x0 is None:
+        estimate_x0 = not rest
+    n_par = template.n_params() + (n if estimate_x0 else 0) + \
+        (data.n_outputs if (estimate_x0 or rest) else 0)
     if data.n_samples * data.n_outputs <= n_par:
         raise FitError(f"fit_statespace: {data.n_samples} samples are too few for "
                        f"{n_par} parameters")
@@ -168,21 +192,33 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     y = jnp.asarray(data.y, dtype)
     du = jnp.asarray(data.u, dtype) - template.u0
     dw = jnp.asarray(data.w, dtype) - template.w0
-    if estimate_x0 or rest:
-        extra = n + (data.n_outputs if rest else 0)
+    if rest and not estimate_x0:
+        # at rest at u = 0 before the record: x0 = 0, only the output level is estimated
+        theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], data.n_outputs))], axis=1)
+        args = (template, y, du, dw)
+        res = minimize(ss_residuals_level, jnp.asarray(theta0, dtype), args, solver=solver,
+                       max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
+        theta = res.theta
+        p = template.n_params()
+        x0 = jnp.zeros(n, dtype)
+        template = eqx.tree_at(lambda m: m.y0, template, template.y0 + theta[p:])
+    elif estimate_x0:
+        # the output level is estimated with x0 in both operating-point modes: a fixed y0 (the
+        # data's mean or first sample) is off by the noise's mean or the first noise sample
+        # plus, for the mean, the start transient's share, and biases every simulated output
+        extra = n + data.n_outputs
         theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], extra))], axis=1)
         args = (template, y, du, dw)
-        res = minimize(ss_residuals_offset if rest else ss_residuals, jnp.asarray(theta0, dtype),
-                       args, solver=solver, max_steps=max_steps, covariance=covariance)
+        res = minimize(ss_residuals_offset, jnp.asarray(theta0, dtype), args, solver=solver,
+                       max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         p = template.n_params()
         x0 = theta[p:p + n]
-        if rest:
-            template = eqx.tree_at(lambda m: m.y0, template, template.y0 + theta[p + n:])
+        template = eqx.tree_at(lambda m: m.y0, template, template.y0 + theta[p + n:])
     else:
         args = (template, y, du, dw)
         res = minimize(_ss_residuals_x0zero, jnp.asarray(theta_m, dtype), args, solver=solver,
-                       max_steps=max_steps, covariance=covariance)
+                       max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         x0 = jnp.zeros(n, dtype)
     model = unpack(theta[:template.n_params()], template)
@@ -209,5 +245,6 @@ __all__ = [
     "fit_statespace",
     "ss_cost",
     "ss_residuals",
+    "ss_residuals_level",
     "ss_residuals_offset",
 ]

@@ -1,3 +1,4 @@
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,7 +9,7 @@ from jthermo.control import design_lqg, solve_dare
 from jthermo.control.lqg import lqr_gain
 from tests.helpers import central_difference
 
-from .loop import bed_plant
+from .loop import bed_plant, closed_loop, step_reference
 
 
 def _random_system(seed, n=4, m=2):
@@ -66,3 +67,61 @@ def test_lqg_gains_and_static_gain():
     # the observer is stable
     M = np.asarray(g.M)
     assert np.max(np.abs(np.linalg.eigvals(A - A @ M @ C))) < 1.0
+
+
+def _classical_loop(c, plant, r):
+    """The LQG law without the set-point weights, in NumPy from the design's gains."""
+    g = c.gains()
+    Lx, Li, L0, M = (np.asarray(m) for m in (g.Lx, g.Li, g.L0, g.M))
+    A, B, C = (np.asarray(m) for m in (c.A, c.B, c.C))
+    u_op, y_op = np.asarray(c.u_op), np.asarray(c.y_op)
+    xp = np.asarray(plant.initial_state(plant.y0))
+    y = np.asarray(plant.output(xp))
+    x = np.linalg.solve(np.eye(A.shape[0]) - A + B @ Lx, B @ (L0 @ (y - y_op)))
+    xi, us = np.zeros_like(y), []
+    for rk in np.asarray(r):
+        y = np.asarray(plant.output(xp))
+        x_f = x + M @ (y - y_op - C @ x)
+        u_req = u_op + L0 @ (rk - y_op) - Lx @ x_f - Li @ xi
+        u = np.clip(u_req, 0.0, 1.0)
+        e = rk - y
+        hold = ((u_req > 1.0) & (e > 0)) | ((u_req < 0.0) & (e < 0))
+        xi = np.where(hold, xi, xi + c.ts * e)
+        x = A @ x_f + B @ (u - u_op)
+        xp = np.asarray(plant.step(jnp.asarray(xp), jnp.asarray(u)))
+        us.append(u)
+    return np.asarray(us)
+
+
+@pytest.mark.parametrize("size", [0.5, 6.0])          # linear, and saturated during the rise
+def test_setpoint_weights_start_at_the_classical_design(size):
+    plant = bed_plant(2, seed=3)
+    c = design_lqg(plant, Q1=2.0, Q2=0.5, Qi=0.05)
+    assert np.all(np.asarray(c.b0) == 0.0)
+    r = step_reference(plant, 80, size, at=5)
+    _, us = closed_loop(c, plant, r)
+    np.testing.assert_allclose(us, _classical_loop(c, plant, r), rtol=1e-10, atol=1e-12)
+    # with a zero weight the reference model's time constant has no effect
+    _, us2 = closed_loop(eqx.tree_at(lambda k: k.tau_r, c, 3.0 * c.tau_r), plant, r)
+    np.testing.assert_array_equal(np.asarray(us2), np.asarray(us))
+    if size > 1.0:
+        assert np.mean(np.asarray(us) == 1.0) > 0.05        # the anti-windup path is exercised
+
+
+def test_setpoint_weights_gradient_matches_central_differences():
+    plant = bed_plant(2, seed=3)
+    c0 = design_lqg(plant, Q1=2.0, Q2=0.5, Qi=0.05)
+    r = step_reference(plant, 60, 0.3, at=5)
+    d = jnp.zeros((60, 2)).at[40, 0].set(-0.2)
+
+    def cost(theta):
+        c = eqx.tree_at(lambda k: (k.b0, k.tau_r), c0, (theta[0:2], jnp.exp(theta[2:4])))
+        ys, us = closed_loop(c, plant, r, d)
+        return jnp.mean((ys - r) ** 2) + 0.1 * jnp.mean((us - plant.u0) ** 2)
+
+    f = jax.jit(cost)
+    for theta in (np.r_[0.0, 0.0, np.log(np.asarray(c0.tau_r))],              # the start
+                  np.array([0.3, -0.2, np.log(5.0), np.log(12.0)])):
+        g = np.asarray(jax.grad(f)(jnp.asarray(theta)))
+        np.testing.assert_allclose(g, central_difference(f, theta), rtol=1e-5, atol=1e-10)
+        assert np.all(g[:2] != 0.0)                          # the weight moves the cost

@@ -7,7 +7,9 @@ import pytest
 
 from jthermo.data import from_arrays
 from jthermo.errors import ModelError
-from jthermo.identify.statespace import fit_statespace, ss_cost
+from jthermo.identify.statespace import (
+    fit_statespace, ss_residuals, ss_residuals_level, ss_residuals_offset,
+)
 from jthermo.identify.subspace import n4sid
 from jthermo.models import StateSpace, is_stable
 from jthermo.models.statespace import InnovationsSS, pack, unpack
@@ -88,15 +90,22 @@ def test_stabilized_projects_unstable_model():
     assert is_stable(m)
 
 
-def test_grad_matches_central_difference():
+@pytest.mark.parametrize("residuals", ["x0", "x0_level", "level"])
+def test_grad_matches_central_difference(residuals):
     data = _data(200, 3)
     ss, _ = n4sid(data, 2, horizon=5)
     template = InnovationsSS.from_statespace(ss)
-    theta = jnp.concatenate([pack(template), jnp.array([0.1, -0.2])])
+    extra = {"x0": [0.1, -0.2], "x0_level": [0.1, -0.2, 0.05, 0.03], "level": [0.05, 0.03]}
+    fn = {"x0": ss_residuals, "x0_level": ss_residuals_offset, "level": ss_residuals_level}
+    theta = jnp.concatenate([pack(template), jnp.array(extra[residuals])])
     args = (template, jnp.asarray(data.y), jnp.asarray(data.u) - template.u0,
             jnp.asarray(data.w) - template.w0)
-    f = jax.jit(lambda th: ss_cost(th, args))
-    g = np.asarray(jax.grad(lambda th: ss_cost(th, args))(theta))
+
+    def cost(th):
+        return jnp.mean(fn[residuals](th, args) ** 2)
+
+    f = jax.jit(cost)
+    g = np.asarray(jax.grad(cost)(theta))
     g_fd = central_difference(f, np.asarray(theta))
     rel = np.linalg.norm(g - g_fd) / np.linalg.norm(g_fd)
     assert rel < 1e-6
