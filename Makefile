@@ -16,7 +16,7 @@ demo: $(STAMP)
 	$(VENV)/bin/jthermo demo
 
 test: $(STAMP)
-	$(PY) -m pytest -n 2 -m "not slow"
+	$(PY) -m pytest -n 2 -m "not slow" --durations=15
 
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[dev,bench]"

@@ -147,7 +147,7 @@ def write(rows, real, path):
         for label, res, sec in real:
             f = ", ".join(x["mechanism"] for x in res["findings"]) or "—"
             pp = "; ".join(f"{m}: {fmt_params(v)}" for m, v in res["augmented"]["parameters"].items())
-            lines.append(f"| {label} | {res['verdict']} | {f} | {res['baseline']['mean_fit_percent']:.1f} | "
+            lines.append(f"| {label.replace('|', '/')} | {res['verdict']} | {f} | {res['baseline']['mean_fit_percent']:.1f} | "
                          f"{res['augmented']['mean_fit_percent']:.1f} | {pp} | {sec:.0f} |")
     atomic_write_text(path, "\n".join(lines) + "\n")
 

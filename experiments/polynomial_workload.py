@@ -1,7 +1,7 @@
 """Fit ARX/ARMAX/OE/BJ to the reference workload: python experiments/polynomial_workload.py N T n_starts [families]."""
 import sys, time
 from pathlib import Path; sys.path.insert(0, str(Path(__file__).resolve().parents[1].parent / "shared" / "bench"))
-import jax, jax.numpy as jnp, numpy as np
+import jax, numpy as np
 jax.config.update("jax_enable_x64", True)
 import workloads as wl
 from jthermo.data import from_arrays

@@ -145,8 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--controller", required=True, metavar="C")
     sp.add_argument("--model", metavar="MODEL", help="design from (and tune against) this saved model")
     sp.add_argument("--plant", default="printer", metavar="printer|MODEL")
+    sp.add_argument("--zones", type=_positive_int(MAX_ZONES), default=4,
+                    help="zones of the virtual printer (default 4)")
+    sp.add_argument("--powder", default="PA12",
+                    help="powder preset tuned on (default PA12); the report adds the other one")
     sp.add_argument("--rollouts", type=_positive_int(MAX_ROLLOUTS), default=16)
-    sp.add_argument("--steps", type=_positive_int(100000), default=50)
+    sp.add_argument("--steps", type=_positive_int(100000), default=150,
+                    help="Adam iterations (default 150)")
     sp.add_argument("--out", metavar="CTRL", help="save the tuned controller here")
     common(sp)
 
@@ -467,11 +472,10 @@ def cmd_simulate(args) -> dict:
         controller = io.load_controller(args.controller_file)
     plant, plant_desc = _plant(args)
     cl = _require("jthermo.closedloop", "closed-loop simulation")
-    if isinstance(controller, str) and controller not in ("untuned",):
-        design = _require("jthermo.control.design", "controller design")
-        if controller not in design.FAMILIES:
-            raise _err()(f"--controller: unknown family {controller!r}; choose one of "
-                         + ", ".join(("untuned",) + tuple(design.FAMILIES)))
+    if isinstance(controller, str):
+        controller = _controller_family(controller)
+        if controller == "pi_untuned":
+            controller = "untuned"
     t0 = time.perf_counter()
     if plant == "printer":
         from .printer import make_printer
@@ -562,6 +566,16 @@ def cmd_generate(args) -> dict:
     return report
 
 
+def _controller_family(name: str) -> str:
+    """The controller family named by `--controller` (aliases such as `pi` resolved)."""
+    design = _require("jthermo.control.design", "controller design")
+    family = design.canonical_family(name)
+    if family not in design.FAMILIES:
+        raise _err()(f"--controller: unknown family {name!r}; choose one of "
+                     + ", ".join(design.FAMILIES) + " (or " + ", ".join(design.ALIASES) + ")")
+    return family
+
+
 def cmd_tune(args) -> dict:
     from . import io
     from .control._base import AbstractController
@@ -576,15 +590,13 @@ def cmd_tune(args) -> dict:
         model = io.load_model(args.model)
     plant, _ = _plant(args)
     tune = _require("jthermo.tune", "tuning")
-    design = _require("jthermo.control.design", "controller design")
-    if args.controller not in design.FAMILIES:
-        raise _err()(f"--controller: unknown family {args.controller!r}; choose one of "
-                     + ", ".join(design.FAMILIES))
+    args.controller = _controller_family(args.controller)
     bar = _progress(args, f"tune {args.controller}", total=args.steps)
     t0 = time.perf_counter()
     try:
         rep = tune.tune_report(args.controller, plant=plant, model=model, rollouts=args.rollouts,
-                               steps=args.steps, seed=args.seed, progress=bar)
+                               steps=args.steps, seed=args.seed, zones=args.zones,
+                               powder=args.powder, progress=bar)
     finally:
         bar.close()
     rep = dict(rep)

@@ -561,7 +561,7 @@ def _n_inputs(plant) -> int:
 def _controller_from(controller, n: int, ts: float):
     if isinstance(controller, AbstractController):
         return controller
-    if controller in ("untuned", "pi", "original"):
+    if controller in ("untuned", "original"):
         from .control.pi import DiagonalPI
         return DiagonalPI.untuned(n, ts=ts)
     raise ConfigError(f"run: unknown controller {controller!r} (an AbstractController or 'untuned')")

@@ -646,7 +646,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 steps: int = 200, seed: int = 0, lr: float = 0.05, zones: int = 4,
                 powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
                 eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
-                references: Sequence[str] = ("pi_lambda",),
+                references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -656,11 +656,13 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     perturbed copies of it (`plant_ensemble`), guarded on validation seeds against the start
     and the designs named in `references` (families designed on the same model), and evaluates
     start, tuned and the lambda-tuned diagonal PI on the held-out seed `seed + HELD_OUT` in
-    the three scenarios.
+    the three scenarios; for the built-in printer also on the printer with `changed_powder`
+    (`"auto"`: PA11 when tuned on PA12, else PA12; None: skip), which tuning never saw.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `scenarios`
-    (per-scenario MSE and cost before/after, and of the lambda PI), `history`, `seconds`, and
+    (per-scenario MSE and cost before/after, and of the lambda PI), `changed_powder` (the same
+    figures on the other powder, or None), `history`, `seconds`, and
     the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
     """
     from .control.design import design
@@ -669,6 +671,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
 
     t0 = time.perf_counter()
     pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
+    if changed_powder == "auto":
+        changed_powder = "PA11" if powder != "PA11" else "PA12"
     if model is None:
         model = pl if isinstance(pl, AbstractModel) else printer_model(pl)
     start = design(controller_family, model)
@@ -690,9 +694,26 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 "cost_after": ev["tuned"]["scenarios"][k]["cost"],
                 "cost_lambda_pi": ev["lambda_pi"]["scenarios"][k]["cost"]} for k in SCENARIOS}
     tuned, lam_c = ev["tuned"]["cost"], ev["lambda_pi"]["cost"]
+    changed = None
+    if isinstance(plant, str) and changed_powder:
+        # the same controllers on the printer with the other powder, never seen in tuning
+        other = _plant_from("printer", zones=zones, powder=changed_powder, plant_seed=plant_seed)
+        evc = {name: evaluate(c, other, SCENARIOS, seeds, rollouts=er, duration=duration,
+                              weights=weights)
+               for name, c in (("start", start), ("tuned", res.controller),
+                               ("lambda_pi", lam_pi))}
+        changed = {"powder": changed_powder, "start_cost": evc["start"]["cost"],
+                   "tuned_cost": evc["tuned"]["cost"], "lambda_pi_cost": evc["lambda_pi"]["cost"],
+                   "improvement_percent": 100.0 * (1.0 - evc["tuned"]["cost"]
+                                                   / evc["lambda_pi"]["cost"]),
+                   "scenarios": {k: {"mse_before": evc["start"]["scenarios"][k]["mse"],
+                                     "mse_after": evc["tuned"]["scenarios"][k]["mse"],
+                                     "mse_lambda_pi": evc["lambda_pi"]["scenarios"][k]["mse"]}
+                                 for k in SCENARIOS}}
     return {"controller": controller_family, "start_cost": ev["start"]["cost"],
             "tuned_cost": tuned, "lambda_pi_cost": lam_c,
             "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen,
+            "changed_powder": changed,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
             "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
             "ensemble": len(plants),

@@ -299,10 +299,12 @@ def test_tune_saves_controller_and_simulate_runs_it(tmp_path, capsys, monkeypatc
 
     monkeypatch.setattr(tune, "tune_report", fake_tune_report)
     out, js = tmp_path / "c.jtm", tmp_path / "t.json"
-    rc, _, err = _run(["tune", "--controller", "pi_lambda", "--rollouts", "3", "--steps", "2",
-                       "--seed", "4", "--out", out, "--json", js, "--quiet"], capsys)
+    rc, _, err = _run(["tune", "--controller", "pi", "--rollouts", "3", "--steps", "2",
+                       "--seed", "4", "--zones", "2", "--powder", "PA11", "--out", out,
+                       "--json", js, "--quiet"], capsys)
     assert rc == 0, err
     assert seen["rollouts"] == 3 and seen["steps"] == 2 and seen["seed"] == 4 and seen["plant"] == "printer"
+    assert seen["family"] == "pi_lambda" and seen["zones"] == 2 and seen["powder"] == "PA11"
     rep = json.loads(js.read_text())
     assert rep["improvement_percent"] == 50.0 and "tuned" not in rep and rep["out"] == str(out)
     assert io.load_header(out)["kind"] == "controller"

@@ -81,6 +81,10 @@ def test_tune_report_on_a_small_printer():
                         "improvement_percent", "scenarios", "seconds"}
     assert set(rep["scenarios"]) == {"tracking", "powder", "print"}
     assert np.isfinite(rep["tuned_cost"]) and np.all(np.asarray(ctrl.kp) > 0)
+    # the held-out changed powder: the same three controllers on the PA11 printer
+    other = rep["changed_powder"]
+    assert other["powder"] == "PA11" and set(other["scenarios"]) == {"tracking", "powder", "print"}
+    assert np.isfinite(other["tuned_cost"]) and other["lambda_pi_cost"] != rep["lambda_pi_cost"]
     assert rep["train_tuned_cost"] <= rep["train_start_cost"]
 
 

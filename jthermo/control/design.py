@@ -172,6 +172,40 @@ def zeros_stable(model, margin: float = 0.02) -> bool:
     return bool(np.all(np.isfinite(ev)) and np.max(np.abs(ev)) < 1.0 - margin)
 
 
+def design_point(model, setpoint=None, signals=None, inputs=None) -> StateSpace:
+    """The model's state space moved, along its own equilibria, to the point a design needs.
+
+    A linear model is the same model at any of its equilibria $(u^*, w^*, y^*)$,
+    $y^* = y_0 + G(1)(u^* - u_0) + G_w(1)(w^* - w_0)$, $G(1) = C(I - A)^{-1}B + D$,
+    $G_w(1) = C(I - A)^{-1}B_w$; the design's bias, static gains and observer start are taken
+    there. $u^*$ = `inputs` and $w^*$ = `signals` default to the model's `nominal_point()` where
+    it has one (a fitted grey-box bed: the estimation data's mean heater input and measured
+    surroundings, so it is not designed at rest at 0 °C), else to its own $u_0$, $w_0$. With a
+    `setpoint` $r$ (°C, scalar or per output), $u^* \\leftarrow u^* + G(1)^{-1}(r - y^*)$
+    (least squares when not square) and $y^* = r$: the input that holds the model at $r$.
+    """
+    ss = _as_ss(model)
+    A, B, C, D, Bw = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C, ss.D, ss.Bw))
+    u0, w0, y0 = (np.asarray(v, np.float64) for v in (ss.u0, ss.w0, ss.y0))
+    nominal = model.nominal_point() if hasattr(model, "nominal_point") else (None, None)
+    inputs = nominal[0] if inputs is None else inputs
+    signals = nominal[1] if signals is None else signals
+    inv = np.linalg.solve(np.eye(A.shape[0]) - A, np.concatenate([B, Bw], axis=1))
+    G1, Gw1 = C @ inv[:, :B.shape[1]] + D, C @ inv[:, B.shape[1]:]
+    u1 = u0 if inputs is None else np.broadcast_to(np.asarray(inputs, np.float64), u0.shape)
+    w1 = w0 if signals is None else np.broadcast_to(np.asarray(signals, np.float64), w0.shape)
+    y1 = y0 + G1 @ (u1 - u0) + Gw1 @ (w1 - w0)
+    if setpoint is not None:
+        r = np.broadcast_to(np.asarray(setpoint, np.float64), y0.shape)
+        u1 = u1 + np.linalg.lstsq(G1, r - y1, rcond=None)[0]
+        y1 = r
+    if not (np.all(np.isfinite(u1)) and np.all(np.isfinite(y1))):
+        raise ControlError("design: the model's equilibrium at the design point is not finite")
+    dt = ss.A.dtype
+    return StateSpace(ss.A, ss.B, ss.C, ss.D, ss.K, ts=ss.ts, Bw=ss.Bw, u0=_f(u1, dt),
+                      w0=_f(w1, dt), y0=_f(y1, dt))
+
+
 def operating_point(model) -> tuple[np.ndarray, np.ndarray]:
     """`(u0, y0)` of the model's operating point (power fraction, °C)."""
     ss = _as_ss(model)
@@ -187,10 +221,22 @@ def _f(x, dtype=None):
 # --------------------------------------------------------------------------------------
 
 FAMILIES = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg", "gated_pi")
+# short names users type, e.g. `jthermo tune --controller pi` (PI means the lambda-tuned design)
+ALIASES = {"pi": "pi_lambda", "lambda": "pi_lambda", "diagonal_pi": "pi_lambda",
+           "untuned": "pi_untuned", "original": "pi_untuned", "decoupled": "pi_decoupled",
+           "ff": "feedforward", "gated": "gated_pi", "lqg_integral": "lqg"}
 
 
-def design(family: str, model, **kwargs):
-    """Design a controller of the named family from a model.
+def canonical_family(name: str) -> str:
+    """The `FAMILIES` name of a family name or alias (`ALIASES`); unknown names unchanged."""
+    key = str(name).strip().lower().replace("-", "_")
+    return ALIASES.get(key, key)
+
+
+def design(family: str, model, *, setpoint=None, **kwargs):
+    """Design a controller of the named family from a model, at `design_point(model,
+    setpoint)`: the model's nominal operating point, or the equilibrium that holds it at
+    `setpoint` (°C) when one is given.
 
     **Arguments:**
     - `family`: one of `FAMILIES` — `"pi_untuned"` (identical PI per zone, the original
@@ -206,6 +252,9 @@ def design(family: str, model, **kwargs):
     from . import decoupled, feedforward, imc, lqg
     from .gated import gated as _gated
 
+    family = canonical_family(family)
+    if setpoint is not None or hasattr(model, "nominal_point"):
+        model = design_point(model, setpoint)
     if family == "pi_untuned":
         return decoupled.design_untuned_pi(model, **kwargs)
     if family == "pi_lambda":

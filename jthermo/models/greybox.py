@@ -55,8 +55,11 @@ class BedModel(AbstractModel):
     - `log_loss`: $\\log G_i = -\\log R_{s,i}$, W/K, `(N,)`.
     - `log_gain`: $\\log n_{ij}$, W, `(N, N)`: heater $j$ to zone $i$.
     - `innovation`: diagonal innovation gain `(N,)` (0 gives an output-error model).
-    - `surroundings`: constant surroundings temperature in °C, used only when
-      `measured_surroundings` is False.
+    - `surroundings`: constant surroundings temperature in °C; when `measured_surroundings`
+      is True it only names the nominal surroundings (`fit_greybox`: the estimation data's
+      mean) at which controllers are designed (`nominal_point`).
+    - `u_nominal`: nominal heater input `(heaters,)` (`fit_greybox`: the estimation data's
+      mean; default 0, the bed at rest), the operating point of a design (`nominal_point`).
     - `ts`: sample time in s (static); `measured_surroundings` (static): True when
       $T_s$ is the measured signal `w[:, 0]`.
 
@@ -70,11 +73,12 @@ class BedModel(AbstractModel):
     log_gain: Float[Array, "zones heaters"]
     innovation: Float[Array, " zones"]
     surroundings: Float[Array, ""]
+    u_nominal: Float[Array, " heaters"]
     ts_: float = eqx.field(static=True)
     measured_surroundings: bool = eqx.field(static=True)
 
     def __init__(self, log_capacity, log_loss, log_gain, *, innovation=None, surroundings=20.0,
-                 ts: float = 1.0, measured_surroundings: bool = True):
+                 u_nominal=None, ts: float = 1.0, measured_surroundings: bool = True):
         self.log_capacity = jnp.asarray(log_capacity)
         self.log_loss = jnp.asarray(log_loss)
         self.log_gain = jnp.asarray(log_gain)
@@ -82,6 +86,9 @@ class BedModel(AbstractModel):
         self.innovation = (jnp.zeros(n, self.log_capacity.dtype) if innovation is None
                            else jnp.asarray(innovation))
         self.surroundings = jnp.asarray(surroundings, self.log_capacity.dtype)
+        nu = self.log_gain.shape[-1] if self.log_gain.ndim == 2 else 0
+        self.u_nominal = jnp.broadcast_to(jnp.asarray(
+            0.0 if u_nominal is None else u_nominal, self.log_capacity.dtype), (nu,))
         self.ts_ = float(ts)
         self.measured_surroundings = bool(measured_surroundings)
 
@@ -138,6 +145,12 @@ class BedModel(AbstractModel):
     def time_constants(self):
         """Zone time constants $C_i/G_i$ in s."""
         return self.capacity / self.loss
+
+    def nominal_point(self):
+        """`(inputs, signals)` at which a controller is designed (`control.design.design_point`):
+        `u_nominal` and, when the surroundings are measured, `[surroundings]` (else None)."""
+        w = jnp.reshape(self.surroundings, (1,)) if self.measured_surroundings else None
+        return self.u_nominal, w
 
     def to_statespace(self) -> StateSpace:
         A, B, Bw = self.continuous()
@@ -379,8 +392,9 @@ def fit_greybox(data, *, seed: int = 0, n_starts: int = 4, capacity: float = NOM
     if not bool(jnp.isfinite(res.cost)):
         raise FitError("fit_greybox: no start point gave a finite cost")
     log_loss, log_gain, x0, s = _unpack(res.theta, n, nu, measured)
-    model = BedModel(jnp.log(jnp.full((n,), capacity)), log_loss, log_gain, surroundings=s,
-                     ts=data.ts, measured_surroundings=measured)
+    model = BedModel(jnp.log(jnp.full((n,), capacity)), log_loss, log_gain,
+                     surroundings=float(np.mean(w)) if measured else s,
+                     u_nominal=np.mean(u, axis=0), ts=data.ts, measured_surroundings=measured)
     seconds = time.perf_counter() - t0
     info = {"cost": float(res.cost), "start_costs": np.asarray(res.start_costs).tolist(),
                 "n_steps": int(res.n_steps), "measured_surroundings": measured,

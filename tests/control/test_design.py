@@ -108,3 +108,45 @@ def test_every_family_designs():
     for fam in FAMILIES:
         c = design(fam, plant)
         assert c is not None
+
+
+def test_design_point_moves_along_equilibria():
+    """Setpoint and measured-signal moves keep the model: the new point is an equilibrium of
+    the original model (closed form), and the controllers are biased there."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from jthermo.control.design import design_point
+    from jthermo.models import BedModel
+
+    bed = BedModel.from_physical([1000.0, 1200.0], [2.0, 2.5], [[150.0, 30.0], [20.0, 140.0]],
+                                 surroundings=145.0)                 # measured surroundings
+    ss = bed.to_statespace()
+    A, B, Bw, C = (np.asarray(m) for m in (ss.A, ss.B, ss.Bw, ss.C))
+    inv = np.linalg.inv(np.eye(2) - A)
+    # nominal point: rest (u = 0) at the nominal surroundings, i.e. y* = 145 °C, not 0 °C
+    at = design_point(bed)
+    np.testing.assert_allclose(np.asarray(at.y0), [145.0, 145.0], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(at.w0), [145.0])
+    # at a set point: the input that holds the model there, checked in closed form
+    at = design_point(bed, setpoint=174.0)
+    u1 = np.asarray(at.u0)
+    np.testing.assert_allclose(C @ inv @ (B @ u1 + Bw[:, 0] * 145.0), [174.0, 174.0], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(at.y0), 174.0)
+    pi = design("pi", bed, setpoint=174.0)                           # alias of pi_lambda
+    np.testing.assert_allclose(np.asarray(pi.u0), u1, atol=1e-12)
+    # a fitted bed is designed at its data's mean input and surroundings
+    fitted = eqx.tree_at(lambda m: m.u_nominal, bed, jnp.asarray([0.4, 0.6]))
+    lqg = design("lqg", fitted)
+    np.testing.assert_allclose(np.asarray(lqg.u_op), [0.4, 0.6])
+    np.testing.assert_allclose(np.asarray(lqg.y_op),
+                               C @ inv @ (B @ [0.4, 0.6] + Bw[:, 0] * 145.0), atol=1e-9)
+
+
+def test_family_aliases():
+    from jthermo.control.design import ALIASES, canonical_family
+
+    assert canonical_family("PI") == "pi_lambda" and canonical_family("lqg") == "lqg"
+    assert all(v in FAMILIES for v in ALIASES.values())
+    with pytest.raises(ControlError, match="unknown controller family"):
+        design("pid", bed_plant())

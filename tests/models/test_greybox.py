@@ -108,3 +108,10 @@ def test_fit_recovers_parameters(measured):
     np.testing.assert_allclose(np.exp(model.log_gain), gain * 1000 / cap[:, None], rtol=0.05)
     if not measured:
         assert abs(float(model.surroundings) - 22.0) < 0.5
+    # the design point is the estimation data's mean input (and measured surroundings)
+    u_nom, w_nom = model.nominal_point()
+    np.testing.assert_allclose(np.asarray(u_nom), u.mean(axis=0), rtol=1e-12)
+    if measured:
+        np.testing.assert_allclose(np.asarray(w_nom), [w.mean()], rtol=1e-12)
+    else:
+        assert w_nom is None
