@@ -142,7 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp, plot=False)
 
     sp = sub.add_parser("tune", help="gradient tuning of a controller family")
-    sp.add_argument("--controller", required=True, metavar="C")
+    sp.add_argument("--controller", required=True, metavar="C",
+                    help="family to start from: pi_lambda (alias pi), pi_untuned, pi_decoupled, "
+                         "feedforward, imc, lqg, gated_pi")
     sp.add_argument("--model", metavar="MODEL", help="design from (and tune against) this saved model")
     sp.add_argument("--plant", default="printer", metavar="printer|MODEL")
     sp.add_argument("--zones", type=_positive_int(MAX_ZONES), default=4,

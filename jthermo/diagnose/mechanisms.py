@@ -97,6 +97,11 @@ MECH_PARAMS = {
 }
 
 
+def n_added_per_zone(mech: str, lay) -> int:
+    """Parameters `mech` adds to one zone's baseline problem (sizes of its `MECH_PARAMS`)."""
+    return sum(lay.sl(g).stop - lay.sl(g).start for g in MECH_PARAMS.get(mech, ()))
+
+
 def drift_basis(T: int, ts: float, n_knots: int) -> np.ndarray:
     """Piecewise-linear hat functions with knots every `DRIFT_SPACING` s, `(T, n_knots)`;
     knots beyond the record's end get zero columns."""
