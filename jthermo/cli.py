@@ -475,7 +475,7 @@ def cmd_simulate(args) -> dict:
     plant, plant_desc = _plant(args)
     cl = _require("jthermo.closedloop", "closed-loop simulation")
     if isinstance(controller, str):
-        controller = _controller_family(controller)
+        controller = args.controller = _controller_family(controller)
         if controller == "pi_untuned":
             controller = "untuned"
     t0 = time.perf_counter()
