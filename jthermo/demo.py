@@ -28,10 +28,10 @@ FAMILY_ORDERS: dict[str, tuple[int, ...] | None] = {
 
 SETTINGS = {
     "full": {"zones": 4, "est_s": 3600.0, "val_s": 1800.0, "tune_rollouts": 8, "tune_steps": 40,
-             "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0, "diag_val_s": 1800.0,
+             "tune_lr": 0.1, "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0, "diag_val_s": 1800.0,
              "n_starts": 4},
     "quick": {"zones": 4, "est_s": 1200.0, "val_s": 600.0, "tune_rollouts": 4, "tune_steps": 10,
-              "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0, "diag_val_s": 900.0,
+              "tune_lr": 0.1, "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0, "diag_val_s": 900.0,
               "n_starts": 2},
 }
 ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
@@ -218,8 +218,9 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         bar = _progress("tune pi_lambda", quiet, cfg["tune_steps"])
         try:
             rep = tune_report("pi_lambda", plant="printer", rollouts=cfg["tune_rollouts"],
-                              steps=cfg["tune_steps"], seed=seed, duration=cfg["scenario_s"],
-                              eval_rollouts=cfg["eval_rollouts"], progress=bar)
+                              steps=cfg["tune_steps"], lr=cfg["tune_lr"], seed=seed,
+                              duration=cfg["scenario_s"], eval_rollouts=cfg["eval_rollouts"],
+                              changed_powder=None, progress=bar)
         finally:
             bar.close()
         tuned = rep.pop("tuned")
