@@ -28,11 +28,11 @@ FAMILY_ORDERS: dict[str, tuple[int, ...] | None] = {
 
 SETTINGS = {
     "full": {"zones": 4, "est_s": 3600.0, "val_s": 1800.0, "tune_rollouts": 8, "tune_steps": 40,
-             "tune_lr": 0.1, "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0, "diag_val_s": 1800.0,
-             "n_starts": 4},
+             "tune_lr": 0.1, "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0,
+             "diag_val_s": 1800.0, "n_starts": 4},
     "quick": {"zones": 4, "est_s": 1200.0, "val_s": 600.0, "tune_rollouts": 4, "tune_steps": 10,
-              "tune_lr": 0.1, "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0, "diag_val_s": 900.0,
-              "n_starts": 2},
+              "tune_lr": 0.1, "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0,
+              "diag_val_s": 900.0, "n_starts": 2},
 }
 ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
 CONCEALED = ("heater_lag", {"time_constant_s": 25.0})

@@ -506,19 +506,16 @@ def _prefer_identified(sig, duration):
 
     if not sig:
         return sig
-    top, best = sig[0], None
-    if top["mechanism"] == "heat_accumulation":
-        if top["parameters"].get("time_constant_s", 0.0) > ACC_TAU_MAX_RECORDS * duration:
-            best = tied(("radiative_loss", "input_nonlinearity"))
-    if (best or top)["mechanism"] == "input_nonlinearity":
-        nl = best or top
-        if abs(nl["parameters"].get("exponent", 1.0) - 1.0) < EXPONENT_NEAR_ONE:
-            rad = next((r for r in sig if r["mechanism"] == "radiative_loss"
-                        and r["val_mse"] <= (1.0 + OFFSET_TIE) * top["val_mse"]), None)
-            best = rad or best
-    if best is None:
+    top = named = sig[0]
+    if (top["mechanism"] == "heat_accumulation"
+            and top["parameters"].get("time_constant_s", 0.0) > ACC_TAU_MAX_RECORDS * duration):
+        named = tied(("radiative_loss", "input_nonlinearity")) or top
+    if (named["mechanism"] == "input_nonlinearity"
+            and abs(named["parameters"].get("exponent", 1.0) - 1.0) < EXPONENT_NEAR_ONE):
+        named = tied(("radiative_loss",)) or named
+    if named is top:
         return sig
-    return [best] + [r for r in sig if r is not best]
+    return [named] + [r for r in sig if r is not named]
 
 
 def _mechanism_evidence(mech, loc, per_ev):

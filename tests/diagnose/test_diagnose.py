@@ -232,3 +232,25 @@ def test_slow_accumulation_gives_way_to_named_offset_physics():
     for r in rows[1:]:
         r["val_mse"] = 1.2
     assert _prefer_identified(rows, 3600.0)[0]["mechanism"] == "heat_accumulation"
+
+
+def test_offset_ties_name_the_physics():
+    """A frozen slow body or a lamp exponent near 1 tied with radiation is named radiation; a
+    clear exponent, or a slow body actually seen in the record, keeps its name."""
+    from jthermo.diagnose.select import _prefer_identified
+
+    def row(mech, val_mse, **params):
+        return {"mechanism": mech, "val_mse": val_mse, "parameters": params}
+
+    T = 3600.0
+    frozen = row("heat_accumulation", 1.00, time_constant_s=20000.0)
+    rad, nl_weak = row("radiative_loss", 1.01), row("input_nonlinearity", 1.005, exponent=0.94)
+    assert _prefer_identified([frozen, nl_weak, rad], T)[0] is rad
+    assert _prefer_identified([nl_weak, rad], T)[0] is rad
+    nl_clear = row("input_nonlinearity", 1.00, exponent=0.7)
+    assert _prefer_identified([nl_clear, rad], T)[0] is nl_clear
+    seen = row("heat_accumulation", 1.00, time_constant_s=1500.0)
+    assert _prefer_identified([seen, rad], T)[0] is seen
+    far = row("radiative_loss", 1.10)                   # not within OFFSET_TIE: no change
+    assert _prefer_identified([nl_weak, far], T)[0] is nl_weak
+    assert _prefer_identified([], T) == []
