@@ -62,6 +62,18 @@ def load_workloads():
     return _Workloads()
 
 
+def w1_prbs(T: int, N: int, rng: np.random.Generator) -> np.ndarray:
+    """W1 input: levels {0.3, 0.7}, random holds of 3..15 samples, independent per zone."""
+    u = np.empty((T, N))
+    for j in range(N):
+        level, t = rng.integers(0, 2), 0
+        while t < T:
+            hold = int(rng.integers(3, 16))
+            u[t:t + hold, j] = 0.7 if level else 0.3
+            t, level = t + hold, 1 - level
+    return u
+
+
 class _Workloads:
     """Re-creation of W1 from the README/docstring of ../shared/bench/workloads.py."""
 
@@ -90,13 +102,7 @@ class _Workloads:
     def make_dataset(self, N, T, seed=0, split=1):
         plant = self.make_plant(N, seed)
         rng = self._rng(seed, N, T, split)
-        u = np.empty((T, N))
-        for j in range(N):
-            level, t = rng.integers(0, 2), 0
-            while t < T:
-                hold = int(rng.integers(3, 16))
-                u[t:t + hold, j] = 0.7 if level else 0.3
-                t, level = t + hold, 1 - level
+        u = w1_prbs(T, N, rng)
         w = self.SIGMA_W * rng.standard_normal((T, N))
         e = rng.standard_normal((T, N))
         g = self.NOISE_STD * np.sqrt(1 - self.NOISE_POLE ** 2)

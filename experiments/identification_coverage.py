@@ -30,6 +30,9 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from identification import w1_prbs  # noqa: E402  (the W1 input of the benchmark)
+
 from jthermo.data import atomic_write_text, from_arrays  # noqa: E402
 from jthermo.identify.fit import fit  # noqa: E402
 from jthermo.models._base import StateSpace  # noqa: E402
@@ -76,18 +79,6 @@ def true_model(family: str):
     raise ValueError(family)
 
 
-def prbs(T: int, rng: np.random.Generator) -> np.ndarray:
-    """W1 input: levels {0.3, 0.7}, random holds of 3..15 samples, independent per zone."""
-    u = np.empty((T, N))
-    for j in range(N):
-        level, t = rng.integers(0, 2), 0
-        while t < T:
-            hold = int(rng.integers(3, 16))
-            u[t:t + hold, j] = 0.7 if level else 0.3
-            t, level = t + hold, 1 - level
-    return u
-
-
 def simulate(model, u: np.ndarray, e: np.ndarray | None = None) -> np.ndarray:
     """Innovations-form simulation from rest (x = 0, u0 = 0): y = y0 + C x + D u + e."""
     ss = model if isinstance(model, StateSpace) else model.to_statespace()
@@ -110,7 +101,7 @@ def simulate(model, u: np.ndarray, e: np.ndarray | None = None) -> np.ndarray:
 def dataset(family: str, T: int, seed: int, split: int):
     model, sigma = true_model(family)
     rng = np.random.default_rng(np.random.SeedSequence([seed, split, 7]))
-    u = prbs(T, rng)
+    u = w1_prbs(T, N, rng)
     e = sigma * rng.standard_normal((T, N))
     return u, simulate(model, u, e)
 

@@ -642,6 +642,19 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
     raise ControlError(f"tune: unsupported plant {type(plant).__name__}")
 
 
+def _held_out_comparison(ctrls, plant, seeds, rollouts, duration, weights) -> dict:
+    """Start, tuned and lambda-PI controllers (`ctrls`) on held-out `seeds` of `plant`: their
+    mean costs, `improvement_percent` = 100·(1 − tuned/lambda_pi) and per-scenario MSE/cost."""
+    ev = {name: evaluate(c, plant, SCENARIOS, seeds, rollouts=rollouts, duration=duration,
+                         weights=weights) for name, c in ctrls.items()}
+    suffix = {"start": "before", "tuned": "after", "lambda_pi": "lambda_pi"}
+    scen = {k: {f"{q}_{suffix[name]}": ev[name]["scenarios"][k][q]
+                for q in ("mse", "cost") for name in ctrls} for k in SCENARIOS}
+    tuned, lam_c = ev["tuned"]["cost"], ev["lambda_pi"]["cost"]
+    return {"start_cost": ev["start"]["cost"], "tuned_cost": tuned, "lambda_pi_cost": lam_c,
+            "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen}
+
+
 def tune_report(controller_family: str, *, plant="printer", model=None, rollouts: int = 8,
                 steps: int = 200, seed: int = 0, lr: float = 0.05, zones: int = 4,
                 powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
@@ -684,35 +697,15 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                duration=duration, weights=weights, references=refs, progress=progress)
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
-    ev = {name: evaluate(c, pl, SCENARIOS, seeds, rollouts=er, duration=duration,
-                         weights=weights)
-          for name, c in (("start", start), ("tuned", res.controller), ("lambda_pi", lam_pi))}
-    scen = {k: {"mse_before": ev["start"]["scenarios"][k]["mse"],
-                "mse_after": ev["tuned"]["scenarios"][k]["mse"],
-                "mse_lambda_pi": ev["lambda_pi"]["scenarios"][k]["mse"],
-                "cost_before": ev["start"]["scenarios"][k]["cost"],
-                "cost_after": ev["tuned"]["scenarios"][k]["cost"],
-                "cost_lambda_pi": ev["lambda_pi"]["scenarios"][k]["cost"]} for k in SCENARIOS}
-    tuned, lam_c = ev["tuned"]["cost"], ev["lambda_pi"]["cost"]
+    ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi}
+    held = _held_out_comparison(ctrls, pl, seeds, er, duration, weights)
     changed = None
     if isinstance(plant, str) and changed_powder:
         # the same controllers on the printer with the other powder, never seen in tuning
         other = _plant_from("printer", zones=zones, powder=changed_powder, plant_seed=plant_seed)
-        evc = {name: evaluate(c, other, SCENARIOS, seeds, rollouts=er, duration=duration,
-                              weights=weights)
-               for name, c in (("start", start), ("tuned", res.controller),
-                               ("lambda_pi", lam_pi))}
-        changed = {"powder": changed_powder, "start_cost": evc["start"]["cost"],
-                   "tuned_cost": evc["tuned"]["cost"], "lambda_pi_cost": evc["lambda_pi"]["cost"],
-                   "improvement_percent": 100.0 * (1.0 - evc["tuned"]["cost"]
-                                                   / evc["lambda_pi"]["cost"]),
-                   "scenarios": {k: {"mse_before": evc["start"]["scenarios"][k]["mse"],
-                                     "mse_after": evc["tuned"]["scenarios"][k]["mse"],
-                                     "mse_lambda_pi": evc["lambda_pi"]["scenarios"][k]["mse"]}
-                                 for k in SCENARIOS}}
-    return {"controller": controller_family, "start_cost": ev["start"]["cost"],
-            "tuned_cost": tuned, "lambda_pi_cost": lam_c,
-            "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen,
+        changed = {"powder": changed_powder,
+                   **_held_out_comparison(ctrls, other, seeds, er, duration, weights)}
+    return {"controller": controller_family, **held,
             "changed_powder": changed,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
             "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
