@@ -30,7 +30,7 @@ from ..errors import ConfigError, DataError, FitError, ModelError
 from ..families import MODEL_FAMILIES, ORDER_NAMES
 from ..models.polynomial import (
     Polynomial, _as_nk, _delay_onehot, ar_filter, fir_monic, lagged, poly_from_reflection,
-    reflection_from_poly,
+    rational_sum, reflection_from_poly,
 )
 from .arx import arx_ls, perturb_starts
 from .pem import minimize_many
@@ -134,8 +134,7 @@ def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
     yi, ysrc, u, sel, s = args
     a, b, c, d, f = _unpack(theta, s)
     bl = jnp.einsum("jkl,jk->jl", sel, b)
-    pairs = jnp.einsum("tjl,jl->tj", lagged(u, s.L), bl)
-    w = ar_filter(pairs, f).sum(axis=1)
+    w = rational_sum(lagged(u, s.L), bl, f)
     v = yi - _kappa(theta, s)
     if s.na:
         v = v + jnp.einsum("tjk,jk->t", lagged(ysrc, s.na)[:, :, 1:], a)
