@@ -48,6 +48,23 @@ def test_linear_matches_lstsq_and_covariance(linear_problem, solver):
     np.testing.assert_allclose(res.cost, rss[0] / len(y), rtol=1e-10)
 
 
+def test_step_cap_counts_as_converged_only_at_the_optimum(linear_problem):
+    """MATLAB pem's rule: a solve stopped by `max_steps` is converged when the Gauss–Newton step
+    from its point would lower the cost by < 0.01 %; the expected improvement is that step's."""
+    X, y = linear_problem
+    ref = np.linalg.lstsq(np.asarray(X), np.asarray(y), rcond=None)[0]
+    near = pem.minimize(_linear_residual, jnp.asarray(ref) + 1e-5, (X, y), max_steps=1, atol=0.0,
+                        rtol=0.0)
+    assert bool(near.converged) and float(near.expected_improvement) < 1e-4
+    far = pem.minimize(_rosen_residual, jnp.asarray([-1.2, 1.0]), None, max_steps=1)
+    assert not bool(far.converged) and float(far.expected_improvement) > 1e-4
+    r = np.asarray(_rosen_residual(far.theta, None)).ravel()
+    J = np.asarray(jax.jacfwd(lambda th: _rosen_residual(th, None).ravel())(far.theta))
+    g = J.T @ r
+    np.testing.assert_allclose(far.expected_improvement, g @ np.linalg.pinv(J.T @ J) @ g / (r @ r),
+                               rtol=1e-8)
+
+
 def test_adam(linear_problem):
     X, y = linear_problem
     res = pem.minimize(_linear_residual, jnp.zeros(3), (X, y), solver="adam", max_steps=1500,
