@@ -84,12 +84,14 @@ def rational_sum(ul: Float[Array, "T nu L1"], bl: Float[Array, "nu L1"],
 def _rational_sum_jvp(primals, tangents):
     ul, bl, f = primals
     dul, dbl, df = tangents
-    filtered = ar_filter(ul, f[:, None, :])                        # (T, nu, L1): u_j(t-l)/F_j
-    z = jnp.einsum("tjl,jl->tj", filtered, bl)                     # (T, nu): B_j/F_j u_j
+    if isinstance(dbl, SymbolicZero):
+        z = ar_filter(jnp.einsum("tjl,jl->tj", ul, bl), f)         # (T, nu): B_j/F_j u_j
+        dw = jnp.zeros(z.shape[:1], z.dtype)
+    else:
+        filtered = ar_filter(ul, f[:, None, :])                    # (T, nu, L1): u_j(t-l)/F_j
+        z = jnp.einsum("tjl,jl->tj", filtered, bl)
+        dw = jnp.einsum("tjl,jl->t", filtered, dbl)
     w = z.sum(axis=1)
-    dw = jnp.zeros_like(w)
-    if not isinstance(dbl, SymbolicZero):
-        dw = dw + jnp.einsum("tjl,jl->t", filtered, dbl)
     nf = f.shape[-1]
     if nf and not isinstance(df, SymbolicZero):
         zz = ar_filter(z, f)                                       # z_j / F_j
