@@ -166,11 +166,30 @@ def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
 OFFSETS = ("auto", "mean", "rest", "estimate")
 
 
-def _operating_point(mode: str, y, u):
+def _rest_level(y, u, nb, nkt, n_den, full_a, ts):
+    """Output level of a record that starts at rest with zero input.
+
+    The first sample alone carries its full measurement noise (on W1 that costs 0.1–0.2
+    points of validation fit, `experiments/identification_level_check.py`). Instead the first
+    M = 1 % of the samples (1 to 100) are averaged after removing the response an ARX(n_den, nb)
+    model simulates for them from rest: $\\hat y_0 = \\frac{1}{M}\\sum_{t<M}\\big(y(t) -
+    \\hat y_{\\mathrm{dev}}(t)\\big)$.
+    """
+    M = int(min(max(y.shape[0] // 100, 1), 100))
+    if M == 1:
+        return y[0]
+    u0 = jnp.zeros(u.shape[1], u.dtype)
+    m = arx_ls(y - y[0], u, max(n_den, 1), nb, nkt, full_a=full_a, ts=ts, u0=u0, y0=y[0]).model
+    level = jnp.mean(y[:M] - (m.simulate(u[:M]) - m.y0), axis=0)
+    return jnp.where(jnp.all(jnp.isfinite(level)), level, y[0])
+
+
+def _operating_point(mode: str, y, u, rest_level=None):
     """`(y0, u0, estimate_constant)` of an operating-point mode (see `fit_polynomial`)."""
     if mode == "mean":
         return jnp.mean(y, axis=0), jnp.mean(u, axis=0), False
-    return y[0], jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
+    y0 = rest_level if (mode == "rest" and rest_level is not None) else y[0]
+    return y0, jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
 
 
 @eqx.filter_jit
@@ -178,7 +197,7 @@ def _simulation_mse(model: Polynomial, y, u):
     return jnp.mean((y - model.simulate(u)) ** 2)
 
 
-def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
+def _offset_mode(y, u, nb, nkt, n_den, full_a, ts, rest_level=None):
     """The operating-point mode whose ARX(n_den, nb) simulates the estimation data best.
 
     The modes differ in the state the record is assumed to start from: at rest at the data's
@@ -187,7 +206,7 @@ def _offset_mode(y, u, nb, nkt, n_den, full_a, ts):
     """
     errs = {}
     for mode in OFFSETS[1:]:
-        yref, u0, est = _operating_point(mode, y, u)
+        yref, u0, est = _operating_point(mode, y, u, rest_level)
         m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
                    offset=est, ts=ts, u0=u0, y0=yref).model
         errs[mode] = float(_simulation_mse(m, y, u))
@@ -205,7 +224,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
     means: the record is taken to start at rest there); `"rest"` takes `u0 = 0` and `y0` = the
-    first sample (the record starts at rest with zero input, e.g. a cold printer);
+    level of the first samples (the record starts at rest with zero input, e.g. a cold
+    printer; see `_rest_level`);
     `"estimate"` is `"rest"` with `y0` estimated with the other parameters; `"auto"` picks the
     one whose ARX estimate simulates the estimation data best.
 
@@ -229,9 +249,12 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
     arx_full = full_a and nf == 0
+    rest_level = None
+    if offset in ("auto", "rest"):
+        rest_level = _rest_level(y, u, nb, nkt, n_den, arx_full, ts)
     if offset == "auto":
-        offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts)
-    yref, u0, est = _operating_point(offset, y, u)
+        offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
+    yref, u0, est = _operating_point(offset, y, u, rest_level)
     dy, du = y - yref, u - u0
     if nc == 0 and nd == 0 and nf == 0:
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
