@@ -8,12 +8,13 @@ the batch split over them with `shard_map` (one scan per core, no per-step threa
 
 Prints cold and median warm seconds and the median ratio to NumPy of interleaved repeats.
 """
-import sys, time, statistics, os
+import sys
 import jax
 jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp, numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "bench"))
 import workloads as wl
+from _timing import compare_interleaved
 N, B, T = 16, 256, 3600
 su = wl.closed_loop_setup(N, T, B, 0)
 p = su["plant"]
@@ -49,11 +50,4 @@ if len(jax.devices()) > 1:
     dds = jax.device_put(dd, NamedSharding(mesh, P("b")))
     cands["sharded"] = lambda: fs(dds)
 Jn = wl.rollout_numpy(su)
-for k, f in cands.items():
-    t0 = time.perf_counter(); J = jax.block_until_ready(f()); print(k, "cold", round(time.perf_counter() - t0, 3), "err", float(np.max(np.abs(np.asarray(J) - Jn))), flush=True)
-times = {k: [] for k in cands}
-for rep in range(5):
-    for k, f in cands.items():
-        t0 = time.perf_counter(); jax.block_until_ready(f()); times[k].append(time.perf_counter() - t0)
-for k, v in times.items():
-    print(k, "median", round(statistics.median(v), 4), "x numpy", round(statistics.median([n / t for n, t in zip(times["numpy"], v)]), 2))
+compare_interleaved(cands, Jn)

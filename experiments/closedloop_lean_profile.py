@@ -1,11 +1,12 @@
 """Profile of the W2 cost paths (N=16, B=256): NumPy, a hand-written JAX scan, dense Scenario,
 CompactScenario at several scan unrolls. `python experiments/closedloop_lean_profile.py [f64|f32] [T]`."""
-import sys, time, statistics
+import sys
 import jax
 jax.config.update("jax_enable_x64", len(sys.argv) < 2 or sys.argv[1] != "f32")
 import jax.numpy as jnp, numpy as np, equinox as eqx
 from pathlib import Path; _ROOT = Path(__file__).resolve().parents[1]; sys.path.insert(0, str(_ROOT / "benchmarks")); sys.path.insert(0, str(_ROOT.parent / "shared" / "bench"))
 import workloads as wl
+from _timing import compare_interleaved
 from jthermo.closedloop import rollout_costs, CompactScenario, Events, Scenario, ModelDisturbance
 from jthermo.control.pi import DiagonalPI
 from jthermo.models import StateSpace
@@ -46,11 +47,4 @@ Jn = wl.rollout_numpy(su)
 cands = {"numpy": lambda: wl.rollout_numpy(su), "plain": lambda: plain(dd),
          "dense": lambda: f_dense(model, pi, sc, x0s), "compact_u1": lambda: f_comp[1](model, pi, cs, x0s),
          "compact_u4": lambda: f_comp[4](model, pi, cs, x0s), "compact_u2": lambda: f_comp[2](model, pi, cs, x0s), "compact_u8": lambda: f_comp[8](model, pi, cs, x0s), "compact_u16": lambda: f_comp[16](model, pi, cs, x0s), "noev_u8": lambda: f_comp[8](model, pi, cs0, x0s)}
-for k, f in cands.items():
-    t0 = time.perf_counter(); J = jax.block_until_ready(f()); print(k, "cold", round(time.perf_counter() - t0, 3), "err", float(np.max(np.abs(np.asarray(J) - Jn))), flush=True)
-times = {k: [] for k in cands}
-for rep in range(5):
-    for k, f in cands.items():
-        t0 = time.perf_counter(); jax.block_until_ready(f()); times[k].append(time.perf_counter() - t0)
-for k, v in times.items():
-    print(k, "median", round(statistics.median(v), 4), "min", round(min(v), 4), "x numpy(median of ratios)", round(statistics.median([n / t for n, t in zip(times["numpy"], v)]), 2))
+compare_interleaved(cands, Jn)
