@@ -158,16 +158,21 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
         from types import SimpleNamespace
 
         from jthermo.identify.subspace import n4sid
-        return SimpleNamespace(model=n4sid(data, N)[0], converged=True)
+        # the W1 record starts at rest with zero input (SIPPY, fitting the raw data, assumes
+        # the same with the level known); jthermo estimates the level
+        return SimpleNamespace(model=n4sid(data, N, operating_point="rest")[0], converged=True)
     if family == "ss":
         # N4SID start + PEM of the simulation error (the workload's fit % is a simulation fit,
         # and jax-sysid fits the simulation error too); one start and few steps at N = 16,
         # where the dense LM Jacobian is (96000 x 544)
         return fit(data, "ss", (N,), seed=seed, n_starts=2 if N <= 4 else 1,
                    max_steps=30 if N <= 4 else 8, covariance=N <= 4, focus="simulation")
-    # N = 16: at most 20 LM steps per output row, MATLAB pem's default MaxIterations (the pole
-    # behind a near-zero far-zone gain is barely identifiable and the solver creeps along it
-    # with no change in fit), and 5 screening steps per start
+    if family in ("oe", "bj"):
+        # SIPPY's MIMO OE/BJ structure: one denominator F per output, shared by its inputs
+        return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4, common_f=True,
+                   **({} if N <= 4 else {"screen_steps": 5}))
+    # N = 16: at most 20 LM steps per output row, MATLAB pem's default MaxIterations, and 5
+    # screening steps per start
     return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4,
                **({} if N <= 4 else {"max_steps": 20, "screen_steps": 5}))
 

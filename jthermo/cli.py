@@ -6,7 +6,7 @@ output file; Ctrl-C prints one line and exits with 130, leaving saved files inta
 Imports of the library are lazy (inside each command), so `jthermo --help` is fast.
 
     jthermo fit EST.csv --model {arx,armax,oe,bj,ss,greybox} [--orders ...] [--validation VAL.csv]
-                [--out MODEL] [--json REPORT.json] [--seed S] [--plot DIR]
+                [--common-denominator] [--out MODEL] [--json REPORT.json] [--seed S] [--plot DIR]
     jthermo validate MODEL DATA.csv [--json R.json] [--plot DIR]
     jthermo simulate --scenario {tracking,powder,print,preheat,ensemble} --controller C
                 [--controller-file CTRL] [--plant printer|MODEL] [--zones N] [--rollouts B]
@@ -113,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "by the order-selection criterion)")
     sp.add_argument("--validation", metavar="VAL.csv", help="validation data (default: EST)")
     sp.add_argument("--out", metavar="MODEL", help="save the fitted model here")
+    sp.add_argument("--common-denominator", action="store_true",
+                    help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
+                    "instead of one per input-output pair (MATLAB's)")
     common(sp)
 
     sp = sub.add_parser("validate", help="fit %% and residual tests of a saved model on data")
@@ -351,6 +354,11 @@ def _summary_line(report: dict, keys) -> str:
 def cmd_fit(args) -> dict:
     family = args.model
     orders = _parse_orders(family, args.orders)
+    extra = {}
+    if args.common_denominator:
+        if family not in ("oe", "bj"):
+            raise _err()(f"--common-denominator: only for oe and bj, not {family}")
+        extra["common_f"] = True
     out = _output_path(args.out, "--out")
     js = _output_path(args.json, "--json")
     _distinct_outputs(out, js)
@@ -366,7 +374,7 @@ def cmd_fit(args) -> dict:
     t0 = time.perf_counter()
     try:
         res = fit_mod.fit(est, family, None if orders is None else tuple(orders.values()),
-                          seed=args.seed, progress=bar)
+                          seed=args.seed, progress=bar, **extra)
     finally:
         bar.close()
     seconds = time.perf_counter() - t0

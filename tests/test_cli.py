@@ -77,6 +77,7 @@ def test_fit_option_errors_write_nothing(tmp_path, capsys):
         (["--orders", "1,1,99"], "nk must lie in 0..64"),
         (["--validation", tmp_path / "missing.csv"], "validation data .*missing.csv: no such file"),
         (["--out", tmp_path], "is a directory"),
+        (["--common-denominator"], "only for oe and bj, not arx"),
     ]
     for extra, msg in cases:
         rc, _, err = _run(["fit", est, "--model", "arx", "--json", js, "--out", out, *extra], capsys)
@@ -112,6 +113,18 @@ def test_fit_validate_round_trip(tmp_path, capsys):
     # a data file given as the model is a one-line error
     rc, _, err = _run(["validate", val, val], capsys)
     assert rc == 2 and "not a jthermo save file" in _one_line_error(err)
+
+
+def test_fit_common_denominator(tmp_path, capsys):
+    """`--common-denominator`: the saved OE model has one F per output, equal across inputs."""
+    est = _arx_csv(tmp_path / "est.csv")
+    js, model = tmp_path / "fit.json", tmp_path / "m.jtm"
+    rc, _, err = _run(["fit", est, "--model", "oe", "--orders", "1,1,1", "--common-denominator",
+                       "--out", model, "--json", js, "--quiet"], capsys)
+    assert rc == 0, err
+    assert json.loads(js.read_text())["mean_fit_percent"] > 80
+    f = np.asarray(io.load_model(model).f)
+    np.testing.assert_array_equal(f, np.broadcast_to(f[:, :1], f.shape))
 
 
 def test_generate(tmp_path, capsys):

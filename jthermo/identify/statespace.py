@@ -99,7 +99,8 @@ def choose_operating_point(data: IOData, n: int, horizon: int | None = None) -> 
 def _starts(data: IOData, n: int, n_starts: int, seed: int, output_error: bool,
             horizon: int | None, operating_point: str = "mean"):
     """Distinct N4SID estimates (CVA/MOESP × horizons), in the common canonical structure."""
-    i0 = default_horizon(n, data.n_outputs, data.n_samples) if horizon is None else int(horizon)
+    i0 = (default_horizon(n, data.n_outputs, data.n_samples, data.n_inputs + data.w.shape[1])
+          if horizon is None else int(horizon))
     models = []
     for i in (i0, 2 * i0, max(2, i0 // 2)):
         if len(models) >= n_starts:

@@ -10,12 +10,15 @@ The combined deterministic–stochastic algorithm of Van Overschee & De Moor (19
 3. the SVD of $W_1 \\mathcal O_i \\Pi^\\perp_{U_f}$, whose singular values (the Hankel singular
    values; canonical correlations for CVA) show the order;
 4. the extended observability matrix $\\Gamma_i = W_1^{-1} U_1 S_1^{1/2}$ and the Kalman-filter
-   state sequences $X_i = \\Gamma_i^\\dagger \\mathcal O_i$,
-   $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$;
-5. least squares $[X_{i+1}; Y_{i|i}] = [A\\;B; C\\;D][X_i; U_{i|i}] + [\\rho_w; \\rho_v]$, and the
-   Kalman gain $K$ from the residual covariances $(Q, S, R)$ by the filter Riccati equation.
+   state sequence $\\hat x(t) = \\Gamma_i^\\dagger \\mathcal O_i(t)$, one column per sample t;
+5. least squares on consecutive states, $[\\hat x(t+1); y(t)] = [A\\;B; C\\;D][\\hat x(t); u(t)]
+   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as in SIPPY's and MATLAB's `n4sid`; the
+   second projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$ of the book
+   simulated W1 0.1–0.5 points worse), and the Kalman gain $K$ from the residual covariances
+   $(Q, S, R)$ by the filter Riccati equation.
 
-It runs once per fit, in NumPy/SciPy. Data are taken as deviations from their mean; the means
+The projections are regressions between rows of the Hankel matrix, done on the Cholesky factor
+of its Gram matrix (`_compress`). It runs once per fit, in NumPy/SciPy. Data are taken as deviations from their mean; the means
 are stored as the model's operating point (`u0`, `w0`, `y0`), so `model.simulate(u)` returns
 absolute outputs. The returned model is stable: eigenvalues of A outside the circle of radius
 `max_radius` are pulled onto it (same angle), and K is kept only if $A - KC$ is stable.
@@ -47,20 +50,29 @@ def _lstsq_right(Y: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Coefficients L minimising ||Y - L X||_F (rows are signals, columns samples)."""
     if X.shape[0] == 0:
         return np.zeros((Y.shape[0], 0))
-    return np.linalg.lstsq(X.T, Y.T, rcond=None)[0].T
+    return sla.lstsq(X.T, Y.T, lapack_driver="gelsy")[0].T
 
 
-def _perp(M: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """$M \\Pi^\\perp_U$: the part of the rows of M orthogonal to the row space of U."""
+def _perp(M: np.ndarray, U: np.ndarray, MUt: np.ndarray, UUt: np.ndarray) -> np.ndarray:
+    """$M \\Pi^\\perp_U = M - M U^T (U U^T)^{-1} U$: the part of the rows of M orthogonal to the
+    row space of U, given the products $M U^T$ and $U U^T$ (read off the Hankel Gram matrix)."""
     if U.shape[0] == 0:
         return M
-    return M - _lstsq_right(M, U) @ U
+    return M - sla.lstsq(UUt, MUt.T, lapack_driver="gelsy")[0].T @ U
 
 
-def _oblique(Yf: np.ndarray, Uf: np.ndarray, Wp: np.ndarray) -> np.ndarray:
-    """Oblique projection $Y_f /_{U_f} W_p$: the $W_p$ part of the regression of Y_f on [W_p; U_f]."""
-    L = _lstsq_right(Yf, np.concatenate([Wp, Uf], axis=0))
-    return L[:, :Wp.shape[0]] @ Wp
+def _prefix_regression(L: np.ndarray, p: int, Y: np.ndarray) -> np.ndarray:
+    """Coefficients c minimising ||Y - c L[:p]||_F for L lower triangular.
+
+    The rows L[:p] vanish beyond column p, so $c = Y_{:, :p} L_{:p,:p}^{-1}$: one triangular
+    solve; least squares instead when L[:p, :p] is (nearly) singular (noise-free data)."""
+    Lp, Yp = L[:p, :p], Y[:, :p]
+    dL = np.abs(np.diag(Lp))
+    if p == 0:
+        return np.zeros((Y.shape[0], 0))
+    if dL.min() > 1e-10 * dL.max():
+        return sla.solve_triangular(Lp, Yp.T, trans="T", lower=True).T
+    return sla.lstsq(Lp.T, Yp.T, lapack_driver="gelsy")[0].T
 
 
 def _inv_sqrt_psd(M: np.ndarray, rel_floor: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
@@ -86,12 +98,15 @@ def choose_order(svals, max_order: int | None = None) -> int:
     return int(np.argmax(gaps[:kmax])) + 1
 
 
-def default_horizon(n: int | None, ny: int, T: int) -> int:
-    """Block rows: 10 (thermal systems have slow poles), at least enough to see order `n`."""
-    i = 10
+def default_horizon(n: int | None, ny: int, T: int, m: int = 0) -> int:
+    """Block rows of the Hankel matrices: 20, SIPPY's default (thermal systems have slow poles:
+    W1 N4SID simulates 54.8 / 57.5 % at 10 block rows, 55.0 / 57.7 % at 20, N = 4 / 16 zones,
+    `experiments/n4sid_horizon_check.py`), fewer when the record is short, so that the Hankel
+    matrices stay at least twice as wide as tall ($j \\ge 4 i (m + n_y)$, m inputs), but always
+    enough to see order `n`."""
+    i = min(20, (T + 1) // (4 * (m + ny) + 2))
     if n is not None:
         i = max(i, int(np.ceil((n + 1) / ny)) + 1)
-    # keep the Hankel matrices wider than tall
     return int(max(2, min(i, (T + 1) // 4)))
 
 
@@ -113,41 +128,84 @@ def _kalman_gain(A, C, Q, S, R):
     return np.zeros((nx, ny))
 
 
-def _compress(us: np.ndarray, ys: np.ndarray, i: int) -> tuple[np.ndarray, int]:
-    """Lower-triangular factor L of the block Hankel matrix H = [U_{0|2i-1}; Y_{0|2i-1}] = L Q^T.
+def _hankel_gram(s: np.ndarray, rows: int, cols: int, m: int) -> np.ndarray:
+    """$H H^T$ for the block Hankel matrix H = [U; Y] of `s = [u, y] (T, d)`, u the first `m`
+    channels: `rows` block rows of u, then `rows` block rows of y, `cols` columns (block row r
+    holds samples r, ..., r + cols - 1).
+
+    Block (r, q) of the lagged products is $\\sum_{t<c} s(t+r) s(t+q)^T$ with c = `cols`: the
+    first block row takes one product each, the others follow along the diagonals,
+    $G_{r+1,q+1} = G_{r,q} - s(r) s(q)^T + s(r+c) s(q+c)^T$: $O(\\text{rows}\\, d^2 c)$ work
+    instead of the $O(\\text{rows}^2 d^2 c)$ of forming H and its product.
+    """
+    G = np.empty((rows, rows) + (s.shape[1],) * 2)
+    head = s[:cols].T
+    for q in range(rows):
+        G[0, q] = head @ s[q:q + cols]
+    for r in range(1, rows):
+        first, last = s[r - 1], s[r - 1 + cols]
+        G[r, r:] = (G[r - 1, r - 1:-1]
+                    - first[None, :, None] * s[r - 1:rows - 1][:, None, :]
+                    + last[None, :, None] * s[r - 1 + cols:rows - 1 + cols][:, None, :])
+    upper, lower = np.triu_indices(rows, 1)
+    G[lower, upper] = G[upper, lower].transpose(0, 2, 1)
+
+    def block(a, b):   # channels a x channels b, as (rows * |a|, rows * |b|)
+        g = G[:, :, a][:, :, :, b]
+        return g.transpose(0, 2, 1, 3).reshape(rows * g.shape[2], rows * g.shape[3])
+
+    u, y = slice(0, m), slice(m, None)
+    return np.block([[block(u, u), block(u, y)], [block(y, u), block(y, y)]])
+
+
+def _compress(us: np.ndarray, ys: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """`(L, H H^T, j)`: the lower-triangular factor L of the block Hankel matrix
+    H = [U_{0|2i-1}; Y_{0|2i-1}] = L Q^T (j columns) and its Gram matrix.
 
     Every projection below regresses rows of H on other rows of H; since Q has orthonormal
     columns these regressions (and all covariances, $H_a H_b^T = L_a L_b^T$) can be done on the
-    rows of L, which is square and small, instead of on the wide Hankel matrices.
+    rows of L, which is square and small, instead of on the wide Hankel matrices. L is the
+    Cholesky factor of $H H^T$ (`_hankel_gram`, as in the fast N4SID of Cho, Xu & Kailath 1994)
+    or, when that Gram matrix is too ill-conditioned to factor accurately (noise-free data),
+    the transposed R of a QR factorisation of $H^T$.
     """
-    T = us.shape[0]
+    T, m = us.shape
+    ny = ys.shape[1]
     j = T - 2 * i + 1
+    gram = _hankel_gram(np.concatenate([us, ys], axis=1), 2 * i, j, m)
+    try:
+        L = np.linalg.cholesky(gram)
+        dL = np.diag(L)
+        if np.all(np.isfinite(dL)) and dL.min() > 1e-5 * dL.max():
+            return L, gram, j
+    except np.linalg.LinAlgError:
+        pass
     H = np.concatenate([_hankel(us, 0, 2 * i, j), _hankel(ys, 0, 2 * i, j)], axis=0)
-    R = np.linalg.qr(H.T, mode="r")
-    return R.T, j
+    L = np.linalg.qr(H.T, mode="r").T
+    return L, L @ L.T, j
 
 
-def _estimate(L: np.ndarray, j: int, i: int, m: int, ny: int, n: int | None, weighting: str,
-              feedthrough: bool, max_order: int | None):
-    """Algorithm 2 of Van Overschee & De Moor (1996) on the compressed Hankel factor L."""
-
-    def u_rows(first, count):
-        return L[first * m:(first + count) * m]
-
-    def y_rows(first, count):
-        off = 2 * i * m
-        return L[off + first * ny:off + (first + count) * ny]
-
-    Up, Uf = u_rows(0, i), u_rows(i, i)
-    Yp, Yf = y_rows(0, i), y_rows(i, i)
-    Wp = np.concatenate([Up, Yp], axis=0)
-    O = _oblique(Yf, Uf, Wp)
+def _estimate(L: np.ndarray, gram: np.ndarray, j: int, i: int, us: np.ndarray, ys: np.ndarray,
+              n: int | None, weighting: str, feedthrough: bool, max_order: int | None):
+    """Steps 2–5 of the module docstring on the compressed Hankel factor L (`gram` = L L^T)."""
+    m, ny = us.shape[1], ys.shape[1]
+    up, uf = np.arange(i * m), np.arange(i * m, 2 * i * m)
+    yp, yf = 2 * i * m + np.arange(i * ny), 2 * i * m + i * ny + np.arange(i * ny)
+    wp, p = np.concatenate([up, yp]), 2 * i * m + i * ny
+    # oblique projection: Y_f regressed on [U_p; U_f; Y_p] (a prefix of L's rows), W_p part kept
+    coef = _prefix_regression(L, p, L[yf])
+    cw = np.concatenate([coef[:, up], coef[:, yp]], axis=1)             # on W_p = [U_p; Y_p]
+    O = cw @ L[wp, :p]                        # rows of L vanish beyond their own index
+    Uf, UfUf = L[uf, :p], gram[np.ix_(uf, uf)]
     if weighting == "cva":
-        Yperp = _perp(Yf, Uf)
-        W1, W1inv = _inv_sqrt_psd(Yperp @ Yperp.T / j)
+        Gfu = gram[np.ix_(yf, uf)]
+        Yperp_cov = gram[np.ix_(yf, yf)] - Gfu @ sla.lstsq(UfUf, Gfu.T, lapack_driver="gelsy")[0]
+        W1, W1inv = _inv_sqrt_psd(Yperp_cov / j)
     else:
         W1 = W1inv = np.eye(i * ny)
-    Uo, s, _ = np.linalg.svd(W1 @ _perp(O, Uf) / np.sqrt(j), full_matrices=False)
+    Operp = _perp(O, Uf, cw @ gram[np.ix_(wp, uf)], UfUf)
+    # left singular vectors and values of the wide W1 O Π⊥ = R^T Q^T: those of the square R^T
+    Uo, s, _ = np.linalg.svd(np.linalg.qr((W1 @ Operp).T / np.sqrt(j), mode="r").T)
     if weighting == "cva":
         s = np.minimum(s, 1.0)   # canonical correlations
     if n is None:
@@ -155,11 +213,11 @@ def _estimate(L: np.ndarray, j: int, i: int, m: int, ny: int, n: int | None, wei
                          else min(len(s) - 1, 4 * ny + 8))
     n = int(n)
     G = W1inv @ Uo[:, :n] * np.sqrt(np.maximum(s[:n], 1e-300))      # Γ_i, (i ny, n)
-    X0 = np.linalg.pinv(G) @ O                                        # X_i   (compressed)
-    Wp1 = np.concatenate([u_rows(0, i + 1), y_rows(0, i + 1)], axis=0)
-    O1 = _oblique(y_rows(i + 1, i - 1), u_rows(i + 1, i - 1), Wp1)
-    X1 = np.linalg.pinv(G[:-ny]) @ O1                                 # X_{i+1}
-    Ui, Yi = u_rows(i, 1), y_rows(i, 1)
+    # the state sequence in time, X[:, t] = x(t + i): Γ_i^† times each past window's projection
+    Wp = np.concatenate([_hankel(us, 0, i, j), _hankel(ys, 0, i, j)], axis=0)
+    X = (np.linalg.pinv(G) @ cw) @ Wp
+    Ui, Yi = us[i:i + j - 1].T, ys[i:i + j - 1].T
+    X0, X1 = X[:, :-1], X[:, 1:]
     Z = np.concatenate([X0, Ui], axis=0)
     AB = _lstsq_right(X1, Z)
     A, B = AB[:, :n], AB[:, n:]
@@ -171,7 +229,8 @@ def _estimate(L: np.ndarray, j: int, i: int, m: int, ny: int, n: int | None, wei
         D = np.zeros((ny, m))
     rw = X1 - A @ X0 - B @ Ui
     rv = Yi - C @ X0 - D @ Ui
-    Q, S, R = rw @ rw.T / j, rw @ rv.T / j, rv @ rv.T / j
+    k = rw.shape[1]
+    Q, S, R = rw @ rw.T / k, rw @ rv.T / k, rv @ rv.T / k
     return A, B, C, D, Q, S, R, s
 
 
@@ -182,24 +241,25 @@ def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: 
     T, nu, ny = y.shape[0], u.shape[1], y.shape[1]
     if n is not None and (int(n) != n or n < 1):
         raise ModelError(f"n4sid: order n must be a positive integer, got {n!r}")
-    i = default_horizon(n, ny, T) if horizon is None else int(horizon)
-    if i < 2:
-        raise ModelError(f"n4sid: horizon must be >= 2, got {horizon}")
-    if n is not None and n > i * ny:
-        raise ModelError(f"n4sid: order {n} exceeds horizon*ny = {i * ny}; raise `horizon`")
     # a constant measured signal (e.g. a nominal ambient) carries no information: its Bw
     # column is set to zero rather than estimated
     active = np.flatnonzero(w.std(0) > 0) if w.shape[1] else np.zeros(0, int)
     nw_all = w.shape[1]
     w = w[:, active]
     m = nu + w.shape[1]
+    i = default_horizon(n, ny, T, m) if horizon is None else int(horizon)
+    if i < 2:
+        raise ModelError(f"n4sid: horizon must be >= 2, got {horizon}")
+    if n is not None and n > i * ny:
+        raise ModelError(f"n4sid: order {n} exceeds horizon*ny = {i * ny}; raise `horizon`")
     j = T - 2 * i + 1
     if j < 2 * i * (m + ny) + 1:
         raise DataError(f"n4sid: {T} samples are too few for horizon {i} "
                         f"(need at least {2 * i * (m + ny) + 2 * i})")
     # deviations from the operating point, each channel scaled to unit std (conditioning)
     if operating_point == "rest":
-        # the record starts at rest with zero input (a cold start): u0 = 0, y0 = y(0)
+        # the record starts at rest with zero input (a cold start): u0 = 0, y0 = y(0) here,
+        # refined by `_refine_rest_level`
         u0, w0, y0 = np.zeros(nu), w[0], y[0]
         w0_all = np.asarray(data.w, dtype=np.float64)[0]
     else:
@@ -212,6 +272,33 @@ def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: 
     if np.any(sy == 0):
         raise DataError("n4sid: an output is constant: nothing to identify")
     return i, uw / su, (y - y0) / sy, (u0, w0_all, y0, su, sy, nu, active, nw_all)
+
+
+def _refine_rest_level(us, ys, scaling, i, n, feedthrough, max_order):
+    """Output level of a record that starts at rest, from more than its first sample.
+
+    `_prepare` takes $y_0 = y(0)$, which carries the full measurement noise. A first subspace
+    estimate (horizon at most 5 when the order is given) simulates the response to the first
+    M = 1 % of the samples (1 to 100) from rest, and the level moves by the mean of what it
+    leaves, $\\delta = \\frac{1}{M}\\sum_{t<M}(\\tilde y(t) - \\hat y(t))$ (scaled units);
+    noise-free data give δ = 0.
+    """
+    T, ny = ys.shape
+    M = int(min(max(T // 100, 1), 100))
+    if M == 1:
+        return ys, scaling
+    i1 = i if n is None else min(i, max(5, int(np.ceil((n + 1) / ny)) + 1))
+    L, gram, j = _compress(us, ys, i1)
+    A, B, C, D = _estimate(L, gram, j, i1, us, ys, n, "cva", feedthrough, max_order)[:4]
+    x, resid = np.zeros(A.shape[0]), np.empty((M, ny))
+    for t in range(M):
+        resid[t] = ys[t] - C @ x - D @ us[t]
+        x = A @ x + B @ us[t]
+    delta = resid.mean(axis=0)
+    if not np.all(np.isfinite(delta)):
+        return ys, scaling
+    u0, w0, y0, su, sy, *rest = scaling
+    return ys - delta, (u0, w0, y0 + sy * delta, su, sy, *rest)
 
 
 def _assemble(parts, scaling, ts, max_radius):
@@ -245,7 +332,8 @@ def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
     - `max_order`: largest order `choose_order` may pick.
     - `operating_point`: `"mean"` (deviations from the data's means; the record is taken to
       sit around a steady operating point) or `"rest"` (the record starts at rest with zero
-      input: `u0 = 0`, `w0 = w(0)`, `y0 = y(0)`, e.g. a cold start from ambient).
+      input: `u0 = 0`, `w0 = w(0)`, `y0` the level of the first samples, see
+      `_refine_rest_level`; e.g. a cold start from ambient).
 
     **Returns:** `(model, svals)` with `model` a stable `StateSpace` at the data's operating point
     (means of u, w, y) and `svals` the singular values, largest first.
@@ -267,11 +355,13 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
         raise ModelError(f"n4sid: operating_point must be one of {', '.join(OPERATING_POINTS)}, "
                          f"got {operating_point!r}")
     i, us, ys, scaling = _prepare(data, n, horizon, operating_point)
-    L, j = _compress(us, ys, i)
+    if operating_point == "rest":
+        ys, scaling = _refine_rest_level(us, ys, scaling, i, n, feedthrough, max_order)
+    L, gram, j = _compress(us, ys, i)
     out = []
     for wt in weightings:
-        A, B, C, D, Q, S, R, s = _estimate(L, j, i, us.shape[1], ys.shape[1], n, wt,
-                                           feedthrough, max_order)
+        A, B, C, D, Q, S, R, s = _estimate(L, gram, j, i, us, ys, n, wt, feedthrough,
+                                           max_order)
         out.append((_assemble((A, B, C, D, Q, S, R), scaling, data.ts, max_radius), s))
     return out
 

@@ -124,11 +124,13 @@ from jthermo.data import from_arrays  # noqa: E402
 from jthermo.identify.fit import _poly_args, _Spec, fit, poly_cost  # noqa: E402
 from jthermo.models.polynomial import ARMAX, OE, BoxJenkins, poly_from_reflection  # noqa: E402
 
-SPECS = {   # m, na, nb, nc, nd, nf, nu, L, offset
+SPECS = {   # m, na, nb, nc, nd, nf, nu, L, offset, common_f
     "armax": _Spec(1, 2, 2, 1, 0, 0, 2, 2, True),
     "armax_full": _Spec(2, 1, 1, 1, 0, 0, 2, 1, False),
     "oe": _Spec(1, 0, 2, 0, 0, 2, 2, 2, True),
     "bj": _Spec(1, 0, 1, 2, 1, 1, 2, 1, False),
+    "oe_common_f": _Spec(1, 0, 2, 0, 0, 2, 3, 2, True, True),
+    "bj_common_f": _Spec(1, 0, 1, 2, 1, 1, 3, 1, False, True),
 }
 
 
@@ -137,7 +139,7 @@ def test_grad_of_pem_cost_matches_central_differences(name):
     spec = SPECS[name]
     rng = np.random.default_rng(5)
     y = jnp.asarray(np.cumsum(rng.standard_normal((120, 2)), axis=0) * 0.1)
-    u = jnp.asarray(rng.uniform(0, 1, (120, 2)))
+    u = jnp.asarray(rng.uniform(0, 1, (120, spec.nu)))
     args = _poly_args(y, u, spec, 1, spec.m > 1)
     one = tuple(a[0] for a in args[:4]) + (spec,)
     theta = jnp.asarray(rng.normal(0, 0.3, spec.n_params))
@@ -180,13 +182,18 @@ def _true_models():
     }
 
 
-@pytest.mark.parametrize("family", ["armax", "oe", "bj"])
-def test_fit_recovers_known_model(family):
+@pytest.mark.parametrize("family, common_f", [("armax", False), ("oe", False), ("bj", False),
+                                             ("oe", True), ("bj", True)])
+def test_fit_recovers_known_model(family, common_f):
+    """The true OE/BJ models have one denominator per output, so both F structures hold them."""
     true, orders = _true_models()[family]
     est = _family_data(true, 1200, seed=1)
     val = _family_data(true, 1200, seed=2)
-    res = fit(est, family, orders, n_starts=2, seed=0)
+    res = fit(est, family, orders, n_starts=2, seed=0, **({"common_f": True} if common_f else {}))
     assert res.family == family and res.orders["nk"] == 1
+    if common_f:   # one F per output, shared by its inputs
+        f = np.asarray(res.model.f)
+        np.testing.assert_array_equal(f, np.broadcast_to(f[:, :1], f.shape))
     fit_true = _fit_percent(val.y, true.simulate(val.u))
     fit_hat = _fit_percent(val.y, res.model.simulate(val.u))
     assert fit_hat > fit_true - 1.5
