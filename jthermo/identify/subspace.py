@@ -12,15 +12,16 @@ The combined deterministic–stochastic algorithm of Van Overschee & De Moor (19
 4. the extended observability matrix $\\Gamma_i = W_1^{-1} U_1 S_1^{1/2}$ and the Kalman-filter
    state sequence $\\hat x(t) = \\Gamma_i^\\dagger \\mathcal O_i(t)$, one column per sample t;
 5. least squares on consecutive states, $[\\hat x(t+1); y(t)] = [A\\;B; C\\;D][\\hat x(t); u(t)]
-   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as in SIPPY's and MATLAB's `n4sid`; the
-   second projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$ of the book
-   simulated W1 0.1–0.5 points worse), and the Kalman gain $K$ from the residual covariances
-   $(Q, S, R)$ by the filter Riccati equation.
+   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as SIPPY does; unlike the book's second
+   projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$ it stays accurate
+   when the record is not centred, operating point "rest"), and the Kalman gain $K$ from the
+   residual covariances $(Q, S, R)$ by the filter Riccati equation.
 
 The projections are regressions between rows of the Hankel matrix, done on the Cholesky factor
-of its Gram matrix (`_compress`). It runs once per fit, in NumPy/SciPy. Data are taken as deviations from their mean; the means
-are stored as the model's operating point (`u0`, `w0`, `y0`), so `model.simulate(u)` returns
-absolute outputs. The returned model is stable: eigenvalues of A outside the circle of radius
+of its Gram matrix (`_compress`). It runs once per fit, in NumPy/SciPy. Data are taken as
+deviations from their means (or from rest, `operating_point="rest"`); the operating point is
+stored in the model (`u0`, `w0`, `y0`), so `model.simulate(u)` returns absolute outputs.
+The returned model is stable: eigenvalues of A outside the circle of radius
 `max_radius` are pulled onto it (same angle), and K is kept only if $A - KC$ is stable.
 """
 
