@@ -46,6 +46,10 @@ FAMILIES = ("arx", "armax", "oe", "bj", "n4sid", "ss")
 #: orders matching the W1 plant (first order per zone, one-sample input delay)
 JT_ORDERS = {"arx": (1, 1, 1), "armax": (1, 1, 1, 1), "oe": (1, 1, 1), "bj": (1, 1, 1, 1, 1)}
 SIPPY_METHOD = {"arx": "ARX", "armax": "ARMAX", "oe": "OE", "bj": "BJ", "n4sid": "N4SID"}
+#: W1 outputs are temperatures in °C above ambient and the record starts at ambient (the
+#: workload's definition): the output level at rest is 0, which SIPPY, fitting the raw data,
+#: assumes too. `--estimate-level` makes jthermo estimate it instead (its "rest" default).
+REST_LEVEL = 0.0
 
 
 # ----------------------------------------------------------------------------- workload
@@ -158,9 +162,7 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
         from types import SimpleNamespace
 
         from jthermo.identify.subspace import n4sid
-        # the W1 record starts at rest with zero input (SIPPY, fitting the raw data, assumes
-        # the same with the level known); jthermo estimates the level
-        return SimpleNamespace(model=n4sid(data, N, operating_point="rest")[0], converged=True)
+        return SimpleNamespace(model=n4sid(data, N, rest_level=REST_LEVEL)[0], converged=True)
     if family == "ss":
         # N4SID start + PEM of the simulation error (the workload's fit % is a simulation fit,
         # and jax-sysid fits the simulation error too); one start and few steps at N = 16,
@@ -170,10 +172,10 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
     if family in ("oe", "bj"):
         # SIPPY's MIMO OE/BJ structure: one denominator F per output, shared by its inputs
         return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4, common_f=True,
-                   **({} if N <= 4 else {"screen_steps": 5}))
+                   rest_level=REST_LEVEL, **({} if N <= 4 else {"screen_steps": 5}))
     # N = 16: at most 20 LM steps per output row, MATLAB pem's default MaxIterations, and 5
     # screening steps per start
-    return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4,
+    return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4, rest_level=REST_LEVEL,
                **({} if N <= 4 else {"max_steps": 20, "screen_steps": 5}))
 
 
@@ -320,9 +322,12 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
         "(JAX compilation included), warm = second call. Peers: one call each, in a child process "
         "(time of the fit call only). Speed-up = peer seconds / jthermo warm seconds "
         "(cold in brackets). OE and BJ: one denominator per output shared by its inputs "
-        "(`common_f=True`, SIPPY's MIMO structure). N4SID = subspace estimate only (order N, "
-        "20 block rows, operating point rest: SIPPY fits the raw data, i.e. knows the level "
-        "0; jthermo estimates it); SS = N4SID start + PEM "
+        "(`common_f=True`, SIPPY's MIMO structure). Output level at rest: "
+        + ("estimated by jthermo (`rest_level=None`; SIPPY, fitting the raw data, takes 0). "
+           if REST_LEVEL is None else
+           "0 °C for ARX/ARMAX/OE/BJ/N4SID (`rest_level=0`: W1's outputs are °C above ambient "
+           "and start at ambient, which SIPPY assumes too by fitting the raw data). ")
+        + "N4SID = subspace estimate only (order N, 20 block rows); SS = N4SID start + PEM "
         "of the simulation error (order N; MATLAB `ssest` with focus simulation), compared with "
         "jax-sysid's SS fit (also a simulation-error fit). Load = 1-minute load average when the "
         "row finished (2-core machine shared with other jobs). Every tool runs with one BLAS "
@@ -359,7 +364,12 @@ def main(argv=None) -> int:
                     help="families the peers are run for (SIPPY OE/BJ are slow)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
+    ap.add_argument("--estimate-level", action="store_true",
+                    help="jthermo estimates the rest level instead of taking W1's 0 °C")
     args = ap.parse_args(argv)
+    global REST_LEVEL
+    if args.estimate_level:
+        REST_LEVEL = None
     Ns = args.n or ([4] if args.quick else [4, 16])
     W = load_workloads()
     rows, oracle = [], {}

@@ -6,7 +6,8 @@ output file; Ctrl-C prints one line and exits with 130, leaving saved files inta
 Imports of the library are lazy (inside each command), so `jthermo --help` is fast.
 
     jthermo fit EST.csv --model {arx,armax,oe,bj,ss,greybox} [--orders ...] [--validation VAL.csv]
-                [--common-denominator] [--out MODEL] [--json REPORT.json] [--seed S] [--plot DIR]
+                [--common-denominator] [--rest-level T[,T...]] [--out MODEL] [--json REPORT.json]
+                [--seed S] [--plot DIR]
     jthermo validate MODEL DATA.csv [--json R.json] [--plot DIR]
     jthermo simulate --scenario {tracking,powder,print,preheat,ensemble} --controller C
                 [--controller-file CTRL] [--plant printer|MODEL] [--zones N] [--rollouts B]
@@ -116,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--common-denominator", action="store_true",
                     help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
                     "instead of one per input-output pair (MATLAB's)")
+    sp.add_argument("--rest-level", metavar="T[,T...]",
+                    help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
+                    "(e.g. the measured ambient, °C; one number or one per output)")
     common(sp)
 
     sp = sub.add_parser("validate", help="fit %% and residual tests of a saved model on data")
@@ -359,6 +363,15 @@ def cmd_fit(args) -> dict:
         if family not in ("oe", "bj"):
             raise _err()(f"--common-denominator: only for oe and bj, not {family}")
         extra["common_f"] = True
+    if args.rest_level is not None:
+        if family not in ("arx", "armax", "oe", "bj"):
+            raise _err()(f"--rest-level: only for arx, armax, oe and bj, not {family}")
+        try:
+            extra["rest_level"] = [float(v) for v in args.rest_level.split(",")]
+        except ValueError:
+            raise _err()(f"--rest-level: expected comma-separated numbers, got {args.rest_level!r}") from None
+        if len(extra["rest_level"]) == 1:
+            extra["rest_level"] = extra["rest_level"][0]
     out = _output_path(args.out, "--out")
     js = _output_path(args.json, "--json")
     _distinct_outputs(out, js)

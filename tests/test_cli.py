@@ -78,6 +78,8 @@ def test_fit_option_errors_write_nothing(tmp_path, capsys):
         (["--validation", tmp_path / "missing.csv"], "validation data .*missing.csv: no such file"),
         (["--out", tmp_path], "is a directory"),
         (["--common-denominator"], "only for oe and bj, not arx"),
+        (["--rest-level", "20,x"], "comma-separated numbers"),
+        (["--rest-level", "20,21,22"], "2 numbers \\(one per output\\)"),
     ]
     for extra, msg in cases:
         rc, _, err = _run(["fit", est, "--model", "arx", "--json", js, "--out", out, *extra], capsys)
@@ -115,16 +117,21 @@ def test_fit_validate_round_trip(tmp_path, capsys):
     assert rc == 2 and "not a jthermo save file" in _one_line_error(err)
 
 
-def test_fit_common_denominator(tmp_path, capsys):
-    """`--common-denominator`: the saved OE model has one F per output, equal across inputs."""
+def test_fit_common_denominator_and_rest_level(tmp_path, capsys):
+    """`--common-denominator`: the saved OE model has one F per output, equal across inputs;
+    `--rest-level`: its operating point is that level at zero input (88.5 °C is the data's
+    steady state at u = 0)."""
     est = _arx_csv(tmp_path / "est.csv")
     js, model = tmp_path / "fit.json", tmp_path / "m.jtm"
     rc, _, err = _run(["fit", est, "--model", "oe", "--orders", "1,1,1", "--common-denominator",
-                       "--out", model, "--json", js, "--quiet"], capsys)
+                       "--rest-level", "88.5", "--out", model, "--json", js, "--quiet"], capsys)
     assert rc == 0, err
     assert json.loads(js.read_text())["mean_fit_percent"] > 80
-    f = np.asarray(io.load_model(model).f)
+    saved = io.load_model(model)
+    f = np.asarray(saved.f)
     np.testing.assert_array_equal(f, np.broadcast_to(f[:, :1], f.shape))
+    np.testing.assert_array_equal(np.asarray(saved.y0), [88.5, 88.5])
+    np.testing.assert_array_equal(np.asarray(saved.u0), [0.0, 0.0])
 
 
 def test_generate(tmp_path, capsys):

@@ -16,6 +16,7 @@ reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -34,6 +35,7 @@ from ..models.polynomial import (
 )
 from .arx import arx_ls, perturb_starts
 from .pem import minimize_many
+from .subspace import known_rest_level
 
 FAMILIES = MODEL_FAMILIES
 CRITERIA = ("aic", "bic", "fpe")
@@ -231,7 +233,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
-                   screen_steps: int = 10, batch: str = "vmap", common_f: bool = False):
+                   screen_steps: int = 10, batch: str = "vmap", common_f: bool = False,
+                   rest_level=None):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -239,7 +242,9 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     level of the first samples (the record starts at rest with zero input, e.g. a cold
     printer; see `_rest_level`);
     `"estimate"` is `"rest"` with `y0` estimated with the other parameters; `"auto"` picks the
-    one whose ARX estimate simulates the estimation data best.
+    one whose ARX estimate simulates the estimation data best. `rest_level`: the output level
+    at rest when it is known (a measured ambient temperature; 0 for data in °C above ambient),
+    a number or one per output: `"rest"` with `y0 = rest_level`.
 
     ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
     the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
@@ -264,8 +269,11 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
     arx_full = full_a and nf == 0
-    rest_level = None
-    if offset in ("auto", "rest"):
+    if rest_level is not None:
+        if offset not in ("auto", "rest"):
+            raise ConfigError(f"fit: a known rest_level needs offset 'rest' (or 'auto'), got {offset!r}")
+        rest_level, offset = jnp.asarray(known_rest_level(rest_level, ny), y.dtype), "rest"
+    elif offset in ("auto", "rest"):
         rest_level = _rest_level(y, u, nb, nkt, n_den, arx_full, ts)
     if offset == "auto":
         offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
@@ -384,8 +392,9 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
     - `seed`, `n_starts`: multi-start (start points solved together with `vmap`).
     - `criterion`: `aic`, `bic` or `fpe` for automatic orders.
     - `progress`: optional callable receiving one-line status strings.
-    - `**kw`: passed on (`full_a`, `solver`, `max_steps`, `covariance` for polynomial families;
-      whatever `fit_statespace` / `fit_greybox` accept otherwise).
+    - `**kw`: passed on (`full_a`, `solver`, `max_steps`, `covariance`, `offset`,
+      `rest_level`, `common_f`, ... for polynomial families, see `fit_polynomial`; whatever
+      `fit_statespace` / `fit_greybox` accept otherwise); an unknown option is a `ConfigError`.
 
     **Returns:** a `FitResult`.
     """
@@ -403,16 +412,18 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
     require_excitation(data)
     if family == "greybox":
         from ..models.greybox import fit_greybox
+        _check_options(fit_greybox, kw, family)
         res = fit_greybox(data, seed=seed, **kw)
         return _wrap_external(res, "greybox", {}, t0)
     if family == "ss":
         from .statespace import fit_statespace
+        _check_options(fit_statespace, kw, family)
         res = fit_statespace(data, None if o is None else o["n"], seed=seed, n_starts=n_starts,
                              **kw)
         return _wrap_external(res, "ss", getattr(res, "orders", o or {}), t0)
     full_a = bool(kw.get("full_a", False))
     allowed = {"full_a", "solver", "max_steps", "covariance", "offset", "rtol", "atol",
-               "screen_steps", "batch", "common_f"}
+               "screen_steps", "batch", "common_f", "rest_level"}
     unknown = set(kw) - allowed
     if unknown:
         raise ConfigError(f"fit: unknown option `{sorted(unknown)[0]}` for family {family}")
@@ -434,6 +445,14 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
                      covariance=info["covariance"], std=info["std"],
                      extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"],
                             "offset": info["offset"]})
+
+
+def _check_options(fitter: Callable, kw: dict, family: str) -> None:
+    """A one-line error for an option the family's fitter does not take (not a TypeError)."""
+    known = set(inspect.signature(fitter).parameters) - {"data", "n", "seed", "n_starts"}
+    unknown = sorted(set(kw) - known)
+    if unknown:
+        raise ConfigError(f"fit: unknown option `{unknown[0]}` for family {family}")
 
 
 def _wrap_external(res, family, orders, t0) -> FitResult:

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..data import IOData
-from ..errors import DataError, ModelError
+from ..errors import ConfigError, DataError, ModelError
 from ..models._base import StateSpace
 from ..models.statespace import project_stable
 
@@ -39,6 +39,22 @@ WEIGHTINGS = ("cva", "moesp")
 OPERATING_POINTS = ("mean", "rest")
 #: eigenvalues of the returned A lie inside this radius
 MAX_RADIUS = 0.9995
+
+
+def known_rest_level(level, ny: int) -> np.ndarray:
+    """A user-given output level at rest (a measured ambient temperature; 0 for data in °C
+    above ambient) as a `(ny,)` array; a number applies to every output."""
+    try:
+        arr = np.asarray(level, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"rest_level must be a number or one number per output, "
+                          f"got {level!r}") from None
+    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != ny):
+        raise ConfigError(f"rest_level must be a number or {ny} numbers (one per output), "
+                          f"got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError("rest_level must be finite")
+    return np.broadcast_to(arr, (ny,)).copy()
 
 
 def _hankel(s: np.ndarray, first: int, rows: int, cols: int) -> np.ndarray:
@@ -235,7 +251,8 @@ def _estimate(L: np.ndarray, gram: np.ndarray, j: int, i: int, us: np.ndarray, y
     return A, B, C, D, Q, S, R, s
 
 
-def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: str = "mean"):
+def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: str = "mean",
+             rest_level=None):
     u = np.asarray(data.u, dtype=np.float64)
     y = np.asarray(data.y, dtype=np.float64)
     w = np.asarray(data.w, dtype=np.float64)
@@ -261,7 +278,8 @@ def _prepare(data: IOData, n: int | None, horizon: int | None, operating_point: 
     if operating_point == "rest":
         # the record starts at rest with zero input (a cold start): u0 = 0, y0 = y(0) here,
         # refined by `_refine_rest_level`
-        u0, w0, y0 = np.zeros(nu), w[0], y[0]
+        u0, w0 = np.zeros(nu), w[0]
+        y0 = y[0] if rest_level is None else known_rest_level(rest_level, ny)
         w0_all = np.asarray(data.w, dtype=np.float64)[0]
     else:
         u0, w0, y0 = u.mean(0), w.mean(0), y.mean(0)
@@ -317,7 +335,7 @@ def _assemble(parts, scaling, ts, max_radius):
 
 def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
           weighting: str = "cva", feedthrough: bool = False, max_order: int | None = None,
-          max_radius: float = MAX_RADIUS, operating_point: str = "mean"
+          max_radius: float = MAX_RADIUS, operating_point: str = "mean", rest_level=None
           ) -> tuple[StateSpace, np.ndarray]:
     """Subspace estimate of an innovations state space, and the Hankel singular values.
 
@@ -335,19 +353,21 @@ def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
       sit around a steady operating point) or `"rest"` (the record starts at rest with zero
       input: `u0 = 0`, `w0 = w(0)`, `y0` the level of the first samples, see
       `_refine_rest_level`; e.g. a cold start from ambient).
+    - `rest_level`: the output level at rest when it is known (a measured ambient; 0 for data
+      in °C above ambient), a number or one per output; implies `operating_point="rest"`.
 
     **Returns:** `(model, svals)` with `model` a stable `StateSpace` at the data's operating point
     (means of u, w, y) and `svals` the singular values, largest first.
     """
     return n4sid_variants(data, n, horizon, weightings=(weighting,), feedthrough=feedthrough,
                           max_order=max_order, max_radius=max_radius,
-                          operating_point=operating_point)[0]
+                          operating_point=operating_point, rest_level=rest_level)[0]
 
 
 def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
                    weightings=WEIGHTINGS, feedthrough: bool = False, max_order: int | None = None,
-                   max_radius: float = MAX_RADIUS, operating_point: str = "mean"
-                   ) -> list[tuple[StateSpace, np.ndarray]]:
+                   max_radius: float = MAX_RADIUS, operating_point: str = "mean",
+                   rest_level=None) -> list[tuple[StateSpace, np.ndarray]]:
     """`n4sid` for several weightings sharing one Hankel factorisation (multi-start points)."""
     for wt in weightings:
         if wt not in WEIGHTINGS:
@@ -355,8 +375,10 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
     if operating_point not in OPERATING_POINTS:
         raise ModelError(f"n4sid: operating_point must be one of {', '.join(OPERATING_POINTS)}, "
                          f"got {operating_point!r}")
-    i, us, ys, scaling = _prepare(data, n, horizon, operating_point)
-    if operating_point == "rest":
+    if rest_level is not None:
+        operating_point = "rest"
+    i, us, ys, scaling = _prepare(data, n, horizon, operating_point, rest_level)
+    if operating_point == "rest" and rest_level is None:
         ys, scaling = _refine_rest_level(us, ys, scaling, i, n, feedthrough, max_order)
     L, gram, j = _compress(us, ys, i)
     out = []
@@ -367,4 +389,5 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
     return out
 
 
-__all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "n4sid", "n4sid_variants", "project_stable"]
+__all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "known_rest_level", "n4sid",
+           "n4sid_variants", "project_stable"]

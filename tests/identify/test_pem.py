@@ -226,3 +226,29 @@ def test_workload_oe_bj_close_to_armax():
         fits[family] = workloads.fit_percent(val["y"], np.asarray(res.model.simulate(val["u"])))
     assert fits["oe"] > fits["armax"] - 3
     assert fits["bj"] > fits["armax"] - 3
+
+
+def test_known_rest_level_is_used_and_checked():
+    """`rest_level`: the operating point is rest at the given level (one number or per output),
+    in the polynomial families and in N4SID; malformed levels and unknown options are one-line
+    `ConfigError`s."""
+    from jthermo.errors import ConfigError
+    from jthermo.identify.subspace import n4sid
+
+    true, orders = _true_models()["oe"]
+    est = _family_data(true, 600, seed=3)
+    for level in (20.5, [20.5, 21.5]):
+        res = fit(est, "arx", (1, 1, 1), rest_level=level)
+        np.testing.assert_array_equal(np.asarray(res.model.y0), np.broadcast_to(level, (2,)))
+        np.testing.assert_array_equal(np.asarray(res.model.u0), 0.0)
+        assert res.extra["offset"] == "rest"
+    ss, _ = n4sid(est, 2, rest_level=[20.0, 21.0])
+    np.testing.assert_array_equal(np.asarray(ss.y0), [20.0, 21.0])
+    np.testing.assert_array_equal(np.asarray(ss.u0), 0.0)
+    for bad, msg in [([1.0, 2.0, 3.0], "one per output"), (float("nan"), "finite"), ("x", "number")]:
+        with pytest.raises(ConfigError, match=msg):
+            fit(est, "arx", (1, 1, 1), rest_level=bad)
+    with pytest.raises(ConfigError, match="offset 'rest'"):
+        fit(est, "oe", orders, rest_level=20.0, offset="mean")
+    with pytest.raises(ConfigError, match="unknown option `bogus` for family ss"):
+        fit(est, "ss", (2,), bogus=1)
