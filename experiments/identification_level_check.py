@@ -4,8 +4,8 @@ SIPPY fits the raw W1 data, i.e. it is handed the true output level 0 °C. jther
 operating point (which `offset="auto"` picks on W1) must estimate it. For ARX, ARMAX and OE,
 seeds 0 and 1, this prints and writes the validation fit % with the rest level taken
 (a) as jthermo does now (`_rest_level`: the first 1 % of the samples less the response an ARX
-model of the family's orders plus `REST_ARX_EXTRA` simulates for them), (b) from the first sample alone (jthermo before 2026-11-23),
-(c) as the true 0 (what SIPPY assumes), and (d) as in (a) and then re-estimated after the fit
+model of the family's orders plus `REST_ARX_EXTRA` simulates for them), (b) from the first
+sample alone (jthermo before 2026-11-23), (c) as the true 0 (what SIPPY assumes), and (d) as in (a) and then re-estimated after the fit
 from the whole estimation-record simulation residual. Fits use the settings of
 `benchmarks/identification.py` (OE: one denominator per output). Writes
 experiments/results/identification_level_check.md (quoted in benchmarks/results/identification.md).

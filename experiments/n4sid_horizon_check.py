@@ -1,7 +1,7 @@
 """W1 N4SID fit % and time against the subspace weighting (CVA, MOESP), the Hankel horizon
-(block rows; None = `default_horizon`, 20 here) and the operating point (data means, or rest at
-zero input with the level estimated), N = 4 and 16: what the N4SID gap to SIPPY
-(benchmarks/results/identification.md) depends on.
+(block rows; None = `default_horizon`, 20 here) and the operating point (data means; rest at
+zero input with the level estimated; rest at W1's known level 0 °C, as SIPPY assumes), N = 4 and
+16: what the N4SID gap to SIPPY (benchmarks/results/identification.md) depends on.
 
     .venv/bin/python experiments/n4sid_horizon_check.py
 
@@ -26,7 +26,9 @@ import identification as bi  # noqa: E402
 from jthermo.data import from_arrays  # noqa: E402
 from jthermo.identify.subspace import n4sid  # noqa: E402
 
-SIPPY = {4: 55.11, 16: 57.72}   # SIPPY N4SID (f = 20, raw data), benchmarks/results/identification.md
+SIPPY = {4: 55.11, 16: 57.72}
+OPERATING_POINTS = {"mean": {"operating_point": "mean"}, "rest": {"operating_point": "rest"},
+                    "rest, level 0 given": {"rest_level": 0.0}}   # SIPPY N4SID (f = 20, raw data), benchmarks/results/identification.md
 
 
 def main():
@@ -35,12 +37,12 @@ def main():
     for N in (4, 16):
         est, val = W.estimation_validation(N, 6000)
         d = from_arrays(est["u"], est["y"])
-        for op in ("mean", "rest"):
+        for op, kw in OPERATING_POINTS.items():
             for wt in ("cva", "moesp"):
                 for h in (None, 10, 20, 30):
-                    n4sid(d, N, h, weighting=wt, operating_point=op)
+                    n4sid(d, N, h, weighting=wt, **kw)
                     t0 = time.perf_counter()
-                    m = n4sid(d, N, h, weighting=wt, operating_point=op)[0]
+                    m = n4sid(d, N, h, weighting=wt, **kw)[0]
                     sec = time.perf_counter() - t0
                     f = W.fit_percent(val["y"], bi.simulate_from_rest(m, val["u"]))
                     rows.append(f"| {N} | {op} | {wt} | {'—' if h is None else h} | {f:.3f} | {sec:.3f} |")

@@ -12,10 +12,9 @@ The combined deterministic–stochastic algorithm of Van Overschee & De Moor (19
 4. the extended observability matrix $\\Gamma_i = W_1^{-1} U_1 S_1^{1/2}$ and the Kalman-filter
    state sequence $\\hat x(t) = \\Gamma_i^\\dagger \\mathcal O_i(t)$, one column per sample t;
 5. least squares on consecutive states, $[\\hat x(t+1); y(t)] = [A\\;B; C\\;D][\\hat x(t); u(t)]
-   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as SIPPY does; unlike the book's second
-   projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$ it stays accurate
-   when the record is not centred, operating point "rest"), and the Kalman gain $K$ from the
-   residual covariances $(Q, S, R)$ by the filter Riccati equation.
+   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as SIPPY does, in place of the book's
+   second projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$), and the
+   Kalman gain $K$ from the residual covariances $(Q, S, R)$ by the filter Riccati equation.
 
 The projections are regressions between rows of the Hankel matrix, done on the Cholesky factor
 of its Gram matrix (`_compress`). It runs once per fit, in NumPy/SciPy. Data are taken as
@@ -39,6 +38,12 @@ WEIGHTINGS = ("cva", "moesp")
 OPERATING_POINTS = ("mean", "rest")
 #: eigenvalues of the returned A lie inside this radius
 MAX_RADIUS = 0.9995
+
+
+def rest_window(T: int) -> int:
+    """Samples M at the start of a record from which its level at rest is estimated: 1 % of
+    them, 1 to 100."""
+    return int(min(max(T // 100, 1), 100))
 
 
 def known_rest_level(level, ny: int) -> np.ndarray:
@@ -68,14 +73,6 @@ def _lstsq_right(Y: np.ndarray, X: np.ndarray) -> np.ndarray:
     if X.shape[0] == 0:
         return np.zeros((Y.shape[0], 0))
     return sla.lstsq(X.T, Y.T, lapack_driver="gelsy")[0].T
-
-
-def _perp(M: np.ndarray, U: np.ndarray, MUt: np.ndarray, UUt: np.ndarray) -> np.ndarray:
-    """$M \\Pi^\\perp_U = M - M U^T (U U^T)^{-1} U$: the part of the rows of M orthogonal to the
-    row space of U, given the products $M U^T$ and $U U^T$ (read off the Hankel Gram matrix)."""
-    if U.shape[0] == 0:
-        return M
-    return M - sla.lstsq(UUt, MUt.T, lapack_driver="gelsy")[0].T @ U
 
 
 def _prefix_regression(L: np.ndarray, p: int, Y: np.ndarray) -> np.ndarray:
@@ -213,14 +210,17 @@ def _estimate(L: np.ndarray, gram: np.ndarray, j: int, i: int, us: np.ndarray, y
     coef = _prefix_regression(L, p, L[yf])
     cw = np.concatenate([coef[:, up], coef[:, yp]], axis=1)             # on W_p = [U_p; Y_p]
     O = cw @ L[wp, :p]                        # rows of L vanish beyond their own index
-    Uf, UfUf = L[uf, :p], gram[np.ix_(uf, uf)]
+    # Π⊥_{U_f}: M Π⊥ = M - K U_f with K = (M U_f^T)(U_f U_f^T)^{-1}, for M = Y_f and O; the
+    # products with U_f are read off the Gram matrix, one solve serves both
+    Gfu = gram[np.ix_(yf, uf)]
+    rhs = np.concatenate([Gfu, cw @ gram[np.ix_(wp, uf)]], axis=0)
+    K = sla.lstsq(gram[np.ix_(uf, uf)], rhs.T, lapack_driver="gelsy")[0].T
+    Kf, Ko = K[:len(yf)], K[len(yf):]
     if weighting == "cva":
-        Gfu = gram[np.ix_(yf, uf)]
-        Yperp_cov = gram[np.ix_(yf, yf)] - Gfu @ sla.lstsq(UfUf, Gfu.T, lapack_driver="gelsy")[0]
-        W1, W1inv = _inv_sqrt_psd(Yperp_cov / j)
+        W1, W1inv = _inv_sqrt_psd((gram[np.ix_(yf, yf)] - Kf @ Gfu.T) / j)
     else:
         W1 = W1inv = np.eye(i * ny)
-    Operp = _perp(O, Uf, cw @ gram[np.ix_(wp, uf)], UfUf)
+    Operp = O - Ko @ L[uf, :p]
     # left singular vectors and values of the wide W1 O Π⊥ = R^T Q^T: those of the square R^T
     Uo, s, _ = np.linalg.svd(np.linalg.qr((W1 @ Operp).T / np.sqrt(j), mode="r").T)
     if weighting == "cva":
@@ -303,7 +303,7 @@ def _refine_rest_level(us, ys, scaling, i, n, feedthrough, max_order):
     noise-free data give δ = 0.
     """
     T, ny = ys.shape
-    M = int(min(max(T // 100, 1), 100))
+    M = rest_window(T)
     if M == 1:
         return ys, scaling
     i1 = i if n is None else min(i, max(5, int(np.ceil((n + 1) / ny)) + 1))
@@ -390,4 +390,4 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
 
 
 __all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "known_rest_level", "n4sid",
-           "n4sid_variants", "project_stable"]
+           "n4sid_variants", "project_stable", "rest_window"]
