@@ -31,6 +31,7 @@ from jaxtyping import Array, Float, Int
 
 from .control._base import AbstractController
 from .errors import ConfigError
+from .families import SCENARIO_KINDS as KINDS
 from .models._base import AbstractModel
 from .printer import (
     DiscretePrinter,
@@ -42,7 +43,6 @@ from .printer import (
     simulate_open_loop,
 )
 
-KINDS = ("tracking", "powder", "print", "preheat", "ensemble")
 #: default scenario lengths, s
 DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "preheat": 1800.0,
                     "ensemble": 1200.0}

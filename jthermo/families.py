@@ -12,3 +12,6 @@ ORDER_NAMES = {
     "ss": ("n",),
     "greybox": (),
 }
+
+#: closed-loop scenarios `jthermo.closedloop.make_scenario` builds (`jthermo simulate --scenario`)
+SCENARIO_KINDS = ("tracking", "powder", "print", "preheat", "ensemble")
