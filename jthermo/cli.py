@@ -24,7 +24,6 @@ Imports of the library are lazy (inside each command), so `jthermo --help` is fa
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -280,43 +279,10 @@ def _require(module: str, what: str):
         raise
 
 
-def jsonable(x: Any) -> Any:
-    """Plain JSON types: arrays become lists, NaN/inf become null, other objects their name."""
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if isinstance(x, int):
-        return x
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if hasattr(x, "__array__") and not callable(getattr(x, "step", None)):
-        try:
-            a = np.asarray(x)
-        except Exception:
-            return str(x)
-        if a.dtype.kind in "biuf":
-            if a.ndim == 0:
-                return jsonable(a.item())
-            return jsonable(a.tolist())
-        if a.dtype.kind == "c":
-            return jsonable({"re": a.real.tolist(), "im": a.imag.tolist()})
-        return str(x)
-    if isinstance(x, Path):
-        return str(x)
-    return type(x).__name__
-
-
 def write_json(path: Path | None, report: dict) -> None:
-    if path is None:
-        return
-    from ._files import atomic_write_text
+    from .io import write_json as write
 
-    atomic_write_text(path, json.dumps(jsonable(report), indent=2, allow_nan=False) + "\n")
+    write(path, report)
 
 
 def _progress(args, desc: str, total: int | None = None):

@@ -9,7 +9,6 @@ reported in the report with its one-line reason, and the later stages go on with
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 import traceback
@@ -335,10 +334,9 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     st.run("write the report", write)
     S["stages"] = st.records
     S.setdefault("report", str(root / "report.md"))
-    from .cli import jsonable
-    from ._files import atomic_write_text
+    from .io import write_json
 
-    atomic_write_text(root / "summary.json", json.dumps(jsonable(S), indent=2) + "\n")
+    write_json(root / "summary.json", S)
     return S
 
 

@@ -12,6 +12,8 @@ Loading rebuilds the skeleton from the spec without calling any `__init__`
 (`object.__new__(cls)` and the dataclass fields set directly), then fills its leaves with
 `equinox.tree_deserialise_leaves`. Nothing is executed from the file: classes are only looked
 up in trusted modules (`jthermo` by default). Writes are atomic (temporary file + rename).
+
+The JSON reports of the command and the demo are written here too (`jsonable`, `write_json`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import enum
 import importlib
 import io
 import json
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -32,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._files import atomic_write_bytes as atomic_write_bytes
+from ._files import atomic_write_text
 from .errors import ConfigError
 
 #: bump on any change that old readers cannot follow
@@ -213,11 +217,13 @@ def _kind_of(obj: Any) -> str:
     return "object"
 
 
-def _jsonable(x: Any) -> Any:
+def _header_value(x: Any) -> Any:
+    """A header field as JSON: arrays become lists, other objects their `str` (NaN kept, so
+    `save` refuses it)."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): _header_value(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [_header_value(v) for v in x]
     if isinstance(x, (np.generic, jnp.ndarray, np.ndarray)):
         a = np.asarray(x)
         return a.item() if a.ndim == 0 else a.tolist()
@@ -242,7 +248,7 @@ def _describe(obj: Any, kind: str, meta: dict) -> dict:
     if callable(orders):
         orders = None
     if orders is not None:
-        info["orders"] = _jsonable(orders)
+        info["orders"] = _header_value(orders)
     if isinstance(target, AbstractModel):
         try:
             ss = target.to_statespace()
@@ -280,7 +286,7 @@ def save(obj: Any, path: str | os.PathLike, *, meta: dict | None = None) -> Path
     spec = _spec(obj, arrays)
     header = {"magic": MAGIC, "format_version": FORMAT_VERSION, "jthermo_version": __version__,
               "kind": kind, "class": _qualname(obj), **_describe(obj, kind, meta or {}),
-              "meta": _jsonable(meta or {}), "spec": spec}
+              "meta": _header_value(meta or {}), "spec": spec}
     try:
         header_text = json.dumps(header, indent=1, allow_nan=False)
     except ValueError as exc:
@@ -373,3 +379,42 @@ def load_controller(path: str | os.PathLike, *,
                     trusted_modules: tuple[str, ...] = TRUSTED_MODULES):
     """Load a saved controller (`ConfigError` if the file holds something else)."""
     return load(path, kind="controller", trusted_modules=trusted_modules)
+
+
+# ---------------------------------------------------------------- JSON reports
+
+
+def jsonable(x: Any) -> Any:
+    """Plain JSON types: arrays become lists, NaN/inf become null, other objects their name."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, bool) or x is None or isinstance(x, str):
+        return x
+    if isinstance(x, int):
+        return x
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if hasattr(x, "__array__") and not callable(getattr(x, "step", None)):
+        try:
+            a = np.asarray(x)
+        except Exception:  # noqa: BLE001 - an array-like that refuses is named by its str
+            return str(x)
+        if a.dtype.kind in "biuf":
+            if a.ndim == 0:
+                return jsonable(a.item())
+            return jsonable(a.tolist())
+        if a.dtype.kind == "c":
+            return jsonable({"re": a.real.tolist(), "im": a.imag.tolist()})
+        return str(x)
+    if isinstance(x, Path):
+        return str(x)
+    return type(x).__name__
+
+
+def write_json(path: str | os.PathLike | None, report: dict) -> None:
+    """Write `jsonable(report)` to `path` (atomically); nothing when `path` is None."""
+    if path is None:
+        return
+    atomic_write_text(path, json.dumps(jsonable(report), indent=2, allow_nan=False) + "\n")
