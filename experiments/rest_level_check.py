@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "experiments"))
 import identification as bench  # noqa: E402
 import identification_coverage as coverage  # noqa: E402
 
-from jthermo.models.polynomial import _as_nk  # noqa: E402
+from jthermo.models.polynomial import as_nk  # noqa: E402
 
 fitmod = importlib.import_module("jthermo.identify.fit")
 EXTRAS = (0, 1, 2, 3, 4, 5)
@@ -43,7 +43,7 @@ def level(y, u, extra):
     fitmod.REST_ARX_EXTRA = extra
     try:
         N = y.shape[1]
-        return np.asarray(fitmod._rest_level(jnp.asarray(y), jnp.asarray(u), 1, _as_nk(1, N, N),
+        return np.asarray(fitmod._rest_level(jnp.asarray(y), jnp.asarray(u), 1, as_nk(1, N, N),
                                              1, False, 1.0))
     finally:
         fitmod.REST_ARX_EXTRA = saved

@@ -23,7 +23,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import DataError, ModelError
-from ..models.polynomial import Polynomial, _as_nk, _delay_onehot, lagged
+from ..models.polynomial import Polynomial, as_nk, delay_onehot, lagged
 
 
 class ARXResult(eqx.Module):
@@ -42,9 +42,9 @@ def arx_regressors(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb
     y = jnp.asarray(y)
     u = jnp.asarray(u)
     ny, nu = y.shape[1], u.shape[1]
-    nkt = _as_nk(nk, ny, nu)
+    nkt = as_nk(nk, ny, nu)
     L = max(max(r) for r in nkt) + max(nb, 1) - 1
-    sel = jnp.asarray(_delay_onehot(nkt, nb, L), y.dtype)              # (ny, nu, nb, L+1)
+    sel = jnp.asarray(delay_onehot(nkt, nb, L), y.dtype)               # (ny, nu, nb, L+1)
     return _regressors(y, u, sel, na, bool(full_a))
 
 
@@ -109,7 +109,7 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
     ny, nu = y.shape[1], u.shape[1]
     m = ny if (full_a and ny > 1) else 1
     Phi = arx_regressors(y, u, na, nb, nk, full_a=full_a)
-    n0 = first_row(na, nb, _as_nk(nk, ny, nu))
+    n0 = first_row(na, nb, as_nk(nk, ny, nu))
     n_par = Phi.shape[2] + int(bool(offset))
     if y.shape[0] - n0 <= n_par:
         raise DataError(f"arx_ls: {y.shape[0]} samples are too few for {n_par} parameters "

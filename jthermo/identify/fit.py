@@ -30,7 +30,7 @@ from ..data import IOData, require_excitation, require_samples
 from ..errors import ConfigError, DataError, FitError, ModelError
 from ..families import MODEL_FAMILIES, ORDER_NAMES
 from ..models.polynomial import (
-    Polynomial, _as_nk, _delay_onehot, ar_filter, fir_monic, lagged, poly_from_reflection,
+    Polynomial, ar_filter, as_nk, delay_onehot, fir_monic, lagged, poly_from_reflection,
     rational_sum, reflection_from_poly,
 )
 from .arx import arx_ls, perturb_starts
@@ -160,8 +160,8 @@ def _atanh_reflection(a: np.ndarray) -> np.ndarray:
 
 def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
     T, ny = dy.shape
-    nkt = _as_nk(nk, ny, du.shape[1])
-    sel = jnp.asarray(_delay_onehot(nkt, spec.nb, spec.L), dy.dtype)
+    nkt = as_nk(nk, ny, du.shape[1])
+    sel = jnp.asarray(delay_onehot(nkt, spec.nb, spec.L), dy.dtype)
     yi = jnp.moveaxis(dy, 1, 0)                                       # (ny, T)
     if spec.m > 1:
         ysrc = jnp.broadcast_to(dy[None], (ny,) + dy.shape)
@@ -266,7 +266,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     ny, nu = y.shape[1], u.shape[1]
     if offset not in OFFSETS:
         raise ConfigError(f"fit: offset must be one of {', '.join(OFFSETS)}, got {offset!r}")
-    nkt = _as_nk(nk, ny, nu)
+    nkt = as_nk(nk, ny, nu)
     if full_a and ny > 1 and (nd or nf):
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf

@@ -193,7 +193,7 @@ def _polymul(p: Array, q: Array) -> Array:
 # ------------------------------------------------------------------------------ model
 
 
-def _delay_onehot(nk: tuple[tuple[int, ...], ...], nb: int, L: int) -> np.ndarray:
+def delay_onehot(nk: tuple[tuple[int, ...], ...], nb: int, L: int) -> np.ndarray:
     """`(ny, nu, nb, L+1)` selector: coefficient k of pair (i, j) sits at lag nk_ij + k."""
     ny, nu = len(nk), len(nk[0]) if nk else 0
     sel = np.zeros((ny, nu, nb, L + 1))
@@ -204,7 +204,8 @@ def _delay_onehot(nk: tuple[tuple[int, ...], ...], nb: int, L: int) -> np.ndarra
     return sel
 
 
-def _as_nk(nk, ny: int, nu: int) -> tuple[tuple[int, ...], ...]:
+def as_nk(nk, ny: int, nu: int) -> tuple[tuple[int, ...], ...]:
+    """Input delays `nk` (an int, or one per output/input pair) as a `(ny, nu)` tuple of ints."""
     arr = np.asarray(nk)
     if arr.ndim == 0:
         arr = np.full((ny, nu), int(arr))
@@ -255,7 +256,7 @@ class Polynomial(AbstractModel):
         self.f = jnp.zeros((ny, nu, 0), dt) if f is None else jnp.asarray(f, dt)
         self.u0 = jnp.zeros(nu, dt) if u0 is None else jnp.asarray(u0, dt)
         self.y0 = jnp.zeros(ny, dt) if y0 is None else jnp.asarray(y0, dt)
-        self.nk = _as_nk(nk, ny, nu)
+        self.nk = as_nk(nk, ny, nu)
         self.ts_ = float(ts)
 
     def __check_init__(self):
@@ -339,7 +340,7 @@ class Polynomial(AbstractModel):
 
     def _b_lags(self) -> Float[Array, "ny nu L1"]:
         L = self._max_lag()
-        sel = _delay_onehot(self.nk, self.nb, L)
+        sel = delay_onehot(self.nk, self.nb, L)
         return jnp.einsum("ijk,ijkl->ijl", self.b, jnp.asarray(sel, self.b.dtype))
 
     def _input_part(self, du: Float[Array, "T nu"]) -> Float[Array, "T ny"]:
@@ -487,4 +488,4 @@ BJ = BoxJenkins
 
 __all__ = ["Polynomial", "ARX", "ARMAX", "OE", "BoxJenkins", "BJ", "poly_from_reflection",
            "reflection_from_poly", "stabilize", "ar_filter", "ar_matrix_filter", "fir_monic", "lagged",
-           "rational_sum"]
+           "rational_sum", "as_nk", "delay_onehot"]
