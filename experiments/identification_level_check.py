@@ -3,8 +3,8 @@
 SIPPY fits the raw W1 data, i.e. it is handed the true output level 0 °C. jthermo's "rest"
 operating point (which `offset="auto"` picks on W1) must estimate it. For ARX, ARMAX and OE,
 seeds 0 and 1, this prints and writes the validation fit % with the rest level taken
-(a) as jthermo does now (`_rest_level`: the first 1 % of the samples less the response an ARX
-model of the family's orders plus `REST_ARX_EXTRA` simulates for them), (b) from the first
+(a) as jthermo does now (`estimate_rest_level`: the first 1 % of the samples less the response an
+ARX model of the family's orders plus `REST_ARX_EXTRA` simulates for them), (b) from the first
 sample alone (jthermo before 2026-11-23), (c) as the true 0 (what SIPPY assumes), and (d) as in (a) and then re-estimated after the fit
 from the whole estimation-record simulation residual. Fits use the settings of
 `benchmarks/identification.py` (OE: one denominator per output). Writes
@@ -41,12 +41,12 @@ OUT = Path(__file__).resolve().parent / "results" / "identification_level_check.
 @contextmanager
 def rest_level(rule):
     """Temporarily replace jthermo's rest-level estimate by `rule(y)`."""
-    saved = fitmod._rest_level
-    fitmod._rest_level = lambda y, *a, **k: rule(y)
+    saved = fitmod.estimate_rest_level
+    fitmod.estimate_rest_level = lambda y, *a, **k: rule(y)
     try:
         yield
     finally:
-        fitmod._rest_level = saved
+        fitmod.estimate_rest_level = saved
 
 
 def main() -> None:

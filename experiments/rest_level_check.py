@@ -1,9 +1,9 @@
 """Error of the "rest" output-level estimate against the extra ARX orders it uses.
 
-`jthermo.identify.fit._rest_level` averages the first 1 % of the samples less the response an
-ARX model simulates for them; the ARX orders are the family's (here first order, nk = 1) plus
-`REST_ARX_EXTRA`. On data whose true level is 0 °C this prints and writes the estimated level
-(mean over outputs, and RMS over outputs and seeds) for 0..5 extra orders, on W1 (N = 4 and
+`jthermo.identify.operating_point.estimate_rest_level` averages the first 1 % of the samples
+less the response an ARX model simulates for them; the ARX orders are the family's (here first
+order, nk = 1) plus `REST_ARX_EXTRA`. On data whose true level is 0 °C this prints and writes
+the estimated level (mean over outputs, and RMS over outputs and seeds) for 0..5 extra orders, on W1 (N = 4 and
 16, coloured noise; what SIPPY is handed as known) and on the OE data of
 `experiments/identification_coverage.py` (N = 4, white output noise), seeds 0-2.
 
@@ -33,20 +33,20 @@ import identification_coverage as coverage  # noqa: E402
 
 from jthermo.models.polynomial import as_nk  # noqa: E402
 
-fitmod = importlib.import_module("jthermo.identify.fit")
+opmod = importlib.import_module("jthermo.identify.operating_point")
 EXTRAS = (0, 1, 2, 3, 4, 5)
 SEEDS = (0, 1, 2)
 
 
 def level(y, u, extra):
-    saved = fitmod.REST_ARX_EXTRA
-    fitmod.REST_ARX_EXTRA = extra
+    saved = opmod.REST_ARX_EXTRA
+    opmod.REST_ARX_EXTRA = extra
     try:
         N = y.shape[1]
-        return np.asarray(fitmod._rest_level(jnp.asarray(y), jnp.asarray(u), 1, as_nk(1, N, N),
-                                             1, False, 1.0))
+        return np.asarray(opmod.estimate_rest_level(jnp.asarray(y), jnp.asarray(u), 1,
+                                                    as_nk(1, N, N), 1, False, 1.0))
     finally:
-        fitmod.REST_ARX_EXTRA = saved
+        opmod.REST_ARX_EXTRA = saved
 
 
 def main() -> None:
@@ -68,7 +68,7 @@ def main() -> None:
         "# The rest-level estimate against the extra ARX orders", "",
         "Command: `.venv/bin/python experiments/rest_level_check.py`. True level 0 °C on every "
         f"record. Estimated level: mean over outputs per seed ({', '.join(map(str, SEEDS))}); "
-        f"RMS over outputs and seeds. jthermo uses {fitmod.REST_ARX_EXTRA} extra orders "
+        f"RMS over outputs and seeds. jthermo uses {opmod.REST_ARX_EXTRA} extra orders "
         "(`REST_ARX_EXTRA`).", "",
         "| data | extra ARX orders | mean level per seed (°C) | RMS level error (°C) |",
         "|---|---|---|---|", *rows, ""])

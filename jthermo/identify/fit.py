@@ -35,7 +35,9 @@ from ..models.polynomial import (
 )
 from .arx import arx_ls, perturb_starts
 from .pem import minimize_many
-from .subspace import known_rest_level, rest_window
+from .operating_point import (
+    OFFSETS, estimate_rest_level, known_rest_level, offset_mode, operating_point,
+)
 
 FAMILIES = MODEL_FAMILIES
 CRITERIA = ("aic", "bic", "fpe")
@@ -171,65 +173,6 @@ def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
     return (yi, ysrc, ub, sel, spec)
 
 
-OFFSETS = ("auto", "mean", "rest", "estimate")
-#: extra ARX orders of the model whose response `_rest_level` removes
-REST_ARX_EXTRA = 3
-
-
-def _rest_level(y, u, nb, nkt, n_den, full_a, ts):
-    """Output level of a record that starts at rest with zero input.
-
-    The first sample alone carries its full measurement noise (on W1 that costs 0.1–0.2
-    points of validation fit, `experiments/identification_level_check.py`). Instead the first
-    M = 1 % of the samples (1 to 100) are averaged after removing the response an ARX model
-    simulates for them from rest: $\\hat y_0 = \\frac{1}{M}\\sum_{t<M}\\big(y(t) -
-    \\hat y_{\\mathrm{dev}}(t)\\big)$. The ARX orders are the family's plus `REST_ARX_EXTRA`:
-    an ARX model of the family's own orders is biased on output-error data, and its biased
-    response moved the level by −0.12 to −0.18 °C on OE data and by −0.19 °C on W1 with 16
-    zones (`experiments/rest_level_check.py`; the 3σ coverage of the OE parameters fell to 0.91
-    in `tests/identify/test_coverage.py`'s slow study); a higher-order ARX approximates any
-    linear system better.
-    """
-    M = rest_window(y.shape[0])
-    if M == 1:
-        return y[0]
-    u0 = jnp.zeros(u.shape[1], u.dtype)
-    m = arx_ls(y - y[0], u, max(n_den, 1) + REST_ARX_EXTRA, nb + REST_ARX_EXTRA, nkt,
-               full_a=full_a, ts=ts, u0=u0, y0=y[0]).model
-    level = jnp.mean(y[:M] - (m.simulate(u[:M]) - m.y0), axis=0)
-    return jnp.where(jnp.all(jnp.isfinite(level)), level, y[0])
-
-
-def _operating_point(mode: str, y, u, rest_level=None):
-    """`(y0, u0, estimate_constant)` of an operating-point mode (see `fit_polynomial`)."""
-    if mode == "mean":
-        return jnp.mean(y, axis=0), jnp.mean(u, axis=0), False
-    y0 = rest_level if (mode == "rest" and rest_level is not None) else y[0]
-    return y0, jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
-
-
-@eqx.filter_jit
-def _simulation_mse(model: Polynomial, y, u):
-    return jnp.mean((y - model.simulate(u)) ** 2)
-
-
-def _offset_mode(y, u, nb, nkt, n_den, full_a, ts, rest_level=None):
-    """The operating-point mode whose ARX(n_den, nb) simulates the estimation data best.
-
-    The modes differ in the state the record is assumed to start from: at rest at the data's
-    mean operating point, or at rest with zero input (a cold machine, heaters off) at the first
-    sample's temperature, that temperature either fixed or estimated with the rest.
-    """
-    errs = {}
-    for mode in OFFSETS[1:]:
-        yref, u0, est = _operating_point(mode, y, u, rest_level)
-        m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
-                   offset=est, ts=ts, u0=u0, y0=yref).model
-        errs[mode] = float(_simulation_mse(m, y, u))
-    ok = {k: v for k, v in errs.items() if np.isfinite(v)}
-    return min(ok, key=ok.get) if ok else "mean"
-
-
 def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
                    nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
                    offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
@@ -242,7 +185,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
     means: the record is taken to start at rest there); `"rest"` takes `u0 = 0` and `y0` = the
     level of the first samples (the record starts at rest with zero input, e.g. a cold
-    printer; see `_rest_level`);
+    printer; see `estimate_rest_level`);
     `"estimate"` is `"rest"` with `y0` estimated with the other parameters; `"auto"` picks the
     one whose ARX estimate simulates the estimation data best. `rest_level`: the output level
     at rest when it is known (a measured ambient temperature; 0 for data in °C above ambient),
@@ -276,10 +219,10 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
             raise ConfigError(f"fit: a known rest_level needs offset 'rest' (or 'auto'), got {offset!r}")
         rest_level, offset = jnp.asarray(known_rest_level(rest_level, ny), y.dtype), "rest"
     elif offset in ("auto", "rest"):
-        rest_level = _rest_level(y, u, nb, nkt, n_den, arx_full, ts)
+        rest_level = estimate_rest_level(y, u, nb, nkt, n_den, arx_full, ts)
     if offset == "auto":
-        offset = _offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
-    yref, u0, est = _operating_point(offset, y, u, rest_level)
+        offset = offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
+    yref, u0, est = operating_point(offset, y, u, rest_level)
     dy, du = y - yref, u - u0
     if nc == 0 and nd == 0 and nf == 0:
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)

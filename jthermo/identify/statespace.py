@@ -23,7 +23,8 @@ from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
 from .fit import FitResult
 from .pem import minimize
-from .subspace import OPERATING_POINTS, choose_order, default_horizon, n4sid, n4sid_variants
+from .operating_point import OPERATING_POINTS
+from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
 
 FOCUS = ("prediction", "simulation")
 

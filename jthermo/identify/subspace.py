@@ -30,36 +30,14 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..data import IOData
-from ..errors import ConfigError, DataError, ModelError
+from ..errors import DataError, ModelError
 from ..models._base import StateSpace
 from ..models.statespace import project_stable
+from .operating_point import OPERATING_POINTS, known_rest_level, rest_window
 
 WEIGHTINGS = ("cva", "moesp")
-OPERATING_POINTS = ("mean", "rest")
 #: eigenvalues of the returned A lie inside this radius
 MAX_RADIUS = 0.9995
-
-
-def rest_window(T: int) -> int:
-    """Samples M at the start of a record from which its level at rest is estimated: 1 % of
-    them, 1 to 100."""
-    return int(min(max(T // 100, 1), 100))
-
-
-def known_rest_level(level, ny: int) -> np.ndarray:
-    """A user-given output level at rest (a measured ambient temperature; 0 for data in °C
-    above ambient) as a `(ny,)` array; a number applies to every output."""
-    try:
-        arr = np.asarray(level, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ConfigError(f"rest_level must be a number or one number per output, "
-                          f"got {level!r}") from None
-    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != ny):
-        raise ConfigError(f"rest_level must be a number or {ny} numbers (one per output), "
-                          f"got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError("rest_level must be finite")
-    return np.broadcast_to(arr, (ny,)).copy()
 
 
 def _hankel(s: np.ndarray, first: int, rows: int, cols: int) -> np.ndarray:
@@ -389,5 +367,5 @@ def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
     return out
 
 
-__all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "known_rest_level", "n4sid",
-           "n4sid_variants", "project_stable", "rest_window"]
+__all__ = ["WEIGHTINGS", "choose_order", "default_horizon", "n4sid", "n4sid_variants",
+           "project_stable"]
