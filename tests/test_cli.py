@@ -92,7 +92,6 @@ def test_fit_option_errors_write_nothing(tmp_path, capsys):
 
 
 def test_fit_validate_round_trip(tmp_path, capsys):
-    pytest.importorskip("jthermo.identify.fit")
     est, val = _arx_csv(tmp_path / "est.csv", seed=0), _arx_csv(tmp_path / "val.csv", seed=1)
     js, model = tmp_path / "fit.json", tmp_path / "m.jtm"
     rc, out, err = _run(["fit", est, "--model", "arx", "--orders", "1,1,1", "--validation", val,
@@ -135,7 +134,6 @@ def test_fit_common_denominator_and_rest_level(tmp_path, capsys):
 
 
 def test_generate(tmp_path, capsys):
-    pytest.importorskip("jthermo.printer")
     out, js = tmp_path / "d.csv", tmp_path / "g.json"
     rc, _, err = _run(["generate", "--experiment", "prbs", "--zones", "2", "--duration", "60",
                        "--out", out, "--json", js, "--seed", "3", "--quiet"], capsys)
@@ -162,7 +160,7 @@ def test_simulate_option_errors(tmp_path, capsys):
     assert rc == 2 and "not a jthermo save file" in _one_line_error(err)
     assert not (tmp_path / "o.json").exists()
     # a model file where a controller is expected
-    from jthermo.models._base import StateSpace
+    from jthermo.models import StateSpace
 
     m = io.save(StateSpace(np.eye(1) * 0.5, np.ones((1, 1)), np.ones((1, 1))), tmp_path / "m.jtm")
     rc, _, err = _run(["simulate", "--scenario", "tracking", "--controller-file", m], capsys)
@@ -296,16 +294,16 @@ def test_demo_stage_guard_and_report(tmp_path):
 
 
 def _pi_1zone():
-    design = pytest.importorskip("jthermo.control.design")
-    from jthermo.models._base import StateSpace
+    from jthermo.control.design import design
+    from jthermo.models import StateSpace
 
     m = StateSpace(np.array([[0.98]]), np.array([[0.3]]), np.array([[1.0]]), ts=1.0, u0=[0.5], y0=[174.0])
-    return design.design("pi_lambda", m)
+    return design("pi_lambda", m)
 
 
 def test_tune_saves_controller_and_simulate_runs_it(tmp_path, capsys, monkeypatch):
-    tune = pytest.importorskip("jthermo.tune")
-    pytest.importorskip("jthermo.closedloop")
+    from jthermo import tune
+
     ctrl = _pi_1zone()
     seen = {}
 
@@ -346,7 +344,8 @@ def test_tune_saves_controller_and_simulate_runs_it(tmp_path, capsys, monkeypatc
 
 
 def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
-    diag = pytest.importorskip("jthermo.diagnose")
+    from jthermo import diagnose as diag
+
     est, val = _arx_csv(tmp_path / "est.csv"), _arx_csv(tmp_path / "val.csv", seed=1)
 
     def fake(e, v, *, seed, progress):

@@ -1,0 +1,122 @@
+"""The `jthermo` command: parse, check inputs up front, call the library, report.
+
+Every command takes `--json PATH` (a JSON report written atomically), `--seed`, `--quiet`.
+Errors are one line on stderr and exit status 2, never a traceback and never a partial
+output file; Ctrl-C prints one line and exits with 130, leaving saved files intact.
+Imports of the library are lazy (inside each command), so `jthermo --help` is fast.
+
+    jthermo fit EST.csv --model {arx,armax,oe,bj,ss,greybox} [--orders ...] [--validation VAL.csv]
+                [--common-denominator] [--rest-level T[,T...]] [--out MODEL] [--json REPORT.json]
+                [--seed S] [--plot DIR]
+    jthermo validate MODEL DATA.csv [--json R.json] [--plot DIR]
+    jthermo simulate --scenario {tracking,powder,print,preheat,ensemble} --controller C
+                [--controller-file CTRL] [--plant printer|MODEL] [--zones N] [--rollouts B]
+                [--duration SECONDS] [--seed S] [--json OUT] [--plot DIR]
+    jthermo generate --experiment prbs --zones N --duration SECONDS [--effects ...] --out DATA.csv
+    jthermo tune --controller C [--model MODEL] [--plant printer] [--rollouts B] [--steps K]
+                [--seed S] [--json OUT] [--out CTRL] [--plot DIR]
+    jthermo diagnose EST.csv --validation VAL.csv --json OUT.json [--model greybox] [--seed S]
+                [--report DIR]
+    jthermo sweep [CONFIG.toml] [--ray ADDRESS] [--results FILE] [--summary] [--workers N]
+    jthermo demo [--name NAME] [--quick]
+
+The commands live by family: `identify` (fit, validate), `control` (simulate, generate, tune),
+`diagnose`, `batch` (sweep, demo); `common` holds the argument types and input/output checks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import warnings
+
+from ..errors import JThermoError
+from . import batch, control, diagnose, identify
+from .common import Parser, UsageError
+
+EXIT_OK = 0
+EXIT_ERROR = 2
+EXIT_INTERRUPT = 130
+
+COMMANDS = {"fit": identify.cmd_fit, "validate": identify.cmd_validate,
+            "simulate": control.cmd_simulate, "generate": control.cmd_generate,
+            "tune": control.cmd_tune, "diagnose": diagnose.cmd_diagnose,
+            "sweep": batch.cmd_sweep, "demo": batch.cmd_demo}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = Parser(prog="jthermo", description="Identify thermal models of multi-zone heated systems "
+               "and tune their controllers (JAX).")
+    from .. import __version__
+
+    p.add_argument("--version", action="version", version=f"jthermo {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    for family in (identify, control, diagnose, batch):
+        family.add_parsers(sub)
+    return p
+
+
+# ---------------------------------------------------------------- entry point
+
+
+def _one_line(text: str, limit: int = 400) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def _fail(message: str) -> int:
+    print(_one_line(f"jthermo: error: {message}"), file=sys.stderr)
+    return EXIT_ERROR
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the `jthermo` command with `argv` (default `sys.argv[1:]`); returns the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except UsageError as exc:
+        return _fail(str(exc))
+    except SystemExit as exc:  # --help / --version
+        return int(exc.code or 0) if not isinstance(exc.code, str) else _fail(exc.code)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_ERROR
+    debug = bool(os.environ.get("JTHERMO_DEBUG"))
+    try:
+        with warnings.catch_warnings():
+            if not debug:
+                warnings.simplefilter("ignore")
+            import jax
+
+            jax.config.update("jax_enable_x64", True)
+            if args.quiet:
+                from ..progress import set_quiet
+
+                set_quiet(True)
+            COMMANDS[args.command](args)
+    except KeyboardInterrupt:
+        print("jthermo: interrupted (saved files are intact)", file=sys.stderr)
+        return EXIT_INTERRUPT
+    except BaseException as exc:  # the contract: one line, status 2
+        if isinstance(exc, SystemExit):
+            return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
+        if debug:
+            raise
+        if isinstance(exc, JThermoError):
+            return _fail(str(exc))
+        if isinstance(exc, MemoryError):
+            return _fail("out of memory (try fewer rollouts, zones or a shorter duration)")
+        if isinstance(exc, OSError) and exc.filename is not None:
+            return _fail(f"{exc.filename}: {exc.strerror}")
+        return _fail(f"internal error ({type(exc).__name__}): {exc}")
+    finally:
+        if args.command is not None and getattr(args, "quiet", False):
+            from ..progress import set_quiet
+
+            set_quiet(False)
+    return EXIT_OK
+
+
+def entry() -> None:  # pragma: no cover - console script wrapper
+    sys.exit(main())

@@ -1,0 +1,7 @@
+"""`python -m jthermo.cli`: the `jthermo` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

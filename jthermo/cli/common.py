@@ -1,0 +1,171 @@
+"""Shared pieces of the `jthermo` command, JAX-free: the limits and argument types of the
+options, the parser that makes usage errors one line, and the checks every command makes on
+its input and output paths before it calls the library."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import os
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError, DataError
+
+MAX_ZONES = 256
+MAX_DURATION = 7 * 24 * 3600.0
+MAX_ROLLOUTS = 65536
+MAX_ORDER = 64
+
+
+class UsageError(Exception):
+    """A command-line usage error (argparse's, made one line)."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage dump
+        raise UsageError(f"{self.prog}: {message}")
+
+
+# ---------------------------------------------------------------- argument types
+
+
+def number(text: str, cast, what: str):
+    """`cast(text)`, or argparse's one-line error naming what was expected."""
+    try:
+        return cast(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+
+
+def positive_int(limit: int):
+    def conv(text: str) -> int:
+        v = number(text, int, "a positive integer")
+        if not 1 <= v <= limit:
+            raise argparse.ArgumentTypeError(f"must lie in 1..{limit}, got {v}")
+        return v
+
+    conv.__name__ = "positive integer"
+    return conv
+
+
+def seed(text: str) -> int:
+    v = number(text, int, "an integer seed")
+    if not 0 <= v < 2**32:
+        raise argparse.ArgumentTypeError(f"seed must lie in 0..2**32-1, got {v}")
+    return v
+
+
+def duration(text: str) -> float:
+    v = number(text, float, "seconds")
+    if not (math.isfinite(v) and 0 < v <= MAX_DURATION):
+        raise argparse.ArgumentTypeError(f"duration must lie in (0, {MAX_DURATION:g}] s, got {text}")
+    return v
+
+
+def add_common(sp: argparse.ArgumentParser, plot: bool = True) -> None:
+    """The options every command takes: `--json`, `--seed`, `--quiet` (and `--plot`)."""
+    sp.add_argument("--json", metavar="PATH", help="write a JSON report here (atomically)")
+    sp.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    sp.add_argument("--quiet", action="store_true", help="no progress bars")
+    if plot:
+        sp.add_argument("--plot", metavar="DIR", help="write figures (PNG) into DIR")
+
+
+# ---------------------------------------------------------------- input and output checks
+
+
+def input_file(path: str, what: str) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise ConfigError(f"{what} {p}: no such file")
+    if p.is_dir():
+        raise ConfigError(f"{what} {p}: is a directory")
+    return p
+
+
+def output_path(path: str | None, what: str) -> Path | None:
+    if path is None:
+        return None
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{what} {p}: is a directory")
+    parent = p.parent if str(p.parent) else Path(".")
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK):
+        raise ConfigError(f"{what} {p}: cannot write into {probe}")
+    return p
+
+
+def distinct_outputs(*paths: Path | None) -> None:
+    seen: dict = {}
+    for p in paths:
+        if p is None:
+            continue
+        key = p.resolve()
+        if key in seen:
+            raise ConfigError(f"two outputs write the same file {p}")
+        seen[key] = p
+
+
+def load_data(path: str, what: str = "data"):
+    from .. import data as data_mod
+
+    input_file(path, what)
+    return data_mod.load(path)
+
+
+def same_layout(est, val, what: str = "validation") -> None:
+    if (est.n_inputs, est.n_outputs, est.w.shape[1]) != (val.n_inputs, val.n_outputs, val.w.shape[1]):
+        raise DataError(
+            f"{what} data has {val.n_inputs} inputs, {val.n_outputs} outputs, {val.w.shape[1]} signals; "
+            f"the estimation data has {est.n_inputs}, {est.n_outputs}, {est.w.shape[1]}")
+
+
+def require(module: str, what: str):
+    """`importlib.import_module(module)`, or a one-line error when this build lacks it."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name and (exc.name == module or module.startswith(exc.name + ".")):
+            raise ConfigError(f"{what} is not available in this jthermo build (no module {module})") from None
+        raise
+
+
+def plot_dir(args) -> Path | None:
+    d = getattr(args, "plot", None)
+    if d is None:
+        return None
+    p = Path(d)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"--plot {p}: exists and is not a directory")
+    require("jthermo.plots", "--plot (figures)")
+    return p
+
+
+# ---------------------------------------------------------------- progress and messages
+
+
+def progress_bar(args, desc: str, total: int | None = None):
+    from ..progress import Progress
+
+    return Progress(total, desc, quiet=True if args.quiet else None)
+
+
+def info(args, text: str) -> None:
+    if not args.quiet:
+        print(text, file=sys.stdout)
+
+
+def summary_line(report: dict, keys) -> str:
+    parts = []
+    for k in keys:
+        v = report.get(k)
+        if isinstance(v, float):
+            parts.append(f"{k}={v:.4g}")
+        elif v is not None:
+            parts.append(f"{k}={v}")
+    return "  ".join(parts)

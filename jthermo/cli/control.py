@@ -1,0 +1,252 @@
+"""`jthermo simulate`, `jthermo generate` and `jthermo tune`: the virtual printer in closed and
+open loop, and gradient tuning of a controller family."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import time
+from typing import Any
+
+from ..errors import ConfigError
+from ..families import SCENARIO_KINDS
+from .common import (
+    MAX_ROLLOUTS,
+    MAX_ZONES,
+    add_common,
+    distinct_outputs,
+    duration,
+    info,
+    input_file,
+    output_path,
+    plot_dir,
+    positive_int,
+    progress_bar,
+    require,
+    summary_line,
+)
+
+
+def add_parsers(sub) -> None:
+    sp = sub.add_parser("simulate", help="closed-loop test scenarios")
+    sp.add_argument("--scenario", required=True, choices=SCENARIO_KINDS)
+    sp.add_argument("--controller", metavar="C", help="controller family (e.g. pi_lambda)")
+    sp.add_argument("--controller-file", metavar="CTRL", help="a controller saved by `jthermo tune --out`")
+    sp.add_argument("--plant", default="printer", metavar="printer|MODEL",
+                    help="the virtual printer (default) or a saved model file")
+    sp.add_argument("--powder", default=None, help="powder preset of the virtual printer")
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4)
+    sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=8)
+    sp.add_argument("--duration", type=duration, default=None, metavar="SECONDS")
+    add_common(sp)
+
+    sp = sub.add_parser("generate", help="open-loop data from the virtual printer")
+    sp.add_argument("--experiment", default="prbs", choices=("prbs", "step", "constant"))
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), required=True)
+    sp.add_argument("--duration", type=duration, required=True, metavar="SECONDS")
+    sp.add_argument("--effects", default=None, help="comma-separated physical effects to switch on")
+    sp.add_argument("--powder", default=None, help="powder preset (e.g. PA12, PA11)")
+    sp.add_argument("--out", required=True, metavar="DATA.csv")
+    add_common(sp, plot=False)
+
+    sp = sub.add_parser("tune", help="gradient tuning of a controller family")
+    sp.add_argument("--controller", required=True, metavar="C",
+                    help="family to start from: pi_lambda (alias pi), pi_untuned, pi_decoupled, "
+                         "feedforward, imc, lqg, gated_pi")
+    sp.add_argument("--model", metavar="MODEL", help="design from (and tune against) this saved model")
+    sp.add_argument("--plant", default="printer", metavar="printer|MODEL")
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4,
+                    help="zones of the virtual printer (default 4)")
+    sp.add_argument("--powder", default="PA12",
+                    help="powder preset tuned on (default PA12); the report adds the other one")
+    sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
+    sp.add_argument("--steps", type=positive_int(100000), default=150,
+                    help="Adam iterations (default 150)")
+    sp.add_argument("--out", metavar="CTRL", help="save the tuned controller here")
+    add_common(sp)
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _plant(args):
+    """`printer` or a saved model file -> (plant or 'printer' marker, description)."""
+    if args.plant == "printer":
+        return "printer", "printer"
+    from .. import io
+
+    input_file(args.plant, "--plant")
+    return io.load_model(args.plant), str(args.plant)
+
+
+def _controller_family(name: str) -> str:
+    """The controller family named by `--controller` (aliases such as `pi` resolved)."""
+    design = require("jthermo.control.design", "controller design")
+    family = design.canonical_family(name)
+    if family not in design.FAMILIES:
+        raise ConfigError(f"--controller: unknown family {name!r}; choose one of "
+                          + ", ".join(design.FAMILIES) + " (or " + ", ".join(design.ALIASES) + ")")
+    return family
+
+
+def _accepted(fn, kwargs: dict) -> dict:
+    """The keyword arguments `fn` accepts (the library evolves; options it lacks are dropped
+    only when they are at their defaults)."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return kwargs
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return kwargs
+    return {k: v for k, v in kwargs.items() if k in params}
+
+
+def _one_trajectory(cl, kind, controller, plant, duration, seed) -> dict:
+    """The first rollout of a scenario, for figures: `t, y, u, r` as NumPy arrays.
+
+    `controller` is a controller module or `"untuned"` (the original identical PI per zone)."""
+    import jax
+    import numpy as np
+
+    if isinstance(controller, str):
+        from ..control import DiagonalPI
+
+        controller = DiagonalPI.untuned(int(plant.n_outputs), ts=plant.ts)
+    sc = cl.make_scenario(kind, plant, duration, jax.random.key(int(seed)))
+    tr = cl.simulate(plant, controller, sc)
+    return {"t": np.arange(sc.n_samples) * sc.ts, "y": np.asarray(tr.y), "u": np.asarray(tr.u),
+            "r": np.asarray(tr.r)}
+
+
+# ---------------------------------------------------------------- commands
+
+
+def cmd_simulate(args: argparse.Namespace) -> dict:
+    from .. import io
+
+    if (args.controller is None) == (args.controller_file is None):
+        raise ConfigError("simulate: give exactly one of --controller C or --controller-file CTRL")
+    js = output_path(args.json, "--json")
+    plot = plot_dir(args)
+    controller: Any = args.controller
+    if args.controller_file is not None:
+        input_file(args.controller_file, "--controller-file")
+        controller = io.load_controller(args.controller_file)
+    plant, plant_desc = _plant(args)
+    cl = require("jthermo.closedloop", "closed-loop simulation")
+    if isinstance(controller, str):
+        controller = args.controller = _controller_family(controller)
+        if controller == "pi_untuned":
+            controller = "untuned"
+    t0 = time.perf_counter()
+    if plant == "printer":
+        from ..printer import make_printer
+
+        plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
+                             powder=args.powder or "PA12", seed=args.seed)
+    if isinstance(controller, str) and controller != "untuned":
+        from ..control.design import design
+        from ..models import AbstractModel
+
+        model = plant if isinstance(plant, AbstractModel) else require(
+            "jthermo.tune", "the printer's design model").printer_model(plant)
+        controller = design(controller, model)
+    kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration, "seed": args.seed}
+    out = cl.run(args.scenario, controller, plant, **_accepted(cl.run, kwargs))
+    seconds = time.perf_counter() - t0
+    traj = out.pop("trajectory", None) if isinstance(out, dict) else None
+    if plot is not None and traj is None:
+        traj = _one_trajectory(cl, args.scenario, controller, plant, args.duration, args.seed)
+    report = {"scenario": args.scenario,
+              "controller": args.controller or str(args.controller_file),
+              "plant": plant_desc, "zones": out.get("zones", args.zones), "rollouts": args.rollouts,
+              **{k: v for k, v in out.items() if k not in ("scenario", "controller")},
+              "seed": args.seed}
+    report.setdefault("seconds", seconds)
+    if plot is not None and traj is not None:
+        from .. import plots
+
+        plot.mkdir(parents=True, exist_ok=True)
+        plots.plot_closed_loop(traj["t"], traj["y"], traj["u"], traj["r"],
+                               path=plot / f"closed_loop_{args.scenario}.png")
+        report["figures"] = [str(plot / f"closed_loop_{args.scenario}.png")]
+    io.write_json(js, report)
+    metrics = report.get("metrics", {})
+    info(args, f"{args.scenario} / {report['controller']}: "
+               + summary_line(metrics, list(metrics)[:6]))
+    return report
+
+
+def cmd_generate(args: argparse.Namespace) -> dict:
+    from ..io import write_json
+
+    out = output_path(args.out, "--out")
+    js = output_path(args.json, "--json")
+    distinct_outputs(out, js)
+    effects = tuple(e.strip() for e in args.effects.split(",") if e.strip()) if args.effects else ()
+    printer = require("jthermo.printer", "the virtual printer")
+    from ..data import save_csv
+
+    kwargs = {"powder": args.powder, "seed": args.seed}
+    if args.powder is None:
+        kwargs.pop("powder")
+    p = printer.make_printer(args.zones, effects, **_accepted(printer.make_printer, kwargs))
+    data = printer.generate(p, args.experiment, args.duration, seed=args.seed)
+    save_csv(data, out)
+    report = {"experiment": args.experiment, "zones": args.zones, "duration": args.duration,
+              "effects": list(effects), "powder": args.powder, "out": str(out),
+              "n_samples": data.n_samples, "ts": data.ts, "seed": args.seed,
+              "columns": ["t"] + [f"u_{n}" for n in data.input_names] + [f"y_{n}" for n in data.output_names]
+              + [f"w_{n}" for n in data.signal_names]}
+    write_json(js, report)
+    info(args, f"wrote {out}: {data.n_samples} samples, {data.n_inputs} inputs, {data.n_outputs} outputs")
+    return report
+
+
+def cmd_tune(args: argparse.Namespace) -> dict:
+    from .. import io
+    from ..control import AbstractController
+
+    out = output_path(args.out, "--out")
+    js = output_path(args.json, "--json")
+    distinct_outputs(out, js)
+    plot = plot_dir(args)
+    model = None
+    if args.model is not None:
+        input_file(args.model, "--model")
+        model = io.load_model(args.model)
+    plant, _ = _plant(args)
+    tune = require("jthermo.tune", "tuning")
+    args.controller = _controller_family(args.controller)
+    bar = progress_bar(args, f"tune {args.controller}", total=args.steps)
+    t0 = time.perf_counter()
+    try:
+        rep = tune.tune_report(args.controller, plant=plant, model=model, rollouts=args.rollouts,
+                               steps=args.steps, seed=args.seed, zones=args.zones,
+                               powder=args.powder, progress=bar)
+    finally:
+        bar.close()
+    rep = dict(rep)
+    ctrls = {k: v for k, v in rep.items() if isinstance(v, AbstractController)}
+    for k in ctrls:
+        rep.pop(k)
+    costs = rep.get("costs") or rep.get("history")
+    report = {"controller": args.controller, **rep, "seed": args.seed}
+    report.setdefault("seconds", time.perf_counter() - t0)
+    if plot is not None and costs is not None:
+        from .. import plots
+
+        plot.mkdir(parents=True, exist_ok=True)
+        plots.plot_tuning_curve(costs, path=plot / "tuning.png")
+        report["figures"] = [str(plot / "tuning.png")]
+    if out is not None:
+        tuned = next((v for k, v in ctrls.items() if "tuned" in k), None) or next(iter(ctrls.values()), None)
+        if tuned is None:
+            raise ConfigError("tune: the tuning result holds no controller to save")
+        io.save(tuned, out, meta={"family": args.controller, "seed": args.seed,
+                                  "tuned_cost": report.get("tuned_cost")})
+        report["out"] = str(out)
+    io.write_json(js, report)
+    info(args, f"{args.controller}: " + summary_line(
+        report, ("start_cost", "tuned_cost", "lambda_pi_cost", "improvement_percent", "seconds")))
+    return report

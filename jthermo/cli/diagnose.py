@@ -1,0 +1,53 @@
+"""`jthermo diagnose`: locate and name the physics a model left out."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ..errors import ConfigError
+from .common import add_common, info, load_data, output_path, progress_bar, require, same_layout
+
+
+def add_parsers(sub) -> None:
+    sp = sub.add_parser("diagnose", help="locate and name the physics a model left out")
+    sp.add_argument("data", metavar="EST.csv")
+    sp.add_argument("--validation", required=True, metavar="VAL.csv")
+    sp.add_argument("--model", default="greybox", choices=("greybox",))
+    sp.add_argument("--report", metavar="DIR", help="write a Markdown report with figures")
+    add_common(sp, plot=False)
+
+
+def cmd_diagnose(args: argparse.Namespace) -> dict:
+    from ..io import write_json
+
+    js = output_path(args.json, "--json")
+    if args.report is not None and Path(args.report).exists() and not Path(args.report).is_dir():
+        raise ConfigError(f"--report {args.report}: exists and is not a directory")
+    est = load_data(args.data, "estimation data")
+    val = load_data(args.validation, "validation data")
+    same_layout(est, val)
+    diag = require("jthermo.diagnose", "diagnosis")
+    if not hasattr(diag, "diagnose"):
+        raise ConfigError("diagnosis is not available in this jthermo build")
+    if args.report is not None and not hasattr(diag, "write_report"):
+        raise ConfigError("--report: the diagnosis report writer is not available in this jthermo build")
+    bar = progress_bar(args, "diagnose")
+    t0 = time.perf_counter()
+    try:
+        result = diag.diagnose(est, val, seed=args.seed, progress=bar)
+    finally:
+        bar.close()
+    result = dict(result)
+    result.setdefault("seconds", time.perf_counter() - t0)
+    if args.report is not None:
+        written = diag.write_report(result, args.report, est, val)
+        result["report"] = str(written) if written is not None else str(Path(args.report) / "report.md")
+    if hasattr(diag, "to_json"):
+        result = diag.to_json(result)
+    result = {k: v for k, v in result.items() if not str(k).startswith("_")}
+    write_json(js, result)
+    names = [f.get("mechanism") for f in result.get("findings", [])]
+    info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))
+    return result

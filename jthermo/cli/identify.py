@@ -1,0 +1,189 @@
+"""`jthermo fit` and `jthermo validate`: identify a model family on data, check a saved model."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from ..errors import ConfigError
+from ..families import MODEL_FAMILIES, ORDER_NAMES
+from .common import (
+    MAX_ORDER,
+    add_common,
+    distinct_outputs,
+    info,
+    input_file,
+    load_data,
+    output_path,
+    plot_dir,
+    progress_bar,
+    require,
+    same_layout,
+)
+
+
+def add_parsers(sub) -> None:
+    sp = sub.add_parser("fit", help="fit a model family to an experiment")
+    sp.add_argument("data", metavar="EST.csv", help="estimation data (CSV, Parquet or .npz)")
+    sp.add_argument("--model", required=True, choices=MODEL_FAMILIES, help="model family")
+    sp.add_argument("--orders", help="comma-separated orders in MATLAB's order: arx na,nb,nk; "
+                    "armax na,nb,nc,nk; oe nb,nf,nk; bj nb,nc,nd,nf,nk; ss n (default: chosen "
+                    "by the order-selection criterion)")
+    sp.add_argument("--validation", metavar="VAL.csv", help="validation data (default: EST)")
+    sp.add_argument("--out", metavar="MODEL", help="save the fitted model here")
+    sp.add_argument("--common-denominator", action="store_true",
+                    help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
+                    "instead of one per input-output pair (MATLAB's)")
+    sp.add_argument("--rest-level", metavar="T[,T...]",
+                    help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
+                    "(e.g. the measured ambient, °C; one number or one per output)")
+    add_common(sp)
+
+    sp = sub.add_parser("validate", help="fit %% and residual tests of a saved model on data")
+    sp.add_argument("model", metavar="MODEL", help="a model saved by `jthermo fit --out`")
+    sp.add_argument("data", metavar="DATA.csv")
+    add_common(sp)
+
+
+def _parse_orders(family: str, text: str | None) -> dict | None:
+    if text is None:
+        return None
+    names = ORDER_NAMES[family]
+    if not names:
+        raise ConfigError(f"--orders: the {family} model has no orders to set")
+    parts = [s.strip() for s in text.split(",")]
+    try:
+        values = [int(s) for s in parts]
+    except ValueError:
+        raise ConfigError(f"--orders: expected comma-separated integers, got {text!r}") from None
+    if len(values) != len(names):
+        raise ConfigError(f"--orders: {family} takes {len(names)} orders ({','.join(names)}), got {len(values)}")
+    for n, v in zip(names, values):
+        low = 1 if n == "n" else 0
+        if not low <= v <= MAX_ORDER:
+            raise ConfigError(f"--orders: {n} must lie in {low}..{MAX_ORDER}, got {v}")
+    return dict(zip(names, values))
+
+
+def _fit_options(args) -> dict:
+    """The fitter's keyword options from `--common-denominator` and `--rest-level`."""
+    family = args.model
+    extra = {}
+    if args.common_denominator:
+        if family not in ("oe", "bj"):
+            raise ConfigError(f"--common-denominator: only for oe and bj, not {family}")
+        extra["common_f"] = True
+    if args.rest_level is not None:
+        if family not in ("arx", "armax", "oe", "bj"):
+            raise ConfigError(f"--rest-level: only for arx, armax, oe and bj, not {family}")
+        try:
+            extra["rest_level"] = [float(v) for v in args.rest_level.split(",")]
+        except ValueError:
+            raise ConfigError(f"--rest-level: expected comma-separated numbers, got {args.rest_level!r}") from None
+        if len(extra["rest_level"]) == 1:
+            extra["rest_level"] = extra["rest_level"][0]
+    return extra
+
+
+def cmd_fit(args: argparse.Namespace) -> dict:
+    from .. import io
+
+    family = args.model
+    orders = _parse_orders(family, args.orders)
+    extra = _fit_options(args)
+    out = output_path(args.out, "--out")
+    js = output_path(args.json, "--json")
+    distinct_outputs(out, js)
+    plot = plot_dir(args)
+    est = load_data(args.data, "estimation data")
+    val = load_data(args.validation, "validation data") if args.validation else None
+    if val is not None:
+        same_layout(est, val)
+    fit_mod = require("jthermo.identify.fit", "identification (fit)")
+    validate = require("jthermo.validate", "validation")
+
+    bar = progress_bar(args, f"fit {family}")
+    t0 = time.perf_counter()
+    try:
+        res = fit_mod.fit(est, family, None if orders is None else tuple(orders.values()),
+                          seed=args.seed, progress=bar, **extra)
+    finally:
+        bar.close()
+    seconds = time.perf_counter() - t0
+    target = val if val is not None else est
+    cmp = validate.compare(res.model, target)
+    report = {
+        "model": family,
+        "orders": dict(getattr(res, "orders", None) or orders or {}),
+        "fit_percent": cmp["fit_percent"],
+        "mean_fit_percent": cmp["mean_fit_percent"],
+        "fit_on": "validation" if val is not None else "estimation",
+        "seconds": getattr(res, "seconds", None) or seconds,
+        "converged": bool(getattr(res, "converged", True)),
+        "cost": getattr(res, "cost", None),
+        "criterion_table": getattr(res, "criterion_table", None),
+        "data": str(args.data),
+        "validation": args.validation,
+        "n_samples": est.n_samples,
+        "ts": est.ts,
+        "data_notes": list(est.notes) + (list(val.notes) if val is not None else []),
+        "seed": args.seed,
+    }
+    if plot is not None:
+        from .. import plots
+
+        plot.mkdir(parents=True, exist_ok=True)
+        plots.plot_compare(target, {family: cmp["yhat"]}, {family: cmp["fit_percent"]},
+                           path=plot / f"compare_{family}.png")
+        plots.plot_step(res.model, min(600, max(50, est.n_samples // 4)), path=plot / f"step_{family}.png")
+        plots.plot_pzmap(res.model, path=plot / f"pzmap_{family}.png")
+        report["figures"] = sorted(str(p) for p in plot.glob(f"*_{family}.png"))
+    if out is not None:
+        io.save(res.model, out, meta={"family": family, "orders": report["orders"],
+                                      "data": str(args.data), "seed": args.seed,
+                                      "fit_percent": cmp["fit_percent"]})
+        report["out"] = str(out)
+    io.write_json(js, report)
+    info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
+               f"(mean {cmp['mean_fit_percent']:.2f} % on {report['fit_on']} data), "
+               f"{report['seconds']:.1f} s")
+    return report
+
+
+def cmd_validate(args: argparse.Namespace) -> dict:
+    from .. import io
+
+    js = output_path(args.json, "--json")
+    plot = plot_dir(args)
+    input_file(args.model, "model")
+    model = io.load_model(args.model)
+    data = load_data(args.data)
+    validate = require("jthermo.validate", "validation")
+    header = io.load_header(args.model)
+    cmp = validate.compare(model, data)
+    res = validate.residual_tests(model, data)
+    keep = ("auto_pass", "cross_pass", "whiteness_pass", "independence_pass", "ljung_box_q",
+            "ljung_box_p", "n_outside_auto", "n_outside_cross", "bound", "max_lag", "alpha")
+    report = {
+        "model": header.get("family"),
+        "orders": header.get("orders") or header.get("meta", {}).get("orders"),
+        "model_file": str(args.model),
+        "data": str(args.data),
+        "fit_percent": cmp["fit_percent"],
+        "mean_fit_percent": cmp["mean_fit_percent"],
+        "residual_tests": {k: res[k] for k in keep if k in res},
+        "data_notes": list(data.notes),
+    }
+    if plot is not None:
+        from .. import plots
+
+        plot.mkdir(parents=True, exist_ok=True)
+        name = report["model"] or "model"
+        plots.plot_compare(data, {name: cmp["yhat"]}, {name: cmp["fit_percent"]}, path=plot / "compare.png")
+        plots.plot_residual_tests(res, path=plot / "residuals.png")
+        report["figures"] = [str(plot / "compare.png"), str(plot / "residuals.png")]
+    io.write_json(js, report)
+    info(args, f"fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % (mean {cmp['mean_fit_percent']:.2f} %), "
+               f"residuals white: {res.get('whiteness_pass')}, independent of inputs: "
+               f"{res.get('independence_pass')}")
+    return report
