@@ -13,7 +13,7 @@ Each mechanism adds states, terms or input transformations with physically const
 | `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$, set by its share of the tangent loss (`loss_split`) |
 | `heat_accumulation` | a slow shared wall: $\\tau_w \\dot T_w = \\bar T - T_w + \\gamma (T_s - T_w)$, zones $+c_i (T_w - T_i)$; $\\tau_w > 200$ s, $0 < \\gamma < 4$ |
 | `heater_lag` | lamps $\\tau_h \\dot p_j = u_j - p_j$ drive the zones instead of $u$ |
-| `input_delay` | $u(t - d)$, $d$ whole samples (chosen on a grid, not by gradient) |
+| `input_delay` | $u(t - d)$, $d$ in seconds, any fraction of a sample: the held input is interpolated between the two samples around $t - d$; $d$ moves within one sample of the delay scan's best (by gradient) |
 | `input_nonlinearity` | $u_j^{\\,e}$, $e > 0$ |
 | `recoat_cooling` | a drop $\\delta_i \\ge 0$ of each zone at the detected recoat events (period, phase) |
 | `ambient_variation` | $T_s(t) = \\bar T_s + $ the measured variation, or a piecewise-linear drift |
@@ -43,6 +43,8 @@ MECHANISMS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heat
 KELVIN = 273.15
 DRIFT_SPACING = 300.0      # s between the knots of the piecewise-linear surroundings drift
 UNROLL = 1                 # scan unrolling: per-step overhead dominates on CPU
+#: samples of input history kept before the record (the longest dead time tried, plus two)
+PAD = 42
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +78,7 @@ def make_layout(n: int, nu: int, n_drift: int) -> Layout:
     through their measured temperatures), so every zone has the same vector."""
     sizes = [("log_a", 1), ("log_b", nu), ("x0", 1), ("ts0", 1), ("log_k", max(n - 1, 1)),
              ("rad_share", 1), ("log_tauw", 1), ("log_gamma", 1), ("log_c", 1), ("xw0", 1),
-             ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("drift", n_drift)]
+             ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("dfrac", 1), ("drift", n_drift)]
     out, a = [], 0
     for nm, s in sizes:
         out.append((nm, a, s))
@@ -90,7 +92,7 @@ MECH_PARAMS = {
     "radiative_loss": ("rad_share",),
     "heat_accumulation": ("log_tauw", "log_gamma", "log_c", "xw0"),
     "heater_lag": ("log_tauh",),
-    "input_delay": (),
+    "input_delay": ("dfrac",),
     "input_nonlinearity": ("log_e",),
     "recoat_cooling": ("log_drop",),
     "ambient_variation": ("drift",),
@@ -170,16 +172,32 @@ def _safe_pow(u, e):
     return jnp.where(pos, jnp.where(pos, u, 1.0) ** e, 0.0)
 
 
+def delay_samples(delay, dfrac):
+    """Dead time in samples: within one sample of the scan's `delay` (samples, may be
+    fractional), moved by the unconstrained `dfrac`; never negative."""
+    xp = jnp if isinstance(dfrac, jax.Array) else np
+    return xp.clip(delay + 2.0 / (1.0 + xp.exp(-dfrac)) - 1.0, 0.0, PAD - 2.0)
+
+
 def _inputs(theta, on, u, u_pad, delay, lay):
     """Heater inputs after dead time and lamp nonlinearity: `(T, nu)` per zone model, and the
-    (transformed) input before the record `(nu,)`."""
+    (transformed) input before the record `(nu,)`.
+
+    A dead time of $d = i + f$ samples ($0 \\le f < 1$) gives the input
+    $(1 - f)\\,u_{k-i} + f\\,u_{k-i-1}$: the held input's share of the sample that is still the
+    older value, continuous (and differentiable almost everywhere) in $d$."""
     g = lambda nm: theta[lay.sl(nm)]
     nu = lay.nu
     T = u.shape[0]
     dt = theta.dtype
-    d = (on[4] * delay).astype(jnp.int32)
-    upad = jnp.concatenate([jnp.broadcast_to(u_pad, (32, nu)).astype(dt), u.astype(dt)], axis=0)
-    u = jax.lax.dynamic_slice(upad, (32 - d, jnp.zeros((), jnp.int32)), (T, nu))
+    d = on[4] * delay_samples(jnp.asarray(delay, dt), g("dfrac")[0])
+    i = jnp.floor(d)
+    f = d - i
+    i = i.astype(jnp.int32)
+    upad = jnp.concatenate([jnp.broadcast_to(u_pad, (PAD, nu)).astype(dt), u.astype(dt)], axis=0)
+    zero = jnp.zeros((), jnp.int32)
+    u = ((1.0 - f) * jax.lax.dynamic_slice(upad, (PAD - i, zero), (T, nu))
+         + f * jax.lax.dynamic_slice(upad, (PAD - i - 1, zero), (T, nu)))
     e = 1.0 + on[5] * (jnp.exp(g("log_e")[0]) - 1.0)
     return _safe_pow(u, e), _safe_pow(u_pad.astype(dt), e)
 
@@ -359,6 +377,7 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     th[lay.sl("log_tauh")] = np.log(5.0)
     th[lay.sl("log_e")] = 0.0
     th[lay.sl("log_drop")] = np.log(0.3)
+    th[lay.sl("dfrac")] = 0.0                              # the delay scan's best
     th[lay.sl("drift")] = 0.0
     return th
 
@@ -369,6 +388,8 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
     g = lambda nm: th[:, lay.sl(nm)]
     med = lambda v: float(np.median(v))
     if mech == "lateral_conduction":
+        if lay.n < 2:
+            return {}
         k = np.exp(g("log_k"))[:, : lay.n - 1]
         a = np.exp(g("log_a")[:, 0])
         strongest = {}
@@ -391,7 +412,8 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
     if mech == "heater_lag":
         return {"time_constant_s": med(lamp_tau(g("log_tauh")[:, 0]))}
     if mech == "input_delay":
-        return {"delay_s": float(extra.get("delay", 0) * ts)}
+        d = delay_samples(float(extra.get("delay", 0.0)), g("dfrac")[:, 0])
+        return {"delay_s": med(d * ts), "delay_per_zone_s": [float(v * ts) for v in d]}
     if mech == "input_nonlinearity":
         return {"exponent": med(np.exp(g("log_e")[:, 0]))}
     if mech == "recoat_cooling":

@@ -10,7 +10,6 @@ from jthermo.data import from_arrays
 from jthermo.diagnose import MECHANISMS, diagnose, to_json, write_report
 from jthermo.diagnose import mechanisms as M
 from jthermo.diagnose.localise import detect_periodic, event_matrix, localise
-from jthermo.diagnose.select import _prefer_identified
 from jthermo.errors import DataError
 from jthermo.models.greybox import BedModel, ExtendedBedModel
 
@@ -77,7 +76,7 @@ def test_concealed_mechanism_is_top_finding(results, mech):
     gain = res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"]
     assert gain >= 2.0
     if mech == "input_delay":
-        assert res["findings"][0]["parameters"]["delay_s"] == 4.0
+        assert abs(res["findings"][0]["parameters"]["delay_s"] - 4.0) <= 0.25
 
 
 def test_json_contract(results):
@@ -217,40 +216,3 @@ def test_expm_matches_scipy():
     for scale in (0.01, 1.0, 20.0):
         A = scale * rng.normal(size=(6, 6)) - scale * 3 * np.eye(6)
         np.testing.assert_allclose(np.asarray(M._expm(jnp.asarray(A))), expm(A), rtol=1e-9, atol=1e-12)
-
-
-def test_slow_accumulation_gives_way_to_named_offset_physics():
-    rows = [{"mechanism": "heat_accumulation", "val_mse": 1.00, "parameters": {"time_constant_s": 1e6}},
-            {"mechanism": "input_nonlinearity", "val_mse": 1.02, "parameters": {"exponent": 0.9}},
-            {"mechanism": "radiative_loss", "val_mse": 1.01, "parameters": {"share_of_loss": 0.8}}]
-    assert _prefer_identified(rows, 3600.0)[0]["mechanism"] == "radiative_loss"
-    # an identified slow body (time constant within the record) stays first
-    rows[0]["parameters"]["time_constant_s"] = 1500.0
-    assert _prefer_identified(rows, 3600.0)[0]["mechanism"] == "heat_accumulation"
-    # so does a slow one that fits clearly better than the alternatives
-    rows[0]["parameters"]["time_constant_s"] = 1e6
-    for r in rows[1:]:
-        r["val_mse"] = 1.2
-    assert _prefer_identified(rows, 3600.0)[0]["mechanism"] == "heat_accumulation"
-
-
-def test_offset_ties_name_the_physics():
-    """A frozen slow body or a lamp exponent near 1 tied with radiation is named radiation; a
-    clear exponent, or a slow body actually seen in the record, keeps its name."""
-    from jthermo.diagnose.select import _prefer_identified
-
-    def row(mech, val_mse, **params):
-        return {"mechanism": mech, "val_mse": val_mse, "parameters": params}
-
-    T = 3600.0
-    frozen = row("heat_accumulation", 1.00, time_constant_s=20000.0)
-    rad, nl_weak = row("radiative_loss", 1.01), row("input_nonlinearity", 1.005, exponent=0.94)
-    assert _prefer_identified([frozen, nl_weak, rad], T)[0] is rad
-    assert _prefer_identified([nl_weak, rad], T)[0] is rad
-    nl_clear = row("input_nonlinearity", 1.00, exponent=0.7)
-    assert _prefer_identified([nl_clear, rad], T)[0] is nl_clear
-    seen = row("heat_accumulation", 1.00, time_constant_s=1500.0)
-    assert _prefer_identified([seen, rad], T)[0] is seen
-    far = row("radiative_loss", 1.10)                   # not within OFFSET_TIE: no change
-    assert _prefer_identified([nl_weak, far], T)[0] is nl_weak
-    assert _prefer_identified([], T) == []
