@@ -16,12 +16,15 @@ from .._types import Input, Output, Setpoint
 
 ControllerState = Any   # a pytree with fixed shapes and dtypes (a scan carry)
 
+U_MIN, U_MAX = 0.0, 1.0   # actuator limits, power fraction
+
 
 class AbstractController(eqx.Module):
     """A discrete-time controller with sample time `ts` (s).
 
-    `step` returns the *requested* input; the loop saturates it to [0, 1]. Controllers with
-    anti-windup saturate internally as well, so that their state knows about the limit.
+    `step` returns the *requested* input; the loop saturates it to [`U_MIN`, `U_MAX`] = [0, 1].
+    Controllers with anti-windup saturate internally as well, so that their state knows about
+    the limit.
     """
 
     @abc.abstractmethod

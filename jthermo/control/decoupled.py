@@ -4,37 +4,28 @@ With $W_1 = I$ this is the diagonal PI. The PI law is discretised with Euler bac
 (thesis eq. 2.8): $I_k = I_{k-1} + K_p T_s/T_i\\, e_k$, $v_k = K_p e_k + I_k$,
 $u_k = u_b + W_1 v_k$. Anti-windup by back-calculation in the decoupled coordinates: after
 saturation, $I_k \\leftarrow I_k + W_1^{-1}(\\mathrm{sat}(u_k) - u_k)$, so the integrators hold
-exactly the value that keeps the input at its limit (Åström & Hägglund 2006, §3.5).
+exactly the value that keeps the input at its limit (Åström & Hägglund 2006, §3.5); one
+sample is `pi.pi_update`.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import AbstractController
-from .design import _as_ss, _f, decoupling_matrix, lambda_gains, operating_point, step_models
-from .pi import UNTUNED_KP, UNTUNED_TI, DiagonalPI
-
-U_MIN, U_MAX = 0.0, 1.0   # actuator limits, power fraction
-
-
-def pi_update(kp, ti, ts, integ, e, u_open, W1=None):
-    """One Euler-backward PI sample with back-calculation anti-windup.
-
-    `u_open` is everything added to $W_1 v$ (bias, feed-forward). Returns `(u_sat, integ_new)`.
-    """
-    integ_try = integ + kp * (ts / ti) * e
-    v = kp * e + integ_try
-    u_req = u_open + (v if W1 is None else W1 @ v)
-    u_sat = jnp.clip(u_req, U_MIN, U_MAX)
-    du = u_sat - u_req
-    integ_new = integ_try + (du if W1 is None else jnp.linalg.solve(W1, du))
-    return u_sat, integ_new
+from .pi import UNTUNED_KP, UNTUNED_TI, DiagonalPI, pi_update
+from .rules import (
+    as_array,
+    as_state_space,
+    bias_input,
+    decoupling_matrix,
+    lambda_gains,
+    step_models,
+)
 
 
 class DecoupledPIState(eqx.Module):
@@ -84,30 +75,27 @@ def design_lambda_pi(model, lam=None, *, u_bias=None) -> DiagonalPI:
     `lam`: closed-loop time constant in s (default: each channel's open-loop T).
     `u_bias`: input at zero integrator (default: the model's operating-point input).
     """
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     kp, ti = lambda_gains(step_models(model), lam)
-    u0, _ = operating_point(model)
-    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
-    return DiagonalPI(_f(kp), _f(ti), _f(ub), ts=ss.ts)
+    ub = bias_input(model, u_bias)
+    return DiagonalPI(as_array(kp), as_array(ti), as_array(ub), ts=ss.ts)
 
 
 def design_decoupled_pi(model, kind: str = "CB", lam=None, *, u_bias=None) -> DecoupledPI:
     """Decoupled PI $W_1 F_{diag}$: $W_1 = (CB)^{-1}$ (`kind="CB"`, eq. 2.14) or $G(0)^{-1}$
     (`kind="G0"`, eq. 2.13); $F_{diag}$ is lambda-tuned on the diagonal of $G W_1$."""
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     W1 = decoupling_matrix(model, kind)
     kp, ti = lambda_gains(step_models(model, transform=W1), lam)
-    u0, _ = operating_point(model)
-    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
-    return DecoupledPI(_f(kp), _f(ti), _f(ub), _f(W1), ts=ss.ts)
+    ub = bias_input(model, u_bias)
+    return DecoupledPI(as_array(kp), as_array(ti), as_array(ub), as_array(W1), ts=ss.ts)
 
 
 def design_untuned_pi(model, *, kp: float = UNTUNED_KP, ti: float = UNTUNED_TI,
                       u_bias=None) -> DiagonalPI:
     """The untuned baseline: the same PI on every zone whatever the model says
     (`DiagonalPI.untuned` gains), biased at the model's operating-point input."""
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     n = ss.B.shape[1]
-    u0, _ = operating_point(model)
-    ub = u0 if u_bias is None else np.broadcast_to(u_bias, u0.shape)
-    return DiagonalPI(jnp.full(n, kp), jnp.full(n, ti), _f(ub), ts=ss.ts)
+    ub = bias_input(model, u_bias)
+    return DiagonalPI(jnp.full(n, kp), jnp.full(n, ti), as_array(ub), ts=ss.ts)

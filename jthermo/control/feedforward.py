@@ -26,8 +26,8 @@ from jaxtyping import Array, Float
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import AbstractController
-from .decoupled import pi_update
-from .design import _as_ss, _f, lambda_gains, step_models, zeros_stable
+from .pi import pi_update
+from .rules import as_array, as_state_space, dcgain_inverse, lambda_gains, step_models, zeros_stable
 
 sg = jax.lax.stop_gradient
 
@@ -92,14 +92,11 @@ def design_feedforward(model, kind: str = "neutral", T=None, lam=None) -> FeedFo
     """
     if kind not in ("ideal", "neutral"):
         raise ControlError(f"design_feedforward: kind must be 'ideal' or 'neutral', got {kind!r}")
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     sm = step_models(model)
     kp, ti = lambda_gains(sm, lam)
     A, B, C = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C))
-    G0 = np.asarray(ss.dcgain(), np.float64)
-    if np.linalg.cond(G0) > 1e10:
-        raise ControlError("design_feedforward: G(0) is singular")
-    G0inv = np.linalg.inv(G0)
+    G0inv = dcgain_inverse(ss, "design_feedforward")
     CB = C @ B
     CBinv = np.linalg.pinv(CB)
     Mss = np.linalg.solve(np.eye(A.shape[0]) - A, B @ G0inv)
@@ -107,6 +104,7 @@ def design_feedforward(model, kind: str = "neutral", T=None, lam=None) -> FeedFo
     if np.any(Tref <= 0):
         raise ControlError(f"design_feedforward: T must be positive, got {T}")
     inverse = kind == "ideal" and zeros_stable(model)
-    return FeedForward(kp=_f(kp), ti=_f(ti), T=_f(Tref), A=_f(A), B=_f(B), C=_f(C),
-                       u_op=_f(ss.u0), y_op=_f(ss.y0), G0inv=_f(G0inv), CBinv=_f(CBinv),
-                       Mss=_f(Mss), kind=kind, inverse=bool(inverse), ts=ss.ts)
+    f = as_array
+    return FeedForward(kp=f(kp), ti=f(ti), T=f(Tref), A=f(A), B=f(B), C=f(C), u_op=f(ss.u0),
+                       y_op=f(ss.y0), G0inv=f(G0inv), CBinv=f(CBinv), Mss=f(Mss), kind=kind,
+                       inverse=bool(inverse), ts=ss.ts)

@@ -21,8 +21,7 @@ from jaxtyping import Array, Float
 
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
-from ._base import AbstractController, ControllerState
-from .decoupled import U_MAX, U_MIN
+from ._base import U_MAX, U_MIN, AbstractController, ControllerState
 
 
 class Gated(AbstractController):

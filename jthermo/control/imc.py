@@ -25,9 +25,8 @@ from jaxtyping import Array, Float
 
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
-from ._base import AbstractController
-from .decoupled import U_MAX, U_MIN
-from .design import _as_ss, _f, step_models, zeros_stable
+from ._base import U_MAX, U_MIN, AbstractController
+from .rules import as_array, as_state_space, dcgain_inverse, step_models, zeros_stable
 
 sg = jax.lax.stop_gradient
 
@@ -73,12 +72,9 @@ class IMC(AbstractController):
 def design_imc(model, filter_tc=None) -> IMC:
     """IMC from a model. `filter_tc`: filter time constant λ in s, scalar or per output
     (default: a third of each channel's open-loop time constant)."""
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     A, B, C = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C))
-    G0 = np.asarray(ss.dcgain(), np.float64)
-    if np.linalg.cond(G0) > 1e10:
-        raise ControlError("design_imc: G(0) is singular")
-    G0inv = np.linalg.inv(G0)
+    G0inv = dcgain_inverse(ss, "design_imc")
     inverse = zeros_stable(model)
     CBinv = np.linalg.pinv(C @ B)
     if filter_tc is None:
@@ -88,5 +84,6 @@ def design_imc(model, filter_tc=None) -> IMC:
     if np.any(~np.isfinite(lam)) or np.any(lam <= 0):
         raise ControlError(f"design_imc: filter_tc must be positive, got {filter_tc}")
     Mss = np.linalg.solve(np.eye(A.shape[0]) - A, B @ G0inv)
-    return IMC(lam=_f(lam), A=_f(A), B=_f(B), C=_f(C), u_op=_f(ss.u0), y_op=_f(ss.y0),
-               CBinv=_f(CBinv), G0inv=_f(G0inv), Mss=_f(Mss), inverse=bool(inverse), ts=ss.ts)
+    f = as_array
+    return IMC(lam=f(lam), A=f(A), B=f(B), C=f(C), u_op=f(ss.u0), y_op=f(ss.y0),
+               CBinv=f(CBinv), G0inv=f(G0inv), Mss=f(Mss), inverse=bool(inverse), ts=ss.ts)

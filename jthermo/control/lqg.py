@@ -36,9 +36,8 @@ from jaxtyping import Array, Float
 
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
-from ._base import AbstractController
-from .decoupled import U_MAX, U_MIN
-from .design import _as_ss, _f
+from ._base import U_MAX, U_MIN, AbstractController
+from .rules import as_array, as_state_space
 
 sg = jax.lax.stop_gradient
 
@@ -166,7 +165,7 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
     - `tau_r`: time constant of the reference model (s), scalar or per output; the set-point
       weight on its lag starts at 0, so it only matters once that is tuned.
     """
-    ss = _as_ss(model)
+    ss = as_state_space(model)
     ny, nu = ss.C.shape[0], ss.B.shape[1]
 
     def vec(v, n, name):
@@ -180,9 +179,10 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
     tau = vec(tau_r, ny, "tau_r")
     if not np.isfinite(qw) or qw <= 0:
         raise ControlError(f"design_lqg: qw must be positive, got {qw}")
-    ctrl = LQG(q1=_f(q1), q2=_f(q2), qi=_f(qi), qw=_f(qw), b0=_f(np.zeros(ny)),
-               tau_r=_f(tau), A=_f(ss.A), B=_f(ss.B), C=_f(ss.C),
-               u_op=_f(ss.u0), y_op=_f(ss.y0), ts=ss.ts, iters=iters)
+    f = as_array
+    ctrl = LQG(q1=f(q1), q2=f(q2), qi=f(qi), qw=f(qw), b0=f(np.zeros(ny)), tau_r=f(tau),
+               A=f(ss.A), B=f(ss.B), C=f(ss.C), u_op=f(ss.u0), y_op=f(ss.y0), ts=ss.ts,
+               iters=iters)
     g = ctrl.gains()
     if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(g)):
         raise ControlError("design_lqg: the Riccati solution is not finite for these weights")

@@ -8,6 +8,9 @@ $$u_k = u_0 + K_p e_k + I_k, \\qquad I_k = I_{k-1} + \\frac{K_p T_s}{T_i} e_k ,$
 [`u_min`, `u_max`]. Anti-windup by clamping (conditional integration: the integral is frozen
 while the output is saturated and the error would drive it further) or by back-calculation
 (the integral is pulled back by $\\frac{T_s}{T_t}(\\mathrm{sat}(v) - v)$).
+
+`pi_update` is the Euler-backward sample with back-calculation to the exact limit, behind a
+static matrix $W_1$ (the decoupled PI and the feed-forward's feedback PI).
 """
 
 from __future__ import annotations
@@ -17,11 +20,27 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ..errors import ControlError
-from ._base import AbstractController
+from ._base import U_MAX, U_MIN, AbstractController
 
 #: the original solution's PI: the same gains on every zone (thesis §1.1), untuned for the bed
 UNTUNED_KP = 0.15     # power fraction per °C
 UNTUNED_TI = 30.0     # s
+
+
+def pi_update(kp, ti, ts, integ, e, u_open, W1=None):
+    """One Euler-backward PI sample with back-calculation anti-windup, $u = u_{open} + W_1 v$.
+
+    `u_open` is everything added to $W_1 v$ (bias, feed-forward); after saturation to
+    [`U_MIN`, `U_MAX`] the integrator is moved by $W_1^{-1}(\\mathrm{sat}(u) - u)$.
+    Returns `(u_sat, integ_new)`.
+    """
+    integ_try = integ + kp * (ts / ti) * e
+    v = kp * e + integ_try
+    u_req = u_open + (v if W1 is None else W1 @ v)
+    u_sat = jnp.clip(u_req, U_MIN, U_MAX)
+    du = u_sat - u_req
+    integ_new = integ_try + (du if W1 is None else jnp.linalg.solve(W1, du))
+    return u_sat, integ_new
 
 
 class PIState(eqx.Module):
@@ -38,14 +57,14 @@ class DiagonalPI(AbstractController):
     ti: Float[Array, " zones"]
     u0: Float[Array, " zones"]
     ts: float = eqx.field(static=True, default=1.0)
-    u_min: float = eqx.field(static=True, default=0.0)
-    u_max: float = eqx.field(static=True, default=1.0)
+    u_min: float = eqx.field(static=True, default=U_MIN)
+    u_max: float = eqx.field(static=True, default=U_MAX)
     antiwindup: str = eqx.field(static=True, default="clamp")   # "clamp" | "backcalc" | "none"
     method: str = eqx.field(static=True, default="euler")       # "euler" (backward) | "tustin"
     tt: float | None = eqx.field(static=True, default=None)     # s, back-calculation time
 
-    def __init__(self, kp, ti, u0=0.5, *, ts: float = 1.0, u_min: float = 0.0,
-                 u_max: float = 1.0, antiwindup: str = "clamp", method: str = "euler",
+    def __init__(self, kp, ti, u0=0.5, *, ts: float = 1.0, u_min: float = U_MIN,
+                 u_max: float = U_MAX, antiwindup: str = "clamp", method: str = "euler",
                  tt: float | None = None):
         kp = jnp.asarray(kp)
         ti = jnp.asarray(ti)
