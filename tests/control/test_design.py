@@ -1,8 +1,15 @@
+import equinox as eqx
 import numpy as np
 import pytest
 
 from jthermo.control import (
     FAMILIES,
+    IMC,
+    LQG,
+    DecoupledPI,
+    DiagonalPI,
+    FeedForward,
+    Gated,
     decoupling_matrix,
     design,
     fit_step_model,
@@ -12,6 +19,7 @@ from jthermo.control import (
     step_models,
 )
 from jthermo.control.design import StepModel, zeros_stable
+from jthermo.control.pi import UNTUNED_KP, UNTUNED_TI
 from jthermo.errors import ControlError
 from jthermo.models import StateSpace
 
@@ -103,17 +111,59 @@ def test_zeros_check():
     assert zeros_stable(ss) == (abs(num_zero) < 0.98)
 
 
-def test_every_family_designs():
+def test_every_family_follows_its_design_rule():
+    """Each family's controller has its structure, and the gains its rule gives on the model."""
     plant = bed_plant(3)
-    for fam in FAMILIES:
-        c = design(fam, plant)
-        assert c is not None
+    u0, y0 = np.asarray(plant.u0), np.asarray(plant.y0)
+    W1 = decoupling_matrix(plant, "CB")
+    sm = step_models(plant)
+    lam_pi = lambda_gains(sm)
+    lam_dec = lambda_gains(step_models(plant, transform=W1))
+    G0 = np.asarray(plant.dcgain())
+    c = {fam: design(fam, plant) for fam in FAMILIES}
+
+    def close(x, want):
+        np.testing.assert_allclose(np.asarray(x), want, rtol=1e-9, atol=1e-12)
+
+    assert type(c["pi_untuned"]) is DiagonalPI
+    close(c["pi_untuned"].kp, np.full(3, UNTUNED_KP))
+    close(c["pi_untuned"].ti, np.full(3, UNTUNED_TI))
+    assert type(c["pi_lambda"]) is DiagonalPI
+    close(c["pi_lambda"].kp, lam_pi[0])
+    close(c["pi_lambda"].ti, lam_pi[1])
+    for fam in ("pi_untuned", "pi_lambda"):
+        close(c[fam].u0, u0)
+    dec = c["pi_decoupled"]
+    assert type(dec) is DecoupledPI
+    close(dec.W1, W1)
+    close(dec.kp, lam_dec[0])
+    close(dec.ti, lam_dec[1])
+    close(dec.u_bias, u0)
+    ff = c["feedforward"]
+    assert type(ff) is FeedForward and ff.kind == "neutral"
+    close(np.asarray(ff.G0inv) @ G0, np.eye(3))
+    close(ff.kp, lam_pi[0])
+    close(ff.T, 0.5 * sm.T)
+    imc = c["imc"]
+    assert type(imc) is IMC and imc.inverse == zeros_stable(plant)
+    close(imc.lam, sm.T / 3.0)
+    close(np.asarray(imc.CBinv) @ np.asarray(plant.C @ plant.B), np.eye(3))
+    lqg = c["lqg"]
+    assert type(lqg) is LQG
+    close(lqg.q1, np.ones(3))
+    close(lqg.qi, np.full(3, 0.01))
+    close(lqg.b0, np.zeros(3))
+    for ctrl in (ff, imc, lqg):
+        close(ctrl.u_op, u0)
+        close(ctrl.y_op, y0)
+    gp = c["gated_pi"]
+    assert type(gp) is Gated and float(gp.band) == 3.0
+    assert eqx.tree_equal(gp.inner, c["pi_lambda"])
 
 
 def test_design_point_moves_along_equilibria():
     """Setpoint and measured-signal moves keep the model: the new point is an equilibrium of
     the original model (closed form), and the controllers are biased there."""
-    import equinox as eqx
     import jax.numpy as jnp
 
     from jthermo.control.design import design_point
