@@ -1,0 +1,41 @@
+"""The masked Levenberg–Marquardt solver (`jthermo.identify.lm.masked_lm`)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jthermo.identify.lm import masked_lm
+
+
+def _linear_problem(seed=0, m=30, p=5):
+    rng = np.random.default_rng(seed)
+    return jnp.asarray(rng.standard_normal((m, p))), jnp.asarray(rng.standard_normal(m))
+
+
+def test_free_parameters_reach_the_least_squares_solution_and_fixed_ones_stay():
+    A, b = _linear_problem()
+    theta0 = jnp.asarray([0.3, -0.2, 0.1, 0.5, -0.4])
+    mask = jnp.asarray([1.0, 0.0, 1.0, 1.0, 0.0])
+    theta, cost, hist = masked_lm(lambda th: A @ th - b, theta0, mask, 30)
+    free = np.flatnonzero(np.asarray(mask))
+    fixed = np.flatnonzero(np.asarray(mask) == 0)
+    # least squares over the free parameters with the fixed ones at their start values
+    rhs = np.asarray(b) - np.asarray(A)[:, fixed] @ np.asarray(theta0)[fixed]
+    ref = np.linalg.lstsq(np.asarray(A)[:, free], rhs, rcond=None)[0]
+    np.testing.assert_array_equal(np.asarray(theta)[fixed], np.asarray(theta0)[fixed])
+    np.testing.assert_allclose(np.asarray(theta)[free], ref, rtol=1e-8, atol=1e-10)
+    assert hist.shape == (30,) and np.all(np.diff(np.asarray(hist)) <= 0)
+    assert float(cost) == float(hist[-1])
+    np.testing.assert_allclose(float(cost), np.mean((np.asarray(A @ theta - b)) ** 2), rtol=1e-12)
+
+
+def test_vmapped_masks_equal_single_solves_and_n_active_bounds_the_columns():
+    A, b = _linear_problem(1)
+    res = lambda th: jnp.tanh(A @ th) - 0.5 * b      # noqa: E731
+    theta0 = jnp.full((3, 5), 0.1)
+    masks = jnp.asarray([[1.0, 1, 0, 0, 0], [0, 0, 1, 1, 0], [1, 0, 1, 0, 1]])
+    batched = jax.vmap(lambda t, m: masked_lm(res, t, m, 15, n_active=3))(theta0, masks)
+    for k in range(3):
+        single = masked_lm(res, theta0[k], masks[k], 15)
+        for a, s in zip(batched, single):
+            np.testing.assert_allclose(np.asarray(a[k]), np.asarray(s), rtol=1e-10, atol=1e-12)
