@@ -7,6 +7,7 @@ import pytest
 
 from jthermo.data import load_csv, save_csv
 from jthermo.errors import ConfigError
+from jthermo.models import BedModel
 from jthermo.printer import (
     EFFECTS,
     POWDERS,
@@ -34,11 +35,10 @@ def _bed(y):
 
 
 def test_effect_free_equals_linear_bed_model():
-    greybox = pytest.importorskip("jthermo.models.greybox")
     p = make_printer(N, seed=3)
     par = p.linear_bed_parameters()
-    m = greybox.BedModel.from_physical(np.asarray(par["capacity"]), np.asarray(par["loss"]),
-                                       np.asarray(par["gain"]), ts=1.0)
+    m = BedModel.from_physical(np.asarray(par["capacity"]), np.asarray(par["loss"]),
+                               np.asarray(par["gain"]), ts=1.0)
     T = 3600
     u = _u(T)
     x0 = p.initial_state(jnp.full(N, 170.0))
