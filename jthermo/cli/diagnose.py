@@ -16,6 +16,8 @@ def add_parsers(sub) -> None:
     sp.add_argument("--validation", required=True, metavar="VAL.csv")
     sp.add_argument("--model", default="greybox", choices=("greybox",))
     sp.add_argument("--report", metavar="DIR", help="write a Markdown report with figures")
+    sp.add_argument("--actuator", default="any", choices=("any", "resistive-pwm"),
+                    help="declared actuator: findings that contradict it are flagged, not named")
     add_common(sp, plot=False)
 
 
@@ -36,7 +38,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     bar = progress_bar(args, "diagnose")
     t0 = time.perf_counter()
     try:
-        result = diag.diagnose(est, val, seed=args.seed, progress=bar)
+        result = diag.diagnose(est, val, seed=args.seed, progress=bar, actuator=args.actuator)
     finally:
         bar.close()
     result = dict(result)

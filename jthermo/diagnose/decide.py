@@ -14,9 +14,10 @@ is at most `ALPHA`):
   was *not* fitted on, its mean less the chance gain of any parameters re-estimated on that
   record (one unit each), divided by a Newey–West standard error.
 
-The validation statistic $z$ also orders the candidates, decides whether two of them are
-within the test's resolution (rivals: the better one does not beat the other at the
-one-sided 5 % level), and gives the reported confidence.
+The validation statistic $z$ also decides whether two candidates are within the test's
+resolution (rivals: the better one does not beat the other at the one-sided 5 % level) and
+gives the reported confidence; the candidates that pass are ranked by the size of their
+improvement (validation MSE), not by $z$.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ ALPHA = 0.01
 AR_ORDER = 4
 #: one-sided level at which the better of two explanations is said to beat the other
 RIVAL_LEVEL = 0.05
+#: the statistic of a model whose simulation diverged (finite, so that JSON stays valid)
+BIG = 1e6
 
 
 def ar_filter(e: np.ndarray, order: int = AR_ORDER) -> np.ndarray:
@@ -78,9 +81,9 @@ def predictive_z(e0: np.ndarray, e1: np.ndarray, extra_params: float = 0.0,
     """Diebold–Mariano $z$ that residual `e1 (T, n)` predicts better than `e0`; `extra_params`
     the number of parameters model 1 re-estimates on this record beyond model 0's."""
     if not (np.all(np.isfinite(e1))):
-        return -np.inf
+        return -BIG
     if not np.all(np.isfinite(e0)):
-        return np.inf
+        return BIG
     a = ar_filter(e1) if a is None else a
     w0, w1 = whiten(e0, a), whiten(e1, a)
     s1 = np.mean(w1 ** 2, axis=0) + 1e-300
@@ -92,7 +95,7 @@ def predictive_z(e0: np.ndarray, e1: np.ndarray, extra_params: float = 0.0,
 def likelihood_ratio(e0: np.ndarray, e1: np.ndarray) -> float:
     """$\\Lambda = \\sum_i T' \\log(S_{0,i}/S_{1,i})$ on residuals whitened by model 1's AR."""
     if not np.all(np.isfinite(e1)):
-        return -np.inf
+        return -BIG
     a = ar_filter(e1)
     w0, w1 = whiten(e0, a), whiten(e1, a)
     s0 = np.mean(w0 ** 2, axis=0) + 1e-300

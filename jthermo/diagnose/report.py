@@ -106,15 +106,23 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
                   f"{aug['mean_fit_percent']:.1f} % (gain "
                   f"{aug['mean_fit_percent'] - result['baseline']['mean_fit_percent']:+.1f} points)."), "",
                   "Parameters: `" + json.dumps(aug["parameters"], default=float)[:600] + "`", ""]
-    else:
+        if result["findings"][0].get("rivals"):
+            lines += ["Within the test's resolution of the top finding (rivals): "
+                      + ", ".join(f"`{m}`" for m in result["findings"][0]["rivals"]) + ".", ""]
+    for f in result.get("flagged", []):
+        lines += [f"Flagged, not named: `{f['mechanism']}` improves the fit, but {f['reason']}.", ""]
+    if not result["findings"]:
         lines += ["No candidate mechanism improved the validation simulation by a significant margin:",
                   "nothing the library knows is missing from the baseline model.", ""]
     if result.get("candidates"):
         lines += ["## Candidate refits", "",
-                  "| mechanism | estimation cost reduction % | validation MSE reduction % | fit gain (points) |",
-                  "| --- | --- | --- | --- |"]
+                  ("| mechanism | validation z (critical) | estimation LR (critical) | significant | "
+                   "validation MSE reduction % | fit gain (points) |"),
+                  "| --- | --- | --- | --- | --- | --- |"]
         for c in result["candidates"]:
-            lines.append(f"| {c['mechanism']} | {100 * c['est_reduction']:.1f} | "
+            lines.append(f"| {c['mechanism']} | {c['validation_z']:.2f} ({c['validation_z_critical']:.2f}) | "
+                         f"{c['estimation_lr']:.1f} ({c['estimation_lr_critical']:.1f}) | "
+                         f"{'yes' if c['significant'] else 'no'} | "
                          f"{100 * c['val_reduction']:.1f} | {c['fit_gain']:.2f} |")
         lines.append("")
     loc = result.get("localisation")

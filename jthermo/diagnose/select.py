@@ -8,7 +8,7 @@ when there are two zones or more), and keeps a mechanism only if it passes the t
 validation record, whitened residuals, family-wise false-alarm rate `decide.ALPHA`): the
 augmented model has to predict a record it was not fitted on, where only initial states, and
 for `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
-Candidates are ranked by the validation statistic; explanations within the test's resolution
+Significant candidates are ranked by their validation MSE; explanations within the test's resolution
 of the top one are reported as its `rivals`. Combinations are grown greedily from the top one
 (up to `MAX_COMBINED` mechanisms), each addition fitted and kept only if it passes the same
 tests against the smaller model: chosen by validation, not by estimation cost.
@@ -363,13 +363,15 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         fk = fit_of(e_c[k])
         table.append({"mechanism": m, "validation_z": zv, "validation_z_critical": zc,
                       "estimation_lr": lr, "estimation_lr_critical": lc, "p_value": D.p_value(zv),
-                      "significant": bool(zv >= zc and lr >= lc),
+                      "significant": bool(zv >= zc and lr >= lc
+                                          and np.mean(e_c[k] ** 2) < np.mean(e_base ** 2)),
                       "val_mse": float(np.mean(e_c[k] ** 2)),
                       "val_reduction": float(1 - np.mean(e_c[k] ** 2) / np.mean(e_base ** 2)),
                       "mean_fit_percent": float(np.mean(fk)),
                       "fit_gain": float(np.mean(fk) - np.mean(base_fit)),
                       "parameters": M.physical_parameters(thc[k], m, lay, ts, extra), "k": k})
-    ranked = sorted(table, key=lambda r: -r["validation_z"] if np.isfinite(r["validation_z"]) else np.inf)
+    # the tests decide what is significant; the size of the improvement (validation MSE) ranks
+    ranked = sorted(table, key=lambda r: -r["val_reduction"] if np.isfinite(r["val_reduction"]) else np.inf)
     flagged = [{"mechanism": r["mechanism"], "reason": forbidden[r["mechanism"]],
                 "validation_z": r["validation_z"], "parameters": r["parameters"]}
                for r in ranked if r["significant"] and r["mechanism"] in forbidden]
@@ -383,7 +385,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         for r in sig[1:]:
             if D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt])):
                 rivals.append(r["mechanism"])
-        others = [r for r in ranked if r is not top and r["validation_z"] > 0]
+        others = [r for r in ranked if r is not top and r["val_reduction"] > 0]
         z_run = D.predictive_z(e_c[others[0]["k"]], e_c[kt]) if others else None
         conf_top = D.confidence(top["validation_z"], z_run)
         chosen = [top["mechanism"]]
@@ -410,12 +412,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                 zc, lc = D.thresholds(len(sets), M.n_added_per_zone(st[-1], lay) * n)
                 zv = D.predictive_z(cur_e, e_i, k_val(st) - k_val(tuple(chosen)))
                 lr = D.likelihood_ratio(cur_res, res_s[i])
-                ok = bool(zv >= zc and lr >= lc)
+                ok = bool(zv >= zc and lr >= lc and np.mean(e_i ** 2) < np.mean(cur_e ** 2))
                 added.append({"mechanisms": list(st), "validation_z": zv, "validation_z_critical": zc,
                               "estimation_lr": lr, "estimation_lr_critical": lc, "accepted": False,
                               "mean_fit_percent": float(np.mean(fit_of(e_i)))})
-                if ok and (best is None or zv > best[0]):
-                    best = (zv, i, len(added) - 1)
+                gain = -np.mean(e_i ** 2)
+                if ok and (best is None or gain > best[0]):
+                    best = (gain, i, len(added) - 1)
             if best is None:
                 break
             _, i, a_i = best
