@@ -19,6 +19,7 @@ from jthermo.closedloop import (
 )
 from jthermo.control.pi import DiagonalPI
 from jthermo.errors import ConfigError
+from jthermo.models import BedModel
 from jthermo.printer import make_printer
 
 N = 4
@@ -82,11 +83,10 @@ def test_cost_gradient_matches_central_differences(printer):
 def test_fitted_model_plant_equals_printer_by_superposition():
     """A linear printer and its grey-box model under the same scenario: the model gets the
     printer's disturbance response at its output, which is exact for a linear plant."""
-    greybox = pytest.importorskip("jthermo.models.greybox")
     pr = make_printer(N, ["laser_exposure"], seed=1)
     par = pr.linear_bed_parameters()
-    model = greybox.BedModel.from_physical(*(np.asarray(par[k]) for k in ("capacity", "loss", "gain")),
-                                           ts=1.0)
+    model = BedModel.from_physical(*(np.asarray(par[k]) for k in ("capacity", "loss", "gain")),
+                                   ts=1.0)
     pi = DiagonalPI(jnp.full(N, 0.05), jnp.full(N, 60.0), 0.5)
     sp = make_scenario("ensemble", pr, T, 4)
     sm = make_scenario("ensemble", model, T, 4, reference=pr)

@@ -1,24 +1,9 @@
-"""Closed-loop simulation: controller × plant × scenario, one `lax.scan` over time.
-
-```
-y_k = g(x_k) + v_k                      (measured, °C; v = measurement noise)
-u_k, c_{k+1} = controller.step(c_k, y_k, r_k);   u_k <- clip(u_k, 0, 1)
-x_{k+1} = f(x_k, u_k, d_k)              (plant, one sample Ts)
-```
-
-Plants are the virtual printer (`jthermo.printer.Printer`, disturbances `PrinterDisturbance`:
-recoat flags, laser power per zone, surroundings) or any fitted `AbstractModel`. A fitted
-model has no recoat or laser input, so its scenario carries `ModelDisturbance`: the measured
-signals `w` it was fitted with (`w[:, 0]` = surroundings temperature) and an additive *output*
-disturbance `dy`, the open-loop response of a reference printer to the same recoat/laser events
-(superposition: exact for a linear plant). Batches come from `rollouts` (vmap over scenarios and,
-with `plant_axis=0`, over a stacked batch of plants). Everything is pure and differentiable with
-respect to controller gains and plant parameters.
-"""
+"""The closed-loop engine: plant adapters, `simulate` (one `lax.scan`), batched `rollouts`, the
+lean cost paths that accumulate the cost inside the scan (`simulate_cost`, `rollout_costs`,
+`CompactScenario`), and `run`, the one-call test of a controller."""
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -29,72 +14,19 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .control._base import AbstractController
-from .errors import ConfigError
-from .families import SCENARIO_KINDS as KINDS
-from .models._base import AbstractModel
-from .printer import (
-    DiscretePrinter,
-    Printer,
-    PrinterDisturbance,
-    disturbances,
-    grid_edges,
-    make_printer,
-    simulate_open_loop,
+from ..control._base import AbstractController
+from ..errors import ConfigError
+from ..models._base import AbstractModel
+from ..printer import DiscretePrinter, Printer, make_printer
+from .scenarios import (
+    REALISTIC_EFFECTS,
+    WINDOW_C,
+    ModelDisturbance,
+    Scenario,
+    Trajectory,
+    make_scenario,
 )
-
-#: default scenario lengths, s
-DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "preheat": 1800.0,
-                    "ensemble": 1200.0}
-#: the printer `run` uses by default: every effect a real bed shows in closed loop
-REALISTIC_EFFECTS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
-                     "recoat_cooling", "laser_exposure", "ambient_variation", "sensor_noise")
-STEP_C = 4.0          # the thesis' reference step, °C on all channels
-WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
-
-
-class ModelDisturbance(eqx.Module):
-    """Exogenous signals for a fitted-model plant: measured signals `w` `(T, nw)` and an
-    additive output disturbance `dy` `(T, ny)` in °C."""
-
-    w: Float[Array, "T nw"]
-    dy: Float[Array, "T ny"]
-
-
-class Scenario(eqx.Module):
-    """One closed-loop test (or a batch, with a leading rollout axis on every array).
-
-    - `r`: set points `(T, ny)`, °C.
-    - `d`: plant disturbances `(T, ...)`: `PrinterDisturbance` or `ModelDisturbance`.
-    - `v`: measurement noise `(T, ny)`, °C.
-    - `y0`: initial temperatures `(ny,)`, °C (steady state there, or a cold start for
-      `preheat`).
-    """
-
-    r: Float[Array, "T ny"]
-    d: Any
-    v: Float[Array, "T ny"]
-    y0: Float[Array, " ny"]
-    kind: str = eqx.field(static=True, default="custom")
-    window: float = eqx.field(static=True, default=WINDOW_C)
-    edges: tuple = eqx.field(static=True, default=())
-    ts: float = eqx.field(static=True, default=1.0)
-    cold_start: bool = eqx.field(static=True, default=False)
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.r.shape[-2])
-
-
-class Trajectory(eqx.Module):
-    """A closed-loop run: measured `y`, applied `u` (after saturation), set points `r` and the
-    true `temperature` at the sensor positions, each `(T, n)`."""
-
-    y: Float[Array, "T ny"]
-    u: Float[Array, "T nu"]
-    r: Float[Array, "T ny"]
-    temperature: Float[Array, "T ny"]
-
+from .scoring import cost, cost_weights, edge_index, is_static_zero, metrics
 
 # ----------------------------------------------------------------------------- plant adapters
 
@@ -235,249 +167,6 @@ def rollouts(plant, controller: AbstractController, scenarios: Scenario, x0s=Non
                     in_axes=(plant_axis, 0, 0))(plant, scenarios, x0s)
 
 
-# ----------------------------------------------------------------------------- scenarios
-
-
-def _as_key(key):
-    if isinstance(key, (int, np.integer)):
-        return jax.random.key(int(key))
-    return key
-
-
-def _printer_scenario(kind: str, printer: Printer, T: int, key, noise_std: float,
-                      step_c: float):
-    """r, d, v, y0 for one rollout on the printer (traceable in `key`)."""
-    dt = printer.capacity.dtype
-    n, ny = printer.zones, printer.n_outputs
-    k_d, k_v, k_r, k_p = jax.random.split(key, 4)
-    centre = jnp.full((n,), printer.window_centre, dt)
-    extra = printer.area["setpoint"] if printer.has_areas else jnp.zeros((0,), dt)
-
-    def full(bed):
-        return jnp.concatenate([bed, extra.astype(dt)])
-
-    if kind == "tracking":
-        d = disturbances(printer, T, k_d, recoat=False, laser=False)
-        y0 = full(centre - step_c / 2)
-        r = full(centre + step_c / 2)
-    elif kind == "powder":
-        d = disturbances(printer, T, k_d, recoat=True, laser=False)
-        y0 = r = full(centre)
-    elif kind == "print":
-        d = disturbances(printer, T, k_d, recoat=True, laser=True)
-        y0 = r = full(centre)
-    elif kind == "preheat":
-        d = disturbances(printer, T, k_d, recoat=False, laser=False)
-        y0 = jnp.full((ny,), printer.surroundings, dt)
-        r = full(centre)
-    else:   # ensemble: random start, set point and layer phase, events where the printer has them
-        period = float(printer.param("recoat_cooling", "period_s"))
-        phase = jax.random.randint(k_p, (), 0, max(1, int(period)))
-        d = disturbances(printer, T, k_d, phase_s=phase)
-        k1, k2 = jax.random.split(k_r)
-        y0 = full(centre + jax.random.uniform(k1, (), dt, -step_c, step_c) / 2)
-        r = full(centre + jax.random.uniform(k2, (), dt, -step_c, step_c) / 2)
-    v = printer.sample_noise(k_v, T, noise_std)
-    return jnp.broadcast_to(r, (T, ny)), d, v, y0
-
-
-def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
-                  n_rollouts: int | None = None, noise_std: float = 0.05,
-                  step_c: float = STEP_C, window: float = WINDOW_C,
-                  reference: Printer | None = None) -> Scenario:
-    """Build a thesis test scenario for `plant` (a batch with `n_rollouts`).
-
-    **Arguments:**
-    - `kind`: `"tracking"` (+`step_c` °C step on every bed channel from steady state below the
-      window centre), `"powder"` (recoat layers at the window centre), `"print"` (recoat plus a
-      per-layer laser exposure pattern), `"preheat"` (cold start at the surroundings, set point
-      the window centre: start-up), `"ensemble"` (random start and set point within ±step_c/2,
-      random layer phase, every disturbance the printer has; different per rollout).
-    - `plant`: a `Printer` or a fitted `AbstractModel` (then `reference`, default a realistic
-      printer with as many zones, provides the window, the surroundings and the output
-      disturbances).
-    - `duration` (s, default `DEFAULT_DURATION[kind]`), `key` (a PRNG key or integer seed),
-      `noise_std` (white measurement noise, °C, added to the printer's `sensor_noise`).
-    """
-    if kind not in KINDS:
-        raise ConfigError(f"make_scenario: unknown scenario `{kind}` (known: {', '.join(KINDS)})")
-    duration = DEFAULT_DURATION[kind] if duration is None else duration
-    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
-        raise ConfigError(f"make_scenario: duration must be a positive number of seconds, got {duration!r}")
-    if n_rollouts is not None and (not isinstance(n_rollouts, (int, np.integer)) or n_rollouts < 1):
-        raise ConfigError(f"make_scenario: n_rollouts must be a positive integer, got {n_rollouts!r}")
-    key = _as_key(key)
-    if isinstance(plant, Printer):
-        printer, model = plant, None
-    elif isinstance(plant, AbstractModel):
-        model = plant
-        printer = reference if reference is not None else make_printer(
-            int(model.n_outputs), REALISTIC_EFFECTS)
-        if printer.n_outputs != model.n_outputs:
-            raise ConfigError(f"make_scenario: the model has {model.n_outputs} outputs, the "
-                              f"reference printer {printer.n_outputs}")
-    else:
-        raise ConfigError(f"make_scenario: unsupported plant {type(plant).__name__}")
-    T = int(round(duration / printer.ts))
-    if T < 2:
-        raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
-
-    keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
-    r, d, v, y0 = _build_scenario(kind, printer, model, T, keys, float(noise_std),
-                                  float(step_c), n_rollouts is not None)
-    return Scenario(r=r, d=d, v=v, y0=y0, kind=kind, window=float(window),
-                    edges=grid_edges(printer.zones), ts=printer.ts,
-                    cold_start=(kind == "preheat"))
-
-
-@eqx.filter_jit
-def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched):
-    def one(k):
-        r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c)
-        if model is not None:
-            d = _model_disturbance(model, printer, d)
-        return r, d, v, y0
-
-    return jax.vmap(one)(keys) if batched else one(keys)
-
-
-def _model_disturbance(model: AbstractModel, printer: Printer, d: PrinterDisturbance):
-    """Map printer disturbances onto a fitted model: `w` gets the surroundings, and recoat/laser
-    become the output disturbance they cause on the reference printer in open loop."""
-    ss = model.to_statespace()
-    T = d.ambient.shape[0]
-    nw = ss.Bw.shape[1]
-    w = jnp.broadcast_to(ss.w0, (T, nw))
-    if nw:
-        w = w.at[:, 0].set(d.ambient)
-    u = jnp.broadcast_to(printer.steady_input(), (T, printer.n_inputs))
-    x0 = printer.initial_state()
-    quiet = PrinterDisturbance(recoat=jnp.zeros_like(d.recoat), laser=jnp.zeros_like(d.laser),
-                               ambient=jnp.broadcast_to(printer.surroundings, d.ambient.shape))
-    events = PrinterDisturbance(recoat=d.recoat, laser=d.laser, ambient=quiet.ambient)
-    y1, _ = simulate_open_loop(printer, u, events, x0)
-    y0, _ = simulate_open_loop(printer, u, quiet, x0)
-    dy = y1 - y0
-    if not nw:   # no measured surroundings: its drift acts at the output as well
-        ya, _ = simulate_open_loop(printer, u, PrinterDisturbance(
-            recoat=quiet.recoat, laser=quiet.laser, ambient=d.ambient), x0)
-        dy = dy + ya - y0
-    return ModelDisturbance(w=w, dy=dy)
-
-
-# ----------------------------------------------------------------------------- metrics and cost
-
-
-def _edge_index(edges):
-    if not edges:
-        return None
-    e = np.asarray(edges)
-    return e[:, 0], e[:, 1]
-
-
-def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
-    ts, win = scenario.ts, scenario.window
-    T = traj.temperature
-    e = T - traj.r
-    outside = jnp.any(jnp.abs(e) > win, axis=1)                       # (T,)
-    n = outside.shape[0]
-    k = jnp.arange(n)
-    last_out = jnp.max(jnp.where(outside, k, -1))
-    first_in = jnp.min(jnp.where(~outside, k, n))
-    r_end = traj.r[-1]
-    sgn = jnp.where(jnp.abs(r_end - scenario.y0) > 1e-9, jnp.sign(r_end - scenario.y0), 1.0)
-    idx = _edge_index(scenario.edges)
-    if idx is None:
-        neigh = jnp.zeros((), T.dtype)
-    else:
-        neigh = jnp.max(jnp.abs(T[:, idx[0]] - T[:, idx[1]]))
-    return {
-        "mse": jnp.mean((traj.y - traj.r) ** 2),
-        "mse_true": jnp.mean(e ** 2),
-        "max_abs_error_C": jnp.max(jnp.abs(e)),
-        "max_neighbour_diff_C": neigh,
-        "time_outside_window_s": jnp.sum(outside) * ts,
-        "overshoot_C": jnp.maximum(jnp.max(sgn * (T - r_end)), 0.0),
-        "settling_time_s": (last_out + 1) * ts,
-        "time_to_ready_s": first_in * ts,
-        "effort": jnp.mean(traj.u),
-        "input_variation": jnp.mean(jnp.abs(jnp.diff(traj.u, axis=0))),
-    }
-
-
-METRICS = ("mse", "mse_true", "max_abs_error_C", "max_neighbour_diff_C", "time_outside_window_s",
-           "overshoot_C", "settling_time_s", "time_to_ready_s", "effort", "input_variation")
-
-
-def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) -> dict:
-    """Test figures of a run (means over rollouts for a batch; `per_rollout=True` keeps them).
-
-    `mse`: mean squared error of the *measured* outputs against the set point (the thesis'
-    Tables 5.1–5.3); `mse_true`: the same on the true temperatures; `max_neighbour_diff_C`:
-    largest temperature difference between grid neighbours (bed uniformity);
-    `time_outside_window_s`: time with any zone outside set point ± `window`; `overshoot_C`:
-    largest excursion beyond the final set point in the direction of the step;
-    `settling_time_s`: time after which every zone stays inside the window (the run length if
-    it never settles); `time_to_ready_s`: first time every zone is inside the window (ready
-    to print; the run length if never); `effort`: mean input; `input_variation`: mean |Δu|.
-    """
-    vals = _metrics_jit(traj, scenario)
-    if per_rollout:
-        return {k: np.asarray(v) for k, v in vals.items()}
-    return {k: float(np.mean(np.asarray(v))) for k, v in vals.items()}
-
-
-@eqx.filter_jit
-def _metrics_jit(traj, scenario):
-    if traj.temperature.ndim == 3:
-        return jax.vmap(_metrics_one, in_axes=(0, 0))(traj, scenario)
-    return _metrics_one(traj, scenario)
-
-
-DEFAULT_WEIGHTS = {"tracking": 1.0, "uniformity": 1.0, "effort": 1.0, "window": 1.0}
-
-
-def cost(traj: Trajectory, scenario: Scenario, weights: Mapping[str, float] | None = None,
-         *, smoothing: float = 0.1) -> Float[Array, ""]:
-    """Smooth closed-loop cost, differentiable in everything that shaped `traj`:
-
-    $J = w_t \\overline{e^2} + w_u \\overline{(T_i - T_j)^2}_{\\text{neighbours}}
-       + w_e \\overline{\\Delta u^2} + w_w \\overline{\\sigma((|e| - \\text{window})/s)}$
-
-    with $e = T - r$ on the true temperatures and $s$ = `smoothing` (°C); the last term is a
-    smooth fraction of time (and zones) outside the window. Batches give the mean over rollouts.
-    `weights` keys: tracking, uniformity, effort, window (defaults all 1).
-    """
-    w = _weights(weights)
-    if traj.temperature.ndim == 3:
-        return jnp.mean(jax.vmap(lambda t, s: cost(t, s, w, smoothing=smoothing))(traj, scenario))
-    T, u = traj.temperature, traj.u
-    e = T - traj.r
-    J = w["tracking"] * jnp.mean(e ** 2)
-    idx = _edge_index(scenario.edges)
-    if idx is not None:
-        J = J + w["uniformity"] * jnp.mean((T[:, idx[0]] - T[:, idx[1]]) ** 2)
-    du = jnp.diff(u, axis=0)
-    J = J + w["effort"] * jnp.mean(du ** 2)
-    a = jnp.sqrt(e ** 2 + (0.1 * smoothing) ** 2)
-    J = J + w["window"] * jnp.mean(jax.nn.sigmoid((a - scenario.window) / smoothing))
-    return J
-
-
-def _weights(weights):
-    w = dict(DEFAULT_WEIGHTS)
-    if weights is not None:
-        bad = [k for k in weights if k not in DEFAULT_WEIGHTS]
-        if bad:
-            raise ConfigError(f"cost: unknown weight `{bad[0]}` (known: {', '.join(DEFAULT_WEIGHTS)})")
-        w.update(weights)
-    return w
-
-
-def _is_zero(x) -> bool:
-    return isinstance(x, (int, float)) and x == 0
-
-
 def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
                   weights: Mapping[str, float] | None = None, x0=None, *,
                   smoothing: float = 0.1, unroll: int | None = None) -> Float[Array, ""]:
@@ -492,13 +181,13 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
         return _compact_cost(plant, controller, scenario, weights, x0, smoothing=smoothing,
                              unroll=2 if unroll is None else unroll)
     unroll = 1 if unroll is None else unroll
-    w = _weights(weights)
+    w = cost_weights(weights)
     p = _prepare(plant)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
     y_first = p.measure(x0, d0)[0] + scenario.v[0]
     c0 = controller.init(y_first, scenario.r[0])
-    idx = _edge_index(scenario.edges)
+    idx = edge_index(scenario.edges)
     eps = 0.1 * smoothing
     nu = _n_inputs(plant)
     zero = jnp.zeros((), scenario.r.dtype)
@@ -512,10 +201,10 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
         e = temps - r
         track = jnp.mean(e ** 2)
         # terms with a weight of (Python) zero are not computed at all
-        unif = zero if (idx is None or _is_zero(w["uniformity"])) else \
+        unif = zero if (idx is None or is_static_zero(w["uniformity"])) else \
             jnp.mean((temps[idx[0]] - temps[idx[1]]) ** 2)
-        du = zero if _is_zero(w["effort"]) else jnp.where(first, 0.0, jnp.mean((u - u_prev) ** 2))
-        win = zero if _is_zero(w["window"]) else jnp.mean(
+        du = zero if is_static_zero(w["effort"]) else jnp.where(first, 0.0, jnp.mean((u - u_prev) ** 2))
+        win = zero if is_static_zero(w["window"]) else jnp.mean(
             jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - scenario.window) / smoothing))
         acc = acc + jnp.stack([track, unif, du, win])
         return (p.step(x, u, d), c, u, jnp.zeros((), bool), acc), None
@@ -562,7 +251,7 @@ def _controller_from(controller, n: int, ts: float):
     if isinstance(controller, AbstractController):
         return controller
     if controller in ("untuned", "original"):
-        from .control.pi import DiagonalPI
+        from ..control.pi import DiagonalPI
         return DiagonalPI.untuned(n, ts=ts)
     raise ConfigError(f"run: unknown controller {controller!r} (an AbstractController or 'untuned')")
 
@@ -678,7 +367,7 @@ def _compact_cost(plant, controller, sc: CompactScenario, weights, x0, *, smooth
     if not isinstance(plant, AbstractModel):
         raise ConfigError(f"CompactScenario: needs a fitted-model plant, got {type(plant).__name__} "
                           "(use make_scenario for the printer)")
-    w_ = _weights(weights)
+    w_ = cost_weights(weights)
     dt = sc.r0.dtype
     x0 = _model_steady_state(plant, sc.y0, sc.w) if x0 is None else x0
     ev = sc.events
@@ -715,12 +404,12 @@ def _compact_cost(plant, controller, sc: CompactScenario, weights, x0, *, smooth
 
     y_first = measure(x0) + sc._noise(0)
     c0 = controller.init(y_first, jnp.where(0 >= sc.t_step, sc.r1, sc.r0))
-    idx = _edge_index(sc.edges)
+    idx = edge_index(sc.edges)
     eps = 0.1 * smoothing
     zero = jnp.zeros((), dt)
-    use_unif = not (idx is None or _is_zero(w_["uniformity"]))
-    use_du = not _is_zero(w_["effort"])
-    use_win = not _is_zero(w_["window"])
+    use_unif = not (idx is None or is_static_zero(w_["uniformity"]))
+    use_du = not is_static_zero(w_["effort"])
+    use_win = not is_static_zero(w_["window"])
     nu = int(plant.n_inputs)
 
     def body(carry, k):

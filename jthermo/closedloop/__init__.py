@@ -1,0 +1,31 @@
+"""Closed-loop simulation: controller × plant × scenario, one `lax.scan` over time.
+
+```
+y_k = g(x_k) + v_k                      (measured, °C; v = measurement noise)
+u_k, c_{k+1} = controller.step(c_k, y_k, r_k);   u_k <- clip(u_k, 0, 1)
+x_{k+1} = f(x_k, u_k, d_k)              (plant, one sample Ts)
+```
+
+Plants are the virtual printer (`jthermo.printer.Printer`, disturbances `PrinterDisturbance`:
+recoat flags, laser power per zone, surroundings) or any fitted `AbstractModel`. A fitted
+model has no recoat or laser input, so its scenario carries `ModelDisturbance`: the measured
+signals `w` it was fitted with (`w[:, 0]` = surroundings temperature) and an additive *output*
+disturbance `dy`, the open-loop response of a reference printer to the same recoat/laser events
+(superposition: exact for a linear plant). Batches come from `rollouts` (vmap over scenarios and,
+with `plant_axis=0`, over a stacked batch of plants). Everything is pure and differentiable with
+respect to controller gains and plant parameters.
+"""
+
+from .scenarios import (
+    DEFAULT_DURATION as DEFAULT_DURATION, KINDS as KINDS, REALISTIC_EFFECTS as REALISTIC_EFFECTS,
+    STEP_C as STEP_C, WINDOW_C as WINDOW_C, ModelDisturbance as ModelDisturbance,
+    Scenario as Scenario, Trajectory as Trajectory, make_scenario as make_scenario,
+)
+from .scoring import (
+    DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, cost as cost, metrics as metrics,
+)
+from .engine import (
+    CompactScenario as CompactScenario, Events as Events, initial_state as initial_state,
+    rollout_costs as rollout_costs, rollouts as rollouts, rollouts_and_cost as rollouts_and_cost,
+    run as run, simulate as simulate, simulate_cost as simulate_cost,
+)

@@ -1,0 +1,208 @@
+"""Closed-loop scenarios: what goes into a run (`Scenario`: set points, disturbances, noise,
+start) and what comes out (`Trajectory`), and the thesis' test scenarios built on the virtual
+printer or, through a reference printer, on a fitted model (`make_scenario`)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..errors import ConfigError
+from ..families import SCENARIO_KINDS as KINDS
+from ..models._base import AbstractModel
+from ..printer import (
+    Printer,
+    PrinterDisturbance,
+    disturbances,
+    grid_edges,
+    make_printer,
+    simulate_open_loop,
+)
+
+#: default scenario lengths, s
+DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "preheat": 1800.0,
+                    "ensemble": 1200.0}
+#: the printer `run` uses by default: every effect a real bed shows in closed loop
+REALISTIC_EFFECTS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
+                     "recoat_cooling", "laser_exposure", "ambient_variation", "sensor_noise")
+STEP_C = 4.0          # the thesis' reference step, °C on all channels
+WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
+
+
+class ModelDisturbance(eqx.Module):
+    """Exogenous signals for a fitted-model plant: measured signals `w` `(T, nw)` and an
+    additive output disturbance `dy` `(T, ny)` in °C."""
+
+    w: Float[Array, "T nw"]
+    dy: Float[Array, "T ny"]
+
+
+class Scenario(eqx.Module):
+    """One closed-loop test (or a batch, with a leading rollout axis on every array).
+
+    - `r`: set points `(T, ny)`, °C.
+    - `d`: plant disturbances `(T, ...)`: `PrinterDisturbance` or `ModelDisturbance`.
+    - `v`: measurement noise `(T, ny)`, °C.
+    - `y0`: initial temperatures `(ny,)`, °C (steady state there, or a cold start for
+      `preheat`).
+    """
+
+    r: Float[Array, "T ny"]
+    d: Any
+    v: Float[Array, "T ny"]
+    y0: Float[Array, " ny"]
+    kind: str = eqx.field(static=True, default="custom")
+    window: float = eqx.field(static=True, default=WINDOW_C)
+    edges: tuple = eqx.field(static=True, default=())
+    ts: float = eqx.field(static=True, default=1.0)
+    cold_start: bool = eqx.field(static=True, default=False)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.r.shape[-2])
+
+
+class Trajectory(eqx.Module):
+    """A closed-loop run: measured `y`, applied `u` (after saturation), set points `r` and the
+    true `temperature` at the sensor positions, each `(T, n)`."""
+
+    y: Float[Array, "T ny"]
+    u: Float[Array, "T nu"]
+    r: Float[Array, "T ny"]
+    temperature: Float[Array, "T ny"]
+
+# ----------------------------------------------------------------------------- scenarios
+
+
+def _as_key(key):
+    if isinstance(key, (int, np.integer)):
+        return jax.random.key(int(key))
+    return key
+
+
+def _printer_scenario(kind: str, printer: Printer, T: int, key, noise_std: float,
+                      step_c: float):
+    """r, d, v, y0 for one rollout on the printer (traceable in `key`)."""
+    dt = printer.capacity.dtype
+    n, ny = printer.zones, printer.n_outputs
+    k_d, k_v, k_r, k_p = jax.random.split(key, 4)
+    centre = jnp.full((n,), printer.window_centre, dt)
+    extra = printer.area["setpoint"] if printer.has_areas else jnp.zeros((0,), dt)
+
+    def full(bed):
+        return jnp.concatenate([bed, extra.astype(dt)])
+
+    if kind == "tracking":
+        d = disturbances(printer, T, k_d, recoat=False, laser=False)
+        y0 = full(centre - step_c / 2)
+        r = full(centre + step_c / 2)
+    elif kind == "powder":
+        d = disturbances(printer, T, k_d, recoat=True, laser=False)
+        y0 = r = full(centre)
+    elif kind == "print":
+        d = disturbances(printer, T, k_d, recoat=True, laser=True)
+        y0 = r = full(centre)
+    elif kind == "preheat":
+        d = disturbances(printer, T, k_d, recoat=False, laser=False)
+        y0 = jnp.full((ny,), printer.surroundings, dt)
+        r = full(centre)
+    else:   # ensemble: random start, set point and layer phase, events where the printer has them
+        period = float(printer.param("recoat_cooling", "period_s"))
+        phase = jax.random.randint(k_p, (), 0, max(1, int(period)))
+        d = disturbances(printer, T, k_d, phase_s=phase)
+        k1, k2 = jax.random.split(k_r)
+        y0 = full(centre + jax.random.uniform(k1, (), dt, -step_c, step_c) / 2)
+        r = full(centre + jax.random.uniform(k2, (), dt, -step_c, step_c) / 2)
+    v = printer.sample_noise(k_v, T, noise_std)
+    return jnp.broadcast_to(r, (T, ny)), d, v, y0
+
+
+def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
+                  n_rollouts: int | None = None, noise_std: float = 0.05,
+                  step_c: float = STEP_C, window: float = WINDOW_C,
+                  reference: Printer | None = None) -> Scenario:
+    """Build a thesis test scenario for `plant` (a batch with `n_rollouts`).
+
+    **Arguments:**
+    - `kind`: `"tracking"` (+`step_c` °C step on every bed channel from steady state below the
+      window centre), `"powder"` (recoat layers at the window centre), `"print"` (recoat plus a
+      per-layer laser exposure pattern), `"preheat"` (cold start at the surroundings, set point
+      the window centre: start-up), `"ensemble"` (random start and set point within ±step_c/2,
+      random layer phase, every disturbance the printer has; different per rollout).
+    - `plant`: a `Printer` or a fitted `AbstractModel` (then `reference`, default a realistic
+      printer with as many zones, provides the window, the surroundings and the output
+      disturbances).
+    - `duration` (s, default `DEFAULT_DURATION[kind]`), `key` (a PRNG key or integer seed),
+      `noise_std` (white measurement noise, °C, added to the printer's `sensor_noise`).
+    """
+    if kind not in KINDS:
+        raise ConfigError(f"make_scenario: unknown scenario `{kind}` (known: {', '.join(KINDS)})")
+    duration = DEFAULT_DURATION[kind] if duration is None else duration
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"make_scenario: duration must be a positive number of seconds, got {duration!r}")
+    if n_rollouts is not None and (not isinstance(n_rollouts, (int, np.integer)) or n_rollouts < 1):
+        raise ConfigError(f"make_scenario: n_rollouts must be a positive integer, got {n_rollouts!r}")
+    key = _as_key(key)
+    if isinstance(plant, Printer):
+        printer, model = plant, None
+    elif isinstance(plant, AbstractModel):
+        model = plant
+        printer = reference if reference is not None else make_printer(
+            int(model.n_outputs), REALISTIC_EFFECTS)
+        if printer.n_outputs != model.n_outputs:
+            raise ConfigError(f"make_scenario: the model has {model.n_outputs} outputs, the "
+                              f"reference printer {printer.n_outputs}")
+    else:
+        raise ConfigError(f"make_scenario: unsupported plant {type(plant).__name__}")
+    T = int(round(duration / printer.ts))
+    if T < 2:
+        raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
+
+    keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
+    r, d, v, y0 = _build_scenario(kind, printer, model, T, keys, float(noise_std),
+                                  float(step_c), n_rollouts is not None)
+    return Scenario(r=r, d=d, v=v, y0=y0, kind=kind, window=float(window),
+                    edges=grid_edges(printer.zones), ts=printer.ts,
+                    cold_start=(kind == "preheat"))
+
+
+@eqx.filter_jit
+def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched):
+    def one(k):
+        r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c)
+        if model is not None:
+            d = _model_disturbance(model, printer, d)
+        return r, d, v, y0
+
+    return jax.vmap(one)(keys) if batched else one(keys)
+
+
+def _model_disturbance(model: AbstractModel, printer: Printer, d: PrinterDisturbance):
+    """Map printer disturbances onto a fitted model: `w` gets the surroundings, and recoat/laser
+    become the output disturbance they cause on the reference printer in open loop."""
+    ss = model.to_statespace()
+    T = d.ambient.shape[0]
+    nw = ss.Bw.shape[1]
+    w = jnp.broadcast_to(ss.w0, (T, nw))
+    if nw:
+        w = w.at[:, 0].set(d.ambient)
+    u = jnp.broadcast_to(printer.steady_input(), (T, printer.n_inputs))
+    x0 = printer.initial_state()
+    quiet = PrinterDisturbance(recoat=jnp.zeros_like(d.recoat), laser=jnp.zeros_like(d.laser),
+                               ambient=jnp.broadcast_to(printer.surroundings, d.ambient.shape))
+    events = PrinterDisturbance(recoat=d.recoat, laser=d.laser, ambient=quiet.ambient)
+    y1, _ = simulate_open_loop(printer, u, events, x0)
+    y0, _ = simulate_open_loop(printer, u, quiet, x0)
+    dy = y1 - y0
+    if not nw:   # no measured surroundings: its drift acts at the output as well
+        ya, _ = simulate_open_loop(printer, u, PrinterDisturbance(
+            recoat=quiet.recoat, laser=quiet.laser, ambient=d.ambient), x0)
+        dy = dy + ya - y0
+    return ModelDisturbance(w=w, dy=dy)
+
