@@ -94,7 +94,7 @@ def test_tune_report_on_a_small_printer():
 
 from jthermo.closedloop import ModelDisturbance, Scenario, cost, metrics, rollouts
 from jthermo.control import design
-from jthermo.tune import _batch_terms, group_batch, robust_objective, rollout_terms, tune
+from jthermo.tune import batch_terms, group_batch, robust_objective, rollout_terms, tune
 
 
 def _scenarios(plant, T=80, B=3, step=0.5, seed=0):
@@ -130,12 +130,12 @@ def test_robust_objective_gradient_matches_central_differences(family):
     batch = [(plant, "custom", _scenarios(plant, seed=s)) for s in (0, 1)]
     groups = group_batch(batch)
     start = design(family, plant)
-    ref = _batch_terms(start, groups, None)
+    ref = batch_terms(start, groups, None)
     params, static = eqx.partition(start, eqx.is_inexact_array)
     from jax.flatten_util import ravel_pytree
     flat, unravel = ravel_pytree(params)
     f = jax.jit(lambda th: robust_objective(
-        _batch_terms(eqx.combine(unravel(th), static), groups, None), ref))
+        batch_terms(eqx.combine(unravel(th), static), groups, None), ref))
     g = np.asarray(jax.grad(f)(flat))
     free = np.flatnonzero(np.abs(g) > 0)          # leaves held fixed (the model) give zero
     assert free.size >= 4

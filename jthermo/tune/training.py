@@ -1,0 +1,247 @@
+"""Closed-loop tuning on the virtual printer or a fitted model: training batches, the robust
+objective relative to reference designs, plant ensembles, the validation guard and `tune`."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..closedloop import KINDS, make_scenario
+from ..control._base import AbstractController
+from ..errors import ControlError
+from ..printer import Printer
+from .optimiser import TuneResult, minimise
+from .terms import batch_terms, group_batch
+
+#: the thesis' three test scenarios, tuned for jointly and reported separately
+SCENARIOS = ("tracking", "powder", "print")
+#: default scenario length for tuning and evaluation, s
+DURATION = 600.0
+#: offset added to the seed for held-out evaluation disturbances (never used in tuning)
+HELD_OUT = 10_000
+#: offset added to the seed for the guard's validation disturbances
+VALIDATION = 20_000
+
+
+def as_kinds(kind) -> tuple[str, ...]:
+    """Scenario kinds as a tuple from a name or a sequence of names; unknown ones raise."""
+    kinds = (kind,) if isinstance(kind, str) else tuple(kind)
+    bad = [k for k in kinds if k not in KINDS]
+    if not kinds or bad:
+        raise ControlError(f"tune: unknown scenario {bad[0] if bad else '(none)'!r} "
+                           f"(known: {', '.join(KINDS)})")
+    return kinds
+
+
+def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float = DURATION,
+                 seed: int = 0, n_batches: int = 1):
+    """Training batches: for each batch, a list of `(plant, kind, Scenario)` with `rollouts`
+    disturbance realisations each, drawn from `seed` (keys folded with plant and kind)."""
+    if not isinstance(rollouts, (int, np.integer)) or rollouts < 1:
+        raise ControlError(f"tune: rollouts must be a positive integer, got {rollouts!r}")
+    kinds = as_kinds(kind)
+    base = jax.random.key(int(seed))
+    out = []
+    for b in range(n_batches):
+        batch = []
+        for i, p in enumerate(plants):
+            for j, k in enumerate(kinds):
+                key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(base, b), i), j)
+                batch.append((p, k, make_scenario(k, p, duration, key, n_rollouts=int(rollouts))))
+        out.append(batch)
+    return out
+
+
+def batch_cost(controller, batch, weights=None):
+    """Mean closed-loop cost over every `(plant, kind, scenarios[, scale])` of a batch, each
+    divided by its `scale` (default 1)."""
+    terms = batch_terms(controller, group_batch([tuple(it[:3]) for it in batch]), weights)
+    scale = jnp.asarray([it[3] if len(it) > 3 else 1.0 for it in batch], terms.dtype)
+    return jnp.mean(terms[:, 0] / scale)
+
+
+def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"],
+                     tau: float = 0.02) -> Float[Array, ""]:
+    """$\\overline{\\rho^J} + \\overline{\\rho^m} + \\tau(\\log\\sum e^{\\rho^m/\\tau} - \\log n)$
+    with $\\rho = \\log(\\text{terms}/\\text{ref})$ per item (plant × scenario): the mean
+    relative cost and mse plus a soft maximum of the relative mse, so that no scenario's mse is
+    given up for another's. Zero at the references, negative where everything improves."""
+    rho = jnp.log(terms / ref)
+    rm = rho[:, 1]
+    return jnp.mean(rho[:, 0]) + jnp.mean(rm) + tau * (jax.nn.logsumexp(rm / tau)
+                                                       - jnp.log(rm.size))
+
+
+def _reference_terms(refs, batch, weights):
+    """Per item, the best (smallest finite) cost and mse over the reference controllers."""
+    vals = np.stack([np.asarray(batch_terms(c, batch, weights)) for c in refs])
+    vals = np.where(np.isfinite(vals) & (vals > 0), vals, np.inf)
+    return vals, np.min(vals, axis=0)
+
+
+def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float = 15.0,
+                   seed: int = 0) -> list:
+    """`printer` and `n` perturbed copies of it for robust tuning. Each copy scales the zone
+    heat capacities, losses and heater gains by factors drawn uniformly within ±`spread` (one
+    factor per quantity times a ±`spread`/3 zone-to-zone jitter), the emissivity (radiative
+    loss) within ±`spread`/2, and moves the surroundings by up to ±`shift_c` °C, so that the
+    input holding the bed at the window centre differs from the design model's (as with another
+    powder or chamber); copies whose steady input leaves (0.1, 0.9) are redrawn. Only array
+    leaves change: the copies stack into one vmapped simulation. Works for any `Printer`."""
+    if not isinstance(printer, Printer):
+        raise ControlError("plant_ensemble: needs a virtual printer (`Printer`)")
+    if not isinstance(n, (int, np.integer)) or n < 0:
+        raise ControlError(f"plant_ensemble: n must be a non-negative integer, got {n!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4242]))
+    out, tries = [printer], 0
+    n_z = printer.zones
+    while len(out) < n + 1 and tries < 20 * (n + 1):
+        tries += 1
+        f = 1.0 + spread * rng.uniform(-1, 1, 3)
+        jit_ = lambda: 1.0 + spread / 3 * rng.uniform(-1, 1, n_z)
+        p = eqx.tree_at(lambda q: (q.capacity, q.loss, q.gain, q.surroundings), printer,
+                        (printer.capacity * f[0] * jit_(), printer.loss * f[1] * jit_(),
+                         printer.gain * f[2] * jit_()[None, :],
+                         printer.surroundings + shift_c * rng.uniform(-1, 1)))
+        if printer.has("radiative_loss"):
+            p = eqx.tree_at(lambda q: q.effects["radiative_loss"]["emissivity"], p,
+                            p.effects["radiative_loss"]["emissivity"]
+                            * (1.0 + 0.5 * spread * rng.uniform(-1, 1)))
+        u = np.asarray(p.steady_input())[:n_z]
+        if np.all(np.isfinite(u)) and np.all((u > 0.1) & (u < 0.9)):
+            out.append(p)
+    return out
+
+
+def _guard(candidates, refs, start, batch, weights, margin, tau):
+    """Pick among `candidates` the one with the lowest robust objective on the validation
+    `batch` that beats every reference on mse (by `margin`) in every item (plant × scenario)
+    and does not raise the total cost above the start's; relax the margin to 0, then fall back
+    to `start`."""
+    _, best = _reference_terms(refs, batch, weights)
+    start_vals = np.asarray(batch_terms(start, batch, weights))
+    rows = []
+    for i, (it, _, c) in enumerate(candidates):
+        v = np.asarray(batch_terms(c, batch, weights))
+        ok = bool(np.all(np.isfinite(v)))
+        obj = float(robust_objective(jnp.asarray(v), jnp.asarray(best), tau)) if ok else np.inf
+        rows.append({"iteration": int(it), "objective": obj,
+                     "mse_ratio_worst": float(np.max(v[:, 1] / best[:, 1])) if ok else np.inf,
+                     "cost_ratio": float(np.sum(v[:, 0]) / np.sum(start_vals[:, 0])) if ok
+                     else np.inf})
+    chosen, level = None, None
+    for m in (margin, 0.0):
+        ok = [i for i, r in enumerate(rows)
+              if (r["mse_ratio_worst"] <= 1.0 - m if m > 0 else r["mse_ratio_worst"] < 1.0)
+              and r["cost_ratio"] <= 1.0]
+        if ok:
+            chosen, level = min(ok, key=lambda i: rows[i]["objective"]), m
+            break
+    info = {"candidates": rows, "chosen": None if chosen is None else rows[chosen]["iteration"],
+            "margin": level, "passed": chosen is not None,
+            "reference_mse": best[:, 1].tolist(), "reference_cost": best[:, 0].tolist()}
+    return (start if chosen is None else candidates[chosen][2]), info
+
+
+def _field_filter(controller, names):
+    """`eqx.partition` filter selecting the array leaves of the named fields (all: None)."""
+    if names is None:
+        return eqx.is_inexact_array
+    names = (names,) if isinstance(names, str) else tuple(names)
+    fields = {f.name for f in dataclasses.fields(controller)}
+    bad = [n for n in names if n not in fields]
+    if bad or not names:
+        raise ControlError(f"tune: {type(controller).__name__} has no field `{bad[0]}`" if bad
+                           else "tune: `params` names no field")
+    spec = jax.tree.map(lambda _: False, controller)
+    return eqx.tree_at(lambda c: tuple(getattr(c, n) for n in names), spec,
+                       replace=tuple(jax.tree.map(eqx.is_inexact_array, getattr(controller, n))
+                                     for n in names))
+
+
+def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=None,
+         rollouts: int = 8, steps: int = 100, lr: float = 0.05,
+         weights: Mapping[str, float] | None = None, seed: int = 0, plants=None,
+         duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
+         references: Sequence[AbstractController] = (), guard: bool = True,
+         margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
+         params: Sequence[str] | None = None,
+         progress: Callable[[int, float], None] | None = None) -> TuneResult:
+    """Tune a controller end to end on simulated closed-loop cost.
+
+    Minimises, over `rollouts` disturbance realisations of each scenario in `kind` (default
+    the thesis' three tests) on `plant` or on every plant of `plants` (an ensemble, e.g.
+    `plant_ensemble`), the robust objective of the module docstring (`normalise=True`) or the
+    plain mean of `closedloop.cost` (`normalise=False`). Gradients by `jax.grad` through the
+    scanned simulations (the lean `rollout_terms` path).
+
+    **Arguments:**
+    - `controller`: the starting controller (a classical design; best: the best one).
+    - `plant`: a `Printer` or a fitted model; ignored when `plants` is given.
+    - `kind`: a scenario name or a sequence of them; `scenarios`: ready-made training batches
+      (as `make_batches` returns) instead.
+    - `rollouts`, `duration` (s), `n_batches`: size of the training set, drawn from `seed`.
+    - `steps`, `lr`: Adam iterations and learning rate; `weights`: `closedloop.cost` weights.
+    - `references`: designs the result must beat (with the start) in every scenario and plant;
+      the robust objective is relative to the best of them in each.
+    - `guard`: check the kept iterates on validation seeds (`seed + VALIDATION`) and return the
+      best that beats every reference's mse by `margin` (relative) in every plant and scenario
+      without raising the total cost above the start's, else the start. `validation`: the
+      guard's batch (a list of `(plant, kind, scenarios)`); default fresh draws from
+      `seed + VALIDATION`, or the first training batch when `scenarios` are given. `tau`:
+      softness of the maximum over the relative mse.
+    - `params`: names of the controller fields to tune (e.g. `("q1", "q2", "qi", "qw", "b0",
+      "tau_r")` for an LQG: its weights, not its design model or operating point); default
+      every array leaf.
+    - `progress`: called as `progress(i, cost)` after each iteration.
+
+    **Returns:** `TuneResult` (training costs relative to the references when normalised).
+    """
+    pl = [plant] if plants is None else list(plants)
+    if not pl:
+        raise ControlError("tune: empty plant ensemble")
+    if not (0.0 <= margin < 1.0):
+        raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
+    spec = _field_filter(controller, params)
+    batches = scenarios if scenarios is not None else make_batches(
+        pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches)
+    batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
+    refs = [controller, *references]
+    if normalise:
+        # the references' best cost and mse per (plant, scenario), fixed (no gradient)
+        pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
+        if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
+            raise ControlError("tune: the reference designs give no finite cost on the training set")
+        res = minimise(lambda c, br: robust_objective(batch_terms(c, br[0], weights), br[1], tau),
+                       controller, pairs, steps=steps, lr=lr, progress=progress,
+                       snapshots=snapshots if guard else 0, filter_spec=spec)
+    else:
+        res = minimise(lambda c, b: jnp.mean(batch_terms(c, b, weights)[:, 0]), controller,
+                       batches, steps=steps, lr=lr, progress=progress,
+                       snapshots=snapshots if guard else 0, filter_spec=spec)
+    if not guard:
+        return res
+    t0 = time.perf_counter()
+    if validation is not None:
+        val = group_batch([tuple(it[:3]) for it in validation])
+    elif scenarios is not None:      # custom scenarios: no generator to draw fresh ones from
+        val = batches[0]
+    else:
+        sc0 = batches[0][0].scenarios
+        B, T = (sc0.r.shape[1], sc0.r.shape[2]) if batches[0][0].stacked else sc0.r.shape[:2]
+        val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
+                                       seed=int(seed) + VALIDATION)[0])
+    chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau)
+    info["seconds"] = time.perf_counter() - t0
+    idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]
+    tuned_cost = res.snapshots[idx[0]][1] if idx else res.start_cost
+    return dataclasses.replace(res, controller=chosen, tuned_cost=float(tuned_cost), guard=info,
+                               seconds=res.seconds + info["seconds"])
+
