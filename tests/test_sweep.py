@@ -153,7 +153,6 @@ def test_ray_bad_address(tmp_path):
 
 
 def test_identify_kind_on_a_data_file(tmp_path):
-    pytest.importorskip("jthermo.identify.fit")
     import numpy as np
 
     rng = np.random.default_rng(0)

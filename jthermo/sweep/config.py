@@ -1,0 +1,169 @@
+"""Sweep configuration: the TOML schema and its checks, the embedded default sweep, and the
+list of trials a configuration defines (grid or random draws, each with a stable id)."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+
+KINDS = ("arx", "identify", "tune")
+
+DEFAULT_CONFIG = """
+# The embedded default: ARX orders on a simulated two-zone bed, then read the best ones.
+[sweep]
+name = "default"
+kind = "arx"
+method = "grid"
+seed = 0
+objective = "mean_fit_percent"
+direction = "max"
+
+[data]
+zones = 2
+samples = 2000
+noise = 0.05
+
+[space]
+na = [1, 2, 3, 4]
+nb = [1, 2, 3, 4]
+nk = [0, 1, 2]
+"""
+
+_DEFAULTS = {"method": "grid", "samples": 10, "seed": 0, "objective": None, "direction": None}
+_OBJECTIVES = {"arx": ("mean_fit_percent", "max"), "identify": ("mean_fit_percent", "max"),
+               "tune": ("tuned_cost", "min")}
+
+
+# ---------------------------------------------------------------- configuration
+
+
+def parse_config(text: str, source: str = "config") -> dict:
+    """Parse and check a sweep configuration (TOML text)."""
+    import tomllib
+
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+    return check_config(raw, source)
+
+
+def load_config(path: str | os.PathLike) -> dict:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except (UnicodeDecodeError, IsADirectoryError):
+        raise ConfigError(f"{p}: not a text TOML file") from None
+    return parse_config(text, str(p))
+
+
+def default_config() -> dict:
+    """The embedded default sweep (fast ARX order grid on simulated data)."""
+    return parse_config(DEFAULT_CONFIG, "default config")
+
+
+def check_config(raw: dict, source: str = "config") -> dict:
+    sweep = raw.get("sweep")
+    if not isinstance(sweep, dict):
+        raise ConfigError(f"{source}: missing [sweep] table")
+    unknown = set(raw) - {"sweep", "data", "space", "fixed"}
+    if unknown:
+        raise ConfigError(f"{source}: unknown table [{sorted(unknown)[0]}] (expected sweep, data, space, fixed)")
+    cfg = {**_DEFAULTS, **sweep}
+    bad = set(cfg) - {"name", "kind", *_DEFAULTS}
+    if bad:
+        raise ConfigError(f"{source}: unknown key `{sorted(bad)[0]}` in [sweep]")
+    if not isinstance(cfg.get("name"), str) or not cfg["name"] or "/" in cfg["name"]:
+        raise ConfigError(f"{source}: [sweep] needs a plain `name`")
+    if cfg.get("kind") not in KINDS:
+        raise ConfigError(f"{source}: [sweep] kind must be one of {', '.join(KINDS)}, got {cfg.get('kind')!r}")
+    if cfg["method"] not in ("grid", "random"):
+        raise ConfigError(f"{source}: [sweep] method must be 'grid' or 'random', got {cfg['method']!r}")
+    if not isinstance(cfg["samples"], int) or not 1 <= cfg["samples"] <= 100000:
+        raise ConfigError(f"{source}: [sweep] samples must be an integer in 1..100000")
+    if not isinstance(cfg["seed"], int):
+        raise ConfigError(f"{source}: [sweep] seed must be an integer")
+    obj, direction = _OBJECTIVES[cfg["kind"]]
+    cfg["objective"] = cfg["objective"] or obj
+    cfg["direction"] = cfg["direction"] or direction
+    if cfg["direction"] not in ("min", "max"):
+        raise ConfigError(f"{source}: [sweep] direction must be 'min' or 'max'")
+    space = raw.get("space")
+    if not isinstance(space, dict) or not space:
+        raise ConfigError(f"{source}: missing or empty [space] table")
+    for k, v in space.items():
+        if isinstance(v, list):
+            if not v:
+                raise ConfigError(f"{source}: [space] `{k}` is an empty list")
+        elif isinstance(v, dict):
+            if cfg["method"] != "random":
+                raise ConfigError(f"{source}: [space] `{k}` is a range; ranges need method = 'random'")
+            if not {"low", "high"} <= set(v) or not all(isinstance(v[b], (int, float)) for b in ("low", "high")) \
+                    or not v["low"] <= v["high"]:
+                raise ConfigError(f"{source}: [space] `{k}` range needs numbers low <= high")
+            if v.get("log") and v["low"] <= 0:
+                raise ConfigError(f"{source}: [space] `{k}` log range needs low > 0")
+        else:
+            raise ConfigError(f"{source}: [space] `{k}` must be a list of values or a range table")
+    cfg["data"] = dict(raw.get("data", {}))
+    cfg["fixed"] = dict(raw.get("fixed", {}))
+    cfg["space"] = space
+    n = count_trials(cfg)
+    if n > 100000:
+        raise ConfigError(f"{source}: the grid has {n} trials (more than 100000)")
+    return cfg
+
+
+def count_trials(cfg: dict) -> int:
+    if cfg["method"] == "random":
+        return cfg["samples"]
+    return math.prod(len(v) for v in cfg["space"].values())
+
+
+# ---------------------------------------------------------------- trials
+
+
+def trial_id(params: dict) -> str:
+    """A stable id: the first 12 hex digits of the SHA-1 of the sorted JSON parameters."""
+    return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def trials(cfg: dict) -> list[dict]:
+    """The sweep's trials, each `{"id", "params"}`, in a deterministic order."""
+    space = cfg["space"]
+    names = sorted(space)
+    out = []
+    if cfg["method"] == "grid":
+        for combo in itertools.product(*(space[n] for n in names)):
+            params = {**cfg["fixed"], **dict(zip(names, combo))}
+            out.append({"id": trial_id(params), "params": params})
+    else:
+        rng = np.random.default_rng(cfg["seed"])
+        seen = set()
+        for _ in range(cfg["samples"]):
+            params = dict(cfg["fixed"])
+            for n in names:
+                v = space[n]
+                if isinstance(v, list):
+                    params[n] = v[int(rng.integers(len(v)))]
+                elif isinstance(v["low"], int) and isinstance(v["high"], int) and not v.get("log"):
+                    params[n] = int(rng.integers(v["low"], v["high"] + 1))
+                elif v.get("log"):
+                    params[n] = float(math.exp(rng.uniform(math.log(v["low"]), math.log(v["high"]))))
+                else:
+                    params[n] = float(rng.uniform(v["low"], v["high"]))
+            tid = trial_id(params)
+            if tid not in seen:
+                seen.add(tid)
+                out.append({"id": tid, "params": params})
+    return out
