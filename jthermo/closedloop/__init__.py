@@ -2,7 +2,7 @@
 
 ```
 y_k = g(x_k) + v_k                      (measured, °C; v = measurement noise)
-u_k, c_{k+1} = controller.step(c_k, y_k, r_k);   u_k <- clip(u_k, 0, 1)
+u_k, c_{k+1} = controller.step_schedule(c_k, y_k, r_k, s_k);   u_k <- clip(u_k, 0, 1)
 x_{k+1} = f(x_k, u_k, d_k)              (plant, one sample Ts)
 ```
 
@@ -20,6 +20,7 @@ from .scenarios import (
     DEFAULT_DURATION as DEFAULT_DURATION, KINDS as KINDS, REALISTIC_EFFECTS as REALISTIC_EFFECTS,
     STEP_C as STEP_C, WINDOW_C as WINDOW_C, ModelDisturbance as ModelDisturbance,
     Scenario as Scenario, Trajectory as Trajectory, make_scenario as make_scenario,
+    PREVIEW_S as PREVIEW_S, event_schedule as event_schedule,
 )
 from .scoring import (
     DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, cost as cost, metrics as metrics,

@@ -143,14 +143,15 @@ def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None)
 
     def body(carry, inp):
         x, c = carry
-        r, d, v = inp
+        r, d, v, s = inp
         y_clean, temps = p.measure(x, d)
         y = y_clean + v
-        u, c = controller.step(c, y, r)
+        u, c = controller.step_schedule(c, y, r, s)
         u = jnp.clip(u, 0.0, 1.0)
         return (p.step(x, u, d), c), (y, u, temps)
 
-    _, (ys, us, temps) = jax.lax.scan(body, (x0, c0), (scenario.r, scenario.d, scenario.v))
+    _, (ys, us, temps) = jax.lax.scan(body, (x0, c0),
+                                      (scenario.r, scenario.d, scenario.v, scenario.s))
     return Trajectory(y=ys, u=us, r=scenario.r, temperature=temps)
 
 
@@ -194,9 +195,9 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
 
     def body(carry, inp):
         x, c, u_prev, first, acc = carry
-        r, d, v = inp
+        r, d, v, s = inp
         y_clean, temps = p.measure(x, d)
-        u, c = controller.step(c, y_clean + v, r)
+        u, c = controller.step_schedule(c, y_clean + v, r, s)
         u = jnp.clip(u, 0.0, 1.0)
         e = temps - r
         track = jnp.mean(e ** 2)
@@ -211,8 +212,8 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
 
     init = (x0, c0, jnp.zeros((nu,), scenario.r.dtype), jnp.ones((), bool),
             jnp.zeros((4,), scenario.r.dtype))
-    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v),
-                                        unroll=unroll)
+    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v,
+                                                     scenario.s), unroll=unroll)
     T = scenario.r.shape[0]
     J = w["tracking"] * acc[0] / T + w["window"] * acc[3] / T
     if idx is not None:

@@ -33,6 +33,9 @@ REALISTIC_EFFECTS = ("lateral_conduction", "radiative_loss", "heat_accumulation"
                      "recoat_cooling", "laser_exposure", "ambient_variation", "sensor_noise")
 STEP_C = 4.0          # the thesis' reference step, °C on all channels
 WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
+PREVIEW_S = 15.0      # how far ahead the build job announces its events to the controller, s
+JITTER_S = 2.0        # timing error of the announced events, ± s (uniform, per rollout)
+WRONG_P = 0.1         # chance that a zone's announced exposure is wrong, per layer
 
 
 class ModelDisturbance(eqx.Module):
@@ -51,12 +54,16 @@ class Scenario(eqx.Module):
     - `v`: measurement noise `(T, ny)`, °C.
     - `y0`: initial temperatures `(ny,)`, °C (steady state there, or a cold start for
       `preheat`).
+    - `s`: the build job's event schedule as the controller is told it `(T, 1 + zones)`, or
+      None: row k is `[recoat, exposure of zone 1..N]` announced `PREVIEW_S` ahead, with the
+      timing jitter and the wrong entries of `event_schedule`.
     """
 
     r: Float[Array, "T ny"]
     d: Any
     v: Float[Array, "T ny"]
     y0: Float[Array, " ny"]
+    s: Float[Array, "T ns"] | None = None
     kind: str = eqx.field(static=True, default="custom")
     window: float = eqx.field(static=True, default=WINDOW_C)
     edges: tuple = eqx.field(static=True, default=())
@@ -78,6 +85,33 @@ class Trajectory(eqx.Module):
     temperature: Float[Array, "T ny"]
 
 # ----------------------------------------------------------------------------- scenarios
+
+
+def event_schedule(printer: Printer, d: PrinterDisturbance, key, *, preview_s: float = PREVIEW_S,
+                   jitter_s: float = JITTER_S, wrong_p: float = WRONG_P) -> Float[Array, "T ns"]:
+    """The event schedule a controller is told, from the events that happen (`d`).
+
+    Row k is `[recoat, exposure 1..N]` of sample $k + P + \delta$: the recoat flag and, per
+    zone, 1 while the laser exposes it; $P$ = `preview_s` / Ts (the job announces its events
+    ahead), $\delta$ uniform in ±`jitter_s` / Ts per rollout (the announced timing is off), and
+    each zone's exposure flipped with probability `wrong_p` per layer period (the announced
+    map is wrong; only while the laser runs at all). Zero beyond the run. Traceable in `key`.
+    """
+    dt = d.laser.dtype
+    T, n = d.laser.shape
+    k_j, k_w = jax.random.split(key)
+    J = int(round(jitter_s / printer.ts))
+    shift = int(round(preview_s / printer.ts)) + jax.random.randint(k_j, (), -J, J + 1)
+    on = (d.laser > 0).astype(dt)
+    if wrong_p > 0 and printer.has("laser_exposure"):
+        period = max(1, int(round(float(printer.param("laser_exposure", "period_s")) / printer.ts)))
+        flips = jax.random.bernoulli(k_w, wrong_p, (T // period + 1, n)).astype(dt)
+        running = jnp.max(on, axis=1, keepdims=True)
+        on = jnp.abs(on - running * flips[jnp.arange(T) // period])
+    ev = jnp.concatenate([d.recoat[:, None].astype(dt), on], axis=1)
+    idx = jnp.arange(T) + shift
+    return jnp.where(((idx >= 0) & (idx < T))[:, None], ev[jnp.clip(idx, 0, T - 1)], 0.0)
+
 
 
 def _as_key(key):
@@ -165,9 +199,9 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
         raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
 
     keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
-    r, d, v, y0 = _build_scenario(kind, printer, model, T, keys, float(noise_std),
-                                  float(step_c), n_rollouts is not None)
-    return Scenario(r=r, d=d, v=v, y0=y0, kind=kind, window=float(window),
+    r, d, v, y0, s = _build_scenario(kind, printer, model, T, keys, float(noise_std),
+                                     float(step_c), n_rollouts is not None)
+    return Scenario(r=r, d=d, v=v, y0=y0, s=s, kind=kind, window=float(window),
                     edges=grid_edges(printer.zones), ts=printer.ts,
                     cold_start=(kind == "preheat"))
 
@@ -176,9 +210,11 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
 def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched):
     def one(k):
         r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c)
+        # its own key (folded in): the other signals keep the draws they had without it
+        s = event_schedule(printer, d, jax.random.fold_in(k, 16))
         if model is not None:
             d = _model_disturbance(model, printer, d)
-        return r, d, v, y0
+        return r, d, v, y0, s
 
     return jax.vmap(one)(keys) if batched else one(keys)
 

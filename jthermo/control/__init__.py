@@ -12,3 +12,5 @@ from .lqg import LQG as LQG, design_lqg as design_lqg, solve_dare as solve_dare
 from .rules import (decoupling_matrix as decoupling_matrix, fit_step_model as fit_step_model,
                     lambda_gains as lambda_gains, needs_decoupling as needs_decoupling, rga as rga,
                     step_models as step_models)
+from .mimo_pi import MIMOPI as MIMOPI, mimo_from as mimo_from, neighbour_mask as neighbour_mask
+from .schedule_ff import ScheduleFF as ScheduleFF, with_schedule as with_schedule

@@ -34,3 +34,10 @@ class AbstractController(eqx.Module):
     @abc.abstractmethod
     def step(self, state: ControllerState, y: Output, r: Setpoint) -> tuple[Input, ControllerState]:
         """One sample: measurement `y` (°C), set point `r` (°C) -> input `u` (power fraction)."""
+
+    def step_schedule(self, state: ControllerState, y: Output, r: Setpoint,
+                      schedule) -> tuple[Input, ControllerState]:
+        """One sample given the build job's event schedule as well (`closedloop.Scenario.s`
+        row k: `[recoat, exposure of zone 1..N]`, announced ahead; None when the scenario
+        carries none). Controllers without feed-forward from the schedule ignore it."""
+        return self.step(state, y, r)

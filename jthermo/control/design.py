@@ -13,6 +13,8 @@ import numpy as np
 from ..errors import ControlError
 from ..models._base import StateSpace
 from . import decoupled, feedforward, imc, lqg
+from .mimo_pi import mimo_from
+from .schedule_ff import with_schedule
 from .gated import gated
 from .rules import (
     StepModel,
@@ -67,11 +69,13 @@ def design_point(model, setpoint=None, signals=None, inputs=None) -> StateSpace:
 # the dispatcher
 # --------------------------------------------------------------------------------------
 
-FAMILIES = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg", "gated_pi")
+FAMILIES = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg", "gated_pi",
+            "pi_mimo", "pi_ff", "lqg_ff")
 # short names users type, e.g. `jthermo tune --controller pi` (PI means the lambda-tuned design)
 ALIASES = {"pi": "pi_lambda", "lambda": "pi_lambda", "diagonal_pi": "pi_lambda",
            "untuned": "pi_untuned", "original": "pi_untuned", "decoupled": "pi_decoupled",
-           "ff": "feedforward", "gated": "gated_pi", "lqg_integral": "lqg"}
+           "ff": "feedforward", "gated": "gated_pi", "lqg_integral": "lqg",
+           "mimo_pi": "pi_mimo", "mimo": "pi_mimo", "pi_schedule": "pi_ff"}
 
 
 def canonical_family(name: str) -> str:
@@ -89,7 +93,10 @@ def design(family: str, model, *, setpoint=None, **kwargs):
     - `family`: one of `FAMILIES` — `"pi_untuned"` (identical PI per zone, the original
       solution), `"pi_lambda"` (lambda-tuned diagonal PI), `"pi_decoupled"` (W1 = (CB)⁻¹ by
       default), `"feedforward"` (neutral by default), `"imc"`, `"lqg"`, `"gated_pi"`
-      (lambda-tuned PI used inside a ±band around the set point).
+      (lambda-tuned PI used inside a ±band around the set point), `"pi_mimo"` (full-matrix
+      MIMO PI, starting as the decoupled PI; `edges=` pairs of zones for a neighbour-sparse
+      one), `"pi_ff"` (that MIMO PI plus the schedule feed-forward, `taps=`), `"lqg_ff"`
+      (the LQG plus the schedule feed-forward).
     - `model`: any fitted `AbstractModel` (or StateSpace).
     - keyword arguments go to the family's design function.
 
@@ -115,6 +122,14 @@ def design(family: str, model, *, setpoint=None, **kwargs):
         u_outside = kwargs.pop("u_outside", None)
         width = kwargs.pop("width", None)
         return gated(decoupled.design_lambda_pi(model, **kwargs), band, u_outside, width=width)
+    if family in ("pi_mimo", "pi_ff"):
+        taps = kwargs.pop("taps", None)
+        edges = kwargs.pop("edges", None)
+        fb = mimo_from(decoupled.design_decoupled_pi(model, **kwargs), edges=edges)
+        return fb if family == "pi_mimo" else with_schedule(fb, *(() if taps is None else (taps,)))
+    if family == "lqg_ff":
+        taps = kwargs.pop("taps", None)
+        return with_schedule(lqg.design_lqg(model, **kwargs), *(() if taps is None else (taps,)))
     raise ControlError(f"design: unknown controller family {family!r}; choose one of "
                        + ", ".join(FAMILIES))
 

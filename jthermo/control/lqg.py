@@ -138,12 +138,18 @@ class LQG(AbstractController):
         return LQGState(x=x0, xi=jnp.zeros_like(y0 * self.q1), rm=rm, gains=g)
 
     def step(self, state: LQGState, y: Output, r: Setpoint) -> tuple[Input, LQGState]:
+        return self.step_offset(state, y, r, 0.0)
+
+    def step_offset(self, state: LQGState, y: Output, r: Setpoint,
+                    u_add) -> tuple[Input, LQGState]:
+        """One sample with an additive input `u_add` (a schedule feed-forward) inside the
+        saturation; the observer is fed the applied (saturated) input, `u_add` included."""
         g = state.gains
         A, B, C = sg(self.A), sg(self.B), sg(self.C)
         x_f = state.x + g.M @ (y - sg(self.y_op) - C @ state.x)
         lag = r - state.rm                       # reference ahead of its model, °C
         e = r - y
-        u_req = (self.u_op + g.L0 @ (r - self.b0 * lag - sg(self.y_op)) - g.Lx @ x_f
+        u_req = (self.u_op + u_add + g.L0 @ (r - self.b0 * lag - sg(self.y_op)) - g.Lx @ x_f
                  - g.Li @ state.xi)
         u = jnp.clip(u_req, U_MIN, U_MAX)
         hold = ((u_req > U_MAX) & (e > 0)) | ((u_req < U_MIN) & (e < 0))

@@ -74,10 +74,10 @@ def simulate_terms(plant, controller: AbstractController, scenario, weights=None
 
     def body(carry, inp):
         x, c, u_prev, acc = carry
-        k, r, d, v = inp
+        k, r, d, v, s = inp
         y_clean, temps = measure(x, d)
         y = y_clean + v
-        u, c = controller.step(c, y, r)
+        u, c = controller.step_schedule(c, y, r, s)
         u = jnp.clip(u, 0.0, 1.0)
         e = temps - r
         unif = jnp.mean((temps[edges[:, 0]] - temps[edges[:, 1]]) ** 2) if edges.size \
@@ -90,7 +90,7 @@ def simulate_terms(plant, controller: AbstractController, scenario, weights=None
     u_shape = jax.eval_shape(lambda: controller.step(c0, scenario.r[0], scenario.r[0])[0])
     init = (x0, c0, jnp.zeros(u_shape.shape, dt), jnp.zeros((5,), dt))
     (_, _, _, acc), _ = jax.lax.scan(
-        body, init, (jnp.arange(T), scenario.r, scenario.d, scenario.v))
+        body, init, (jnp.arange(T), scenario.r, scenario.d, scenario.v, scenario.s))
     J = (w["tracking"] * acc[0] + w["window"] * acc[3]) / T + w["effort"] * acc[2] / max(T - 1, 1)
     if edges.size:
         J = J + w["uniformity"] * acc[1] / T
