@@ -1,16 +1,12 @@
-"""`fit()`: one entry point for every model family, and the polynomial-family PEM fit.
+"""`fit()`: one entry point for every model family.
 
 Orders follow MATLAB's System Identification Toolbox: arx `(na, nb, nk)`, armax
 `(na, nb, nc, nk)`, oe `(nb, nf, nk)`, bj `(nb, nc, nd, nf, nk)`, ss `(n,)`, greybox `()`.
 
-Polynomial families are fitted on deviations from an operating point (the data's means, or
-rest at zero input: see `fit_polynomial`'s `offset`; stored as the model's `u0`, `y0`, so
-`model.simulate(u)` is in absolute units): ARX by linear
-least squares, ARMAX/OE/BJ by prediction-error minimisation (Levenberg–Marquardt, one MISO
-problem per output, all outputs and all start points solved together under `vmap`) started
-from the ARX estimate and `n_starts - 1` perturbed copies of it; every start gets
-`screen_steps` steps and only the best is solved to convergence. C, D and F are parametrised by
-reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are stable.
+`fit` checks the request, chooses polynomial orders over a grid when none are given
+(`orders.select_orders`) and hands the data to the family's fitter (`result.FITTERS`):
+`polynomial.fit_polynomial` (arx, armax, oe, bj), `statespace.fit_statespace` (ss) or
+`greybox.fit_greybox` (greybox).
 """
 
 from __future__ import annotations
@@ -18,272 +14,19 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import time
-from typing import Any, Callable, NamedTuple
+from typing import Callable
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
-from ..data import IOData, require_excitation, require_samples
-from ..errors import ConfigError, DataError, FitError, ModelError
-from ..families import MODEL_FAMILIES, ORDER_NAMES
-from ..models.polynomial import (
-    Polynomial, ar_filter, as_nk, delay_onehot, fir_monic, lagged, poly_from_reflection,
-    rational_sum, reflection_from_poly,
-)
-from .arx import arx_ls, perturb_starts
-from .pem import minimize_many
-from .operating_point import (
-    OFFSETS, estimate_rest_level, known_rest_level, offset_mode, operating_point,
-)
+from ..data import IOData, require_excitation
+from ..errors import ConfigError, DataError, ModelError
 
-FAMILIES = MODEL_FAMILIES
-CRITERIA = ("aic", "bic", "fpe")
-
-
-@dataclasses.dataclass(frozen=True)
-class FitResult:
-    """Outcome of `fit`.
-
-    **Fields:**
-    - `model`: the fitted model (an `AbstractModel`, absolute units).
-    - `family`, `orders`: the family name and its orders (`{"na": 2, "nb": 2, "nk": 1}`).
-    - `converged`: every PEM problem reported success (always True for ARX least squares).
-    - `cost`: mean squared one-step prediction error (simulation error for OE) on the
-      estimation data. `seconds`: wall time of the fit, compilation included.
-    - `criterion_table`: when orders were chosen automatically, one dict per candidate.
-    - `covariance`, `std`: parameter covariance and standard deviations; for polynomial
-      families per output, `(ny, p, p)` / `(ny, p)` in the layout of
-      `Polynomial.flat_coefficients`.
-    - `x0`: an estimated initial state where the family estimates one; `extra`: anything else.
-    """
-
-    model: Any
-    family: str = ""
-    orders: dict = dataclasses.field(default_factory=dict)
-    converged: bool = True
-    cost: float = float("nan")
-    seconds: float = float("nan")
-    criterion_table: list | None = None
-    covariance: Any = None
-    std: Any = None
-    x0: Any = None
-    extra: dict = dataclasses.field(default_factory=dict)
-
-    @classmethod
-    def from_pem(cls, model, res, *, seconds: float = float("nan"), data: IOData | None = None,
-                 info: dict | None = None, family: str = "greybox",
-                 orders: dict | None = None) -> "FitResult":
-        """Wrap a model and its `PEMResult` (used by families fitted outside this module)."""
-        del data
-        return cls(model=model, family=family, orders=dict(orders or {}),
-                   converged=bool(res.converged), cost=float(res.cost), seconds=float(seconds),
-                   covariance=res.covariance, std=res.std, extra=dict(info or {}))
-
-
-# ----------------------------------------------------------------- polynomial PEM
-
-
-class _Spec(NamedTuple):
-    """Static structure of one output row's parameter vector."""
-
-    m: int    # number of outputs in the A row (1 diagonal, ny full)
-    na: int
-    nb: int
-    nc: int
-    nd: int
-    nf: int
-    nu: int
-    L: int    # largest input lag
-    offset: bool = False   # a constant kappa (operating point) is estimated too
-    common_f: bool = False   # one F shared by every input of the row
-
-    @property
-    def n_f(self) -> int:
-        return (1 if self.common_f else self.nu) * self.nf
-
-    @property
-    def n_coef(self) -> int:
-        return self.m * self.na + self.nu * self.nb + self.nc + self.nd + self.n_f
-
-    @property
-    def n_params(self) -> int:
-        return self.n_coef + int(self.offset)
-
-
-def _unpack(theta, s: _Spec):
-    k = 0
-    a = theta[k:k + s.m * s.na].reshape(s.m, s.na); k += s.m * s.na
-    b = theta[k:k + s.nu * s.nb].reshape(s.nu, s.nb); k += s.nu * s.nb
-    c = poly_from_reflection(jnp.tanh(theta[k:k + s.nc])); k += s.nc
-    d = poly_from_reflection(jnp.tanh(theta[k:k + s.nd])); k += s.nd
-    rho_f = theta[k:k + s.n_f].reshape(1 if s.common_f else s.nu, s.nf)
-    f = poly_from_reflection(jnp.tanh(jnp.broadcast_to(rho_f, (s.nu, s.nf))))
-    return a, b, c, d, f
-
-
-def _kappa(theta, s: _Spec):
-    return theta[s.n_coef] if s.offset else jnp.zeros((), theta.dtype)
-
-
-def _coefficients(theta, s: _Spec):
-    """Flat model coefficients `[a, b, c, d, f]` of one output row (the layout of `std`)."""
-    a, b, c, d, f = _unpack(theta, s)
-    return jnp.concatenate([a.ravel(), b.ravel(), c, d, f.ravel()])
-
-
-def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
-    """One output row's prediction error $\\varepsilon_i = \\frac{D_i}{C_i}\\big((A y)_i -
-    \\sum_j \\frac{B_{ij}}{F_{ij}} u_j\\big)$ for `args = (y_i, y_src, u, sel, spec)`.
-
-    `y_i (T,)` this output, `y_src (T, m)` the outputs in its A row, `u (T, nu)` inputs (all
-    deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `_Spec`.
-    """
-    yi, ysrc, u, sel, s = args
-    a, b, c, d, f = _unpack(theta, s)
-    bl = jnp.einsum("jkl,jk->jl", sel, b)
-    w = rational_sum(lagged(u, s.L), bl, f)
-    v = yi - _kappa(theta, s)
-    if s.na:
-        v = v + jnp.einsum("tjk,jk->t", lagged(ysrc, s.na)[:, :, 1:], a)
-    return ar_filter(fir_monic(v - w, d), c)[:, None]
-
-
-def poly_cost(theta: Float[Array, " p"], args) -> Float[Array, ""]:
-    """Mean squared prediction error of one output row (what PEM minimises)."""
-    return jnp.mean(poly_residual(theta, args) ** 2)
-
-
-def _atanh_reflection(a: np.ndarray) -> np.ndarray:
-    return np.arctanh(reflection_from_poly(a, clip=0.995))
-
-
-def _poly_args(dy, du, spec: _Spec, nk, full_a: bool):
-    T, ny = dy.shape
-    nkt = as_nk(nk, ny, du.shape[1])
-    sel = jnp.asarray(delay_onehot(nkt, spec.nb, spec.L), dy.dtype)
-    yi = jnp.moveaxis(dy, 1, 0)                                       # (ny, T)
-    if spec.m > 1:
-        ysrc = jnp.broadcast_to(dy[None], (ny,) + dy.shape)
-    else:
-        ysrc = yi[:, :, None]
-    ub = jnp.broadcast_to(du[None], (ny,) + du.shape)
-    return (yi, ysrc, ub, sel, spec)
-
-
-def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
-                   nc: int = 0, nd: int = 0, nf: int = 0, nk=1, full_a: bool = False,
-                   offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
-                   max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
-                   covariance: bool = True, progress: Callable | None = None,
-                   screen_steps: int = 10, batch: str = "vmap", common_f: bool = False,
-                   rest_level=None):
-    """PEM fit of the polynomial structure to absolute data `y`, `u`.
-
-    Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
-    means: the record is taken to start at rest there); `"rest"` takes `u0 = 0` and `y0` = the
-    level of the first samples (the record starts at rest with zero input, e.g. a cold
-    printer; see `estimate_rest_level`);
-    `"estimate"` is `"rest"` with `y0` estimated with the other parameters; `"auto"` picks the
-    one whose ARX estimate simulates the estimation data best. `rest_level`: the output level
-    at rest when it is known (a measured ambient temperature; 0 for data in °C above ambient),
-    a number or one per output: `"rest"` with `y0 = rest_level`.
-
-    ARX (nc = nd = nf = 0) is solved in closed form. Otherwise the start is the ARX estimate of
-    the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
-    and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added;
-    every start is solved for `screen_steps` Levenberg–Marquardt steps and the best one is then
-    solved to convergence (`screen_steps=0`: all to convergence). `batch`: `"vmap"` or `"map"`
-    over the start points (see `jthermo.identify.pem.minimize`). `common_f`: OE/BJ with one
-    denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
-    (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
-    MATLAB's $F_{ij}$ per input–output pair.
-
-    **Returns:** `(model, info)` where `info` has `converged`, `cost`, `covariance`, `std`,
-    `start_costs`, `start_steps`, `n_steps`, `offset`.
-    """
-    y = jnp.asarray(y)
-    u = jnp.asarray(u, y.dtype)
-    ny, nu = y.shape[1], u.shape[1]
-    if offset not in OFFSETS:
-        raise ConfigError(f"fit: offset must be one of {', '.join(OFFSETS)}, got {offset!r}")
-    nkt = as_nk(nk, ny, nu)
-    if full_a and ny > 1 and (nd or nf):
-        raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
-    n_den = na if (nf == 0) else nf
-    arx_full = full_a and nf == 0
-    if rest_level is not None:
-        if offset not in ("auto", "rest"):
-            raise ConfigError(f"fit: a known rest_level needs offset 'rest' (or 'auto'), got {offset!r}")
-        rest_level, offset = jnp.asarray(known_rest_level(rest_level, ny), y.dtype), "rest"
-    elif offset in ("auto", "rest"):
-        rest_level = estimate_rest_level(y, u, nb, nkt, n_den, arx_full, ts)
-    if offset == "auto":
-        offset = offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
-    yref, u0, est = operating_point(offset, y, u, rest_level)
-    dy, du = y - yref, u - u0
-    if nc == 0 and nd == 0 and nf == 0:
-        r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
-        return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
-                             std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
-                             n_steps=0, offset=offset)
-    if progress:
-        progress(f"ARX start (na={max(n_den, 1)}, nb={nb}, offset={offset})")
-    start = arx_ls(dy, du, max(n_den, 1), nb, nkt, full_a=arx_full, offset=est, u0=u0,
-                   y0=yref).model
-    m = ny if arx_full and ny > 1 else 1
-    L = max(max(r) for r in nkt) + max(nb, 1) - 1
-    spec = _Spec(m=m, na=na, nb=nb, nc=nc, nd=nd, nf=nf, nu=nu, L=L, offset=est,
-                 common_f=bool(common_f) and nf > 0)
-    a_arx = np.asarray(start.a)                                       # (ny, m', n_den)
-    parts = []
-    if na:
-        parts.append(a_arx[:, :, :na].reshape(ny, -1) if nf == 0 else np.zeros((ny, m * na)))
-    parts.append(np.asarray(start.b).reshape(ny, -1))
-    parts.append(np.zeros((ny, nc)))
-    parts.append(np.zeros((ny, nd)))
-    if nf:
-        own = a_arx[:, 0, :nf] if a_arx.shape[1] == 1 else a_arx[np.arange(ny), np.arange(ny), :nf]
-        rho = _atanh_reflection(own)                                     # (ny, nf)
-        parts.append(rho if spec.common_f else np.repeat(rho[:, None, :], nu, axis=1).reshape(ny, -1))
-    if est:
-        dy0 = np.asarray(start.y0 - yref)
-        if na and nf == 0:      # kappa = A(1) (y0 - yref) for the A kept from ARX
-            A1 = np.eye(ny) + np.asarray(jnp.sum(start.a_matrices()[:na], axis=0))
-            parts.append((A1 @ dy0)[:, None])
-        else:
-            parts.append(dy0[:, None])
-    theta0 = np.concatenate(parts, axis=1)
-    starts = perturb_starts(theta0, n_starts, seed)                   # (ny, K, p)
-    args = _poly_args(dy, du, spec, nkt, m > 1)
-    if progress:
-        progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
-    res = minimize_many(poly_residual, jnp.asarray(starts, y.dtype), args, solver=solver,
-                        max_steps=max_steps, rtol=rtol, atol=atol, covariance=covariance,
-                        throw=False, screen_steps=screen_steps, batch=batch)
-    if not bool(jnp.all(jnp.isfinite(res.cost))):
-        bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
-        raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
-    a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(res.theta)
-    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=yref)
-    if est:
-        kappa = jax.vmap(lambda th: _kappa(th, spec))(res.theta)
-        A1 = jnp.eye(ny, dtype=y.dtype) + jnp.sum(model.a_matrices(), axis=0)
-        model = eqx.tree_at(lambda mm: mm.y0, model, yref + jnp.linalg.solve(A1, kappa))
-    cov = std = None
-    if covariance:
-        Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(res.theta)
-        cov = jnp.einsum("iab,ibc,idc->iad", Jt, res.covariance, Jt)
-        std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
-    return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
-                       covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
-                       n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
-                       offset=offset)
-
-
-# ----------------------------------------------------------------------- dispatcher
+# the fitters register themselves in `FITTERS` when their modules load
+from .greybox import fit_greybox
+from .orders import CRITERIA, DEFAULT_GRIDS, select_orders
+from .polynomial import fit_polynomial, n_params_per_output, poly_cost, poly_residual
+from .result import FAMILIES, FITTERS, ORDER_NAMES, FitResult
+from .statespace import fit_statespace
 
 
 def _check_orders(family: str, orders) -> dict[str, int]:
@@ -309,19 +52,6 @@ def _check_orders(family: str, orders) -> dict[str, int]:
     if family == "ss" and out["n"] < 1:
         raise ModelError("fit: state order n must be >= 1")
     return out
-
-
-def _poly_kwargs(family: str, o: dict) -> dict:
-    full = {"na": 0, "nb": 0, "nc": 0, "nd": 0, "nf": 0, "nk": 1}
-    full.update(o)
-    return full
-
-
-def n_params_per_output(family: str, o: dict, nu: int, ny: int = 1, full_a: bool = False) -> int:
-    """Number of parameters of one output row of a polynomial model."""
-    k = _poly_kwargs(family, o)
-    m = ny if full_a else 1
-    return m * k["na"] + nu * k["nb"] + k["nc"] + k["nd"] + nu * k["nf"]
 
 
 def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, seed: int = 0,
@@ -355,37 +85,16 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
         raise DataError(f"fit: expected IOData, got {type(data).__name__}")
     o = _check_orders(family, orders) if orders is not None else None
     require_excitation(data)
-    if family == "greybox":
-        from ..models.greybox import fit_greybox
-        _check_options(fit_greybox, kw, family)
-        res = fit_greybox(data, seed=seed, **kw)
-        return _wrap_external(res, "greybox", {}, t0)
-    if family == "ss":
-        from .statespace import fit_statespace
-        _check_options(fit_statespace, kw, family)
-        res = fit_statespace(data, None if o is None else o["n"], seed=seed, n_starts=n_starts,
-                             **kw)
-        return _wrap_external(res, "ss", getattr(res, "orders", o or {}), t0)
-    full_a = bool(kw.get("full_a", False))
-    _check_options(fit_polynomial, kw, family)
+    fitter = FITTERS[family]
+    _check_options(fitter.options, kw, family)
     table = None
-    if o is None:
-        from .orders import select_orders
+    if o is None and family in DEFAULT_GRIDS:
         if progress:
             progress(f"choosing {family} orders by {criterion}")
-        o, table = select_orders(data, family, criterion=criterion, full_a=full_a, seed=seed,
-                                 n_starts=1)
-    pk = _poly_kwargs(family, o)
-    n0 = max(pk["na"], pk["nk"] + max(pk["nb"], 1) - 1)     # rows lost to the regressors
-    require_samples(data, n_params_per_output(family, o, data.n_inputs, data.n_outputs, full_a)
-                    + n0 + 1, what=f"{family} model")
-    model, info = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
-                                 progress=progress, **pk, **kw)
-    return FitResult(model=model, family=family, orders=o, converged=info["converged"],
-                     cost=info["cost"], seconds=time.perf_counter() - t0, criterion_table=table,
-                     covariance=info["covariance"], std=info["std"],
-                     extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"],
-                            "offset": info["offset"]})
+        o, table = select_orders(data, family, criterion=criterion,
+                                 full_a=bool(kw.get("full_a", False)), seed=seed, n_starts=1)
+    res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
+    return _complete(res, family, table, t0)
 
 
 #: arguments of the family fitters that `fit` sets itself (from the data, orders, seed, ...)
@@ -401,22 +110,18 @@ def _check_options(fitter: Callable, kw: dict, family: str) -> None:
         raise ConfigError(f"fit: unknown option `{unknown[0]}` for family {family}")
 
 
-def _wrap_external(res, family, orders, t0) -> FitResult:
-    if isinstance(res, FitResult):
-        if not res.family or not np.isfinite(res.seconds):
-            res = dataclasses.replace(res, family=family,
-                                      seconds=time.perf_counter() - t0 if not np.isfinite(res.seconds)
-                                      else res.seconds)
-        return res
-    model = getattr(res, "model", res)
-    return FitResult(model=model, family=family, orders=dict(getattr(res, "orders", orders) or {}),
-                     converged=bool(getattr(res, "converged", True)),
-                     cost=float(getattr(res, "cost", float("nan"))),
-                     seconds=time.perf_counter() - t0,
-                     criterion_table=getattr(res, "criterion_table", None),
-                     covariance=getattr(res, "covariance", None), std=getattr(res, "std", None),
-                     x0=getattr(res, "x0", None), extra=dict(getattr(res, "info", {}) or {}))
+def _complete(res: FitResult, family: str, table: list | None, t0: float) -> FitResult:
+    """`res` with the family, the order table of an automatic choice and, where the fitter
+    left it NaN, the wall time since `t0`."""
+    changes = {}
+    if not res.family:
+        changes["family"] = family
+    if not np.isfinite(res.seconds):
+        changes["seconds"] = time.perf_counter() - t0
+    if table is not None:
+        changes["criterion_table"] = table
+    return dataclasses.replace(res, **changes) if changes else res
 
 
-__all__ = ["FitResult", "fit", "fit_polynomial", "poly_residual", "poly_cost", "FAMILIES",
-           "ORDER_NAMES", "n_params_per_output"]
+__all__ = ["CRITERIA", "FAMILIES", "ORDER_NAMES", "FitResult", "fit", "fit_greybox",
+           "fit_polynomial", "fit_statespace", "n_params_per_output", "poly_cost", "poly_residual"]

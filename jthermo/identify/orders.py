@@ -23,7 +23,9 @@ import numpy as np
 
 from ..data import IOData, require_excitation
 from ..errors import ConfigError, DataError, FitError, ModelError
+from ..families import ORDER_NAMES
 from .arx import arx_ls
+from .polynomial import fit_polynomial, n_params_per_output, polynomial_orders
 
 CRITERIA = ("aic", "bic", "fpe")
 
@@ -127,8 +129,6 @@ def select_orders(data: IOData, family: str, *, criterion: str = "aic", grid: di
     **Returns:** `(orders, table)`: the chosen orders in MATLAB's naming (with `nk`) and one dict
     per candidate with its orders, parameter count, criterion value and `chosen` flag.
     """
-    from .fit import ORDER_NAMES, fit_polynomial, n_params_per_output
-
     if family not in DEFAULT_GRIDS:
         raise ModelError(f"select_orders: no order grid for family {family!r}")
     if criterion not in CRITERIA:
@@ -146,12 +146,10 @@ def select_orders(data: IOData, family: str, *, criterion: str = "aic", grid: di
             continue
         if progress:
             progress(f"order candidate {o}")
-        kw = {"na": 0, "nb": 0, "nc": 0, "nd": 0, "nf": 0}
-        kw.update(o)
         try:
             model, _ = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
                                       max_steps=max_steps, covariance=False, full_a=full_a,
-                                      **kw)
+                                      **polynomial_orders(family, o))
         except FitError:
             continue
         eps = model.residuals(jnp.asarray(data.y), jnp.asarray(data.u))

@@ -21,9 +21,9 @@ from jaxtyping import Array, Float
 from ..data import IOData, require_excitation
 from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
-from .fit import FitResult
-from .pem import minimize
 from .operating_point import OPERATING_POINTS
+from .pem import minimize
+from .result import FitResult, register_fitter
 from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
 
 FOCUS = ("prediction", "simulation")
@@ -241,10 +241,21 @@ def _ss_residuals_x0zero(theta, args):
     return innovations(unpack(theta, template), y, du, dw, None)
 
 
+@register_fitter(("ss",), options=fit_statespace)
+def fit_statespace_family(data: IOData, family: str, orders: dict | None, *, seed: int = 0,
+                          n_starts: int = 4, progress=None, **kw) -> FitResult:
+    """`fit`'s fitter of the family `ss`: `fit_statespace` of order `orders["n"]` (None: the
+    order is chosen from the Hankel singular values) with options `kw`."""
+    del family, progress
+    return fit_statespace(data, None if orders is None else orders["n"], seed=seed,
+                          n_starts=n_starts, **kw)
+
+
 __all__ = [
     "FOCUS",
     "choose_operating_point",
     "fit_statespace",
+    "fit_statespace_family",
     "ss_cost",
     "ss_residuals",
     "ss_residuals_level",

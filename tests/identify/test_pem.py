@@ -121,16 +121,17 @@ def test_errors(linear_problem):
 from tests.helpers import central_difference  # noqa: E402
 
 from jthermo.data import from_arrays  # noqa: E402
-from jthermo.identify.fit import _poly_args, _Spec, fit, poly_cost  # noqa: E402
+from jthermo.identify.fit import fit  # noqa: E402
+from jthermo.identify.polynomial import PolySpec, poly_args, poly_cost  # noqa: E402
 from jthermo.models.polynomial import ARMAX, OE, BoxJenkins, poly_from_reflection  # noqa: E402
 
 SPECS = {   # m, na, nb, nc, nd, nf, nu, L, offset, common_f
-    "armax": _Spec(1, 2, 2, 1, 0, 0, 2, 2, True),
-    "armax_full": _Spec(2, 1, 1, 1, 0, 0, 2, 1, False),
-    "oe": _Spec(1, 0, 2, 0, 0, 2, 2, 2, True),
-    "bj": _Spec(1, 0, 1, 2, 1, 1, 2, 1, False),
-    "oe_common_f": _Spec(1, 0, 2, 0, 0, 2, 3, 2, True, True),
-    "bj_common_f": _Spec(1, 0, 1, 2, 1, 1, 3, 1, False, True),
+    "armax": PolySpec(1, 2, 2, 1, 0, 0, 2, 2, True),
+    "armax_full": PolySpec(2, 1, 1, 1, 0, 0, 2, 1, False),
+    "oe": PolySpec(1, 0, 2, 0, 0, 2, 2, 2, True),
+    "bj": PolySpec(1, 0, 1, 2, 1, 1, 2, 1, False),
+    "oe_common_f": PolySpec(1, 0, 2, 0, 0, 2, 3, 2, True, True),
+    "bj_common_f": PolySpec(1, 0, 1, 2, 1, 1, 3, 1, False, True),
 }
 
 
@@ -140,7 +141,7 @@ def test_grad_of_pem_cost_matches_central_differences(name):
     rng = np.random.default_rng(5)
     y = jnp.asarray(np.cumsum(rng.standard_normal((120, 2)), axis=0) * 0.1)
     u = jnp.asarray(rng.uniform(0, 1, (120, spec.nu)))
-    args = _poly_args(y, u, spec, 1, spec.m > 1)
+    args = poly_args(y, u, spec, 1, spec.m > 1)
     one = tuple(a[0] for a in args[:4]) + (spec,)
     theta = jnp.asarray(rng.normal(0, 0.3, spec.n_params))
     g = np.asarray(jax.grad(poly_cost)(theta, one))

@@ -6,7 +6,8 @@ from scipy import signal
 
 from jthermo.data import from_arrays
 from jthermo.errors import ModelError
-from jthermo.models.greybox import BedModel, ExtendedBedModel, fit_greybox, zoh
+from jthermo.identify.greybox import fit_greybox
+from jthermo.models.greybox import BedModel, ExtendedBedModel, zoh
 
 
 def _truth(n=3):
