@@ -33,20 +33,20 @@ import identification as bench  # noqa: E402
 
 from jthermo.data import from_arrays  # noqa: E402
 
-# the module (the package re-exports its `fit` function under the same name)
-fitmod = importlib.import_module("jthermo.identify.fit")
+# the module whose `fit_polynomial` looks the rest-level estimate up
+polymod = importlib.import_module("jthermo.identify.polynomial")
 OUT = Path(__file__).resolve().parent / "results" / "identification_level_check.md"
 
 
 @contextmanager
 def rest_level(rule):
     """Temporarily replace jthermo's rest-level estimate by `rule(y)`."""
-    saved = fitmod.estimate_rest_level
-    fitmod.estimate_rest_level = lambda y, *a, **k: rule(y)
+    saved = polymod.estimate_rest_level
+    polymod.estimate_rest_level = lambda y, *a, **k: rule(y)
     try:
         yield
     finally:
-        fitmod.estimate_rest_level = saved
+        polymod.estimate_rest_level = saved
 
 
 def main() -> None:
