@@ -1,6 +1,8 @@
 """The `jthermo` command: parse, check inputs up front, call the library, report.
 
-Every command takes `--json PATH` (a JSON report written atomically), `--seed`, `--quiet`.
+Every command takes `--json PATH` (a JSON report written atomically, with the wall time
+`seconds` split into `compile_s` and `run_s`), `--seed`, `--quiet`, `--verbose` and `--no-cache`:
+compiled code is kept in a persistent cache between runs (`jthermo.runtime`).
 Errors are one line on stderr and exit status 2, never a traceback and never a partial
 output file; Ctrl-C prints one line and exits with 130, leaving saved files intact.
 Imports of the library are lazy (inside each command), so `jthermo --help` is fast.
@@ -87,6 +89,15 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             if not debug:
                 warnings.simplefilter("ignore")
+            from .. import runtime
+
+            args.stopwatch = runtime.Stopwatch()
+            if getattr(args, "no_cache", False):
+                runtime.disable_cache("--no-cache")
+            else:
+                runtime.enable_cache()
+            if getattr(args, "verbose", False):
+                print(f"jthermo: {runtime.cache_info()}", file=sys.stderr)
             import jax
 
             jax.config.update("jax_enable_x64", True)

@@ -6,7 +6,15 @@ import argparse
 from pathlib import Path
 
 from ..errors import ConfigError
-from .common import add_common, info, input_file, output_path, positive_int, progress_bar
+from .common import (
+    add_common,
+    info,
+    input_file,
+    output_path,
+    positive_int,
+    progress_bar,
+    write_report,
+)
 
 
 def add_parsers(sub) -> None:
@@ -31,7 +39,6 @@ def add_parsers(sub) -> None:
 
 def cmd_sweep(args: argparse.Namespace) -> dict:
     from .. import sweep
-    from ..io import write_json
 
     js = output_path(args.json, "--json")
     if args.config is not None:
@@ -46,15 +53,14 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
         best = sweep.best_trials(rows, config, top=args.top)
         print(sweep.format_summary(best, config, total=len(rows)))
         report = {"results": str(results), "n_trials": len(rows), "best": best}
-        write_json(js, report)
-        return report
+        return write_report(args, js, report)
     bar = progress_bar(args, f"sweep {config['name']}")
     try:
         report = sweep.run_sweep(config, results, ray_address=args.ray, workers=args.workers,
                                  progress=bar)
     finally:
         bar.close()
-    write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"sweep {config['name']}: {report['n_run']} trials run, {report['n_skipped']} already done, "
                f"{report['n_failed']} failed; results in {results}")
     if report.get("best"):
@@ -64,13 +70,12 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
 
 def cmd_demo(args: argparse.Namespace) -> dict:
     from .. import demo
-    from ..io import write_json
 
     js = output_path(args.json, "--json")
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise ConfigError(f"--name: expected a plain directory name, got {args.name!r}")
     report = demo.run_demo(name=args.name, quick=args.quick, seed=args.seed,
                            runs_dir=args.runs_dir, quiet=args.quiet)
-    write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"report: {report['report']}")
     return report

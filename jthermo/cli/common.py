@@ -65,10 +65,16 @@ def duration(text: str) -> float:
 
 
 def add_common(sp: argparse.ArgumentParser, plot: bool = True) -> None:
-    """The options every command takes: `--json`, `--seed`, `--quiet` (and `--plot`)."""
+    """The options every command takes: `--json`, `--seed`, `--quiet`, `--verbose`,
+    `--no-cache` (and `--plot`)."""
     sp.add_argument("--json", metavar="PATH", help="write a JSON report here (atomically)")
     sp.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     sp.add_argument("--quiet", action="store_true", help="no progress bars")
+    sp.add_argument("--verbose", action="store_true",
+                    help="say which compilation cache is used (one line on stderr)")
+    sp.add_argument("--no-cache", action="store_true",
+                    help="compile afresh, without the persistent compilation cache "
+                         "(also: JTHERMO_NO_CACHE=1)")
     if plot:
         sp.add_argument("--plot", metavar="DIR", help="write figures (PNG) into DIR")
 
@@ -153,6 +159,18 @@ def progress_bar(args, desc: str, total: int | None = None):
     from ..progress import Progress
 
     return Progress(total, desc, quiet=True if args.quiet else None)
+
+
+def write_report(args, path: Path | None, report: dict) -> dict:
+    """`report` with the command's wall time so far (`seconds`, split into `compile_s` and
+    `run_s`), written to `path` as JSON when a path is given; returns the report written."""
+    from ..io import write_json
+
+    clock = getattr(args, "stopwatch", None)
+    if clock is not None:
+        report = {**report, **clock.split()}
+    write_json(path, report)
+    return report
 
 
 def info(args, text: str) -> None:

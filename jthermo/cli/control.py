@@ -24,6 +24,7 @@ from .common import (
     progress_bar,
     require,
     summary_line,
+    write_report,
 )
 
 
@@ -170,7 +171,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
         plots.plot_closed_loop(traj["t"], traj["y"], traj["u"], traj["r"],
                                path=plot / f"closed_loop_{args.scenario}.png")
         report["figures"] = [str(plot / f"closed_loop_{args.scenario}.png")]
-    io.write_json(js, report)
+    report = write_report(args, js, report)
     metrics = report.get("metrics", {})
     info(args, f"{args.scenario} / {report['controller']}: "
                + summary_line(metrics, list(metrics)[:6]))
@@ -178,8 +179,6 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
 
 
 def cmd_generate(args: argparse.Namespace) -> dict:
-    from ..io import write_json
-
     out = output_path(args.out, "--out")
     js = output_path(args.json, "--json")
     distinct_outputs(out, js)
@@ -198,7 +197,7 @@ def cmd_generate(args: argparse.Namespace) -> dict:
               "n_samples": data.n_samples, "ts": data.ts, "seed": args.seed,
               "columns": ["t"] + [f"u_{n}" for n in data.input_names] + [f"y_{n}" for n in data.output_names]
               + [f"w_{n}" for n in data.signal_names]}
-    write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"wrote {out}: {data.n_samples} samples, {data.n_inputs} inputs, {data.n_outputs} outputs")
     return report
 
@@ -246,7 +245,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         io.save(tuned, out, meta={"family": args.controller, "seed": args.seed,
                                   "tuned_cost": report.get("tuned_cost")})
         report["out"] = str(out)
-    io.write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"{args.controller}: " + summary_line(
         report, ("start_cost", "tuned_cost", "lambda_pi_cost", "improvement_percent", "seconds")))
     return report

@@ -7,7 +7,16 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError
-from .common import add_common, info, load_data, output_path, progress_bar, require, same_layout
+from .common import (
+    add_common,
+    info,
+    load_data,
+    output_path,
+    progress_bar,
+    require,
+    same_layout,
+    write_report,
+)
 
 
 def add_parsers(sub) -> None:
@@ -22,8 +31,6 @@ def add_parsers(sub) -> None:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> dict:
-    from ..io import write_json
-
     js = output_path(args.json, "--json")
     if args.report is not None and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f"--report {args.report}: exists and is not a directory")
@@ -49,7 +56,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     if hasattr(diag, "to_json"):
         result = diag.to_json(result)
     result = {k: v for k, v in result.items() if not str(k).startswith("_")}
-    write_json(js, result)
+    result = write_report(args, js, result)
     names = [f.get("mechanism") for f in result.get("findings", [])]
     info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))
     return result

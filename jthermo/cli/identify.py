@@ -19,6 +19,7 @@ from .common import (
     progress_bar,
     require,
     same_layout,
+    write_report,
 )
 
 
@@ -141,9 +142,11 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     if out is not None:
         io.save(res.model, out, meta={"family": family, "orders": report["orders"],
                                       "data": str(args.data), "seed": args.seed,
-                                      "fit_percent": cmp["fit_percent"]})
+                                      "fit_percent": cmp["fit_percent"],
+                                      **({"envelope": res.envelope.to_dict()}
+                                         if getattr(res, "envelope", None) else {})})
         report["out"] = str(out)
-    io.write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
                f"(mean {cmp['mean_fit_percent']:.2f} % on {report['fit_on']} data), "
                f"{report['seconds']:.1f} s")
@@ -182,7 +185,7 @@ def cmd_validate(args: argparse.Namespace) -> dict:
         plots.plot_compare(data, {name: cmp["yhat"]}, {name: cmp["fit_percent"]}, path=plot / "compare.png")
         plots.plot_residual_tests(res, path=plot / "residuals.png")
         report["figures"] = [str(plot / "compare.png"), str(plot / "residuals.png")]
-    io.write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % (mean {cmp['mean_fit_percent']:.2f} %), "
                f"residuals white: {res.get('whiteness_pass')}, independent of inputs: "
                f"{res.get('independence_pass')}")

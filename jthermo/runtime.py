@@ -1,0 +1,194 @@
+"""JAX runtime settings of the application: the persistent compilation cache, and the split
+of a run's wall time into compiling and running.
+
+Importing this module changes nothing: the library never touches JAX's global configuration
+by itself. The `jthermo` command calls `enable_cache()` before it compiles anything; scripts,
+experiments and the test suite may call it too.
+
+**The cache.** XLA executables are written to a directory, keyed by a hash of the compiled
+program, the JAX/XLA version and the flags, so a second process loads what the first one
+compiled instead of compiling it again (JAX's persistent compilation cache). The directory is
+`$JTHERMO_CACHE_DIR`, else `$XDG_CACHE_HOME/jthermo/jax`, else `~/.cache/jthermo/jax`;
+`JTHERMO_NO_CACHE=1` (or `jthermo --no-cache`) switches it off. Every compile is cached, however
+small: jthermo's closed loops, fits and tests compile hundreds of small programs, and loading
+one from disk costs milliseconds (`benchmarks/latency.py` measures what that buys).
+
+**Concurrent processes.** The cache is given a size bound, which makes JAX guard each read and
+write with a file lock (`filelock`); a partly written entry is never read. An entry that cannot
+be read or written (a lock timeout, a full disk) makes JAX compile as if it were absent.
+A directory that cannot be created or written (a read-only home) turns the cache off for the
+process: the command runs as without it.
+
+**Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
+compilation and sums the union of their time spans (nested traces count once); `run_s` is the
+rest of the wall time.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ENV_DIR = "JTHERMO_CACHE_DIR"
+ENV_OFF = "JTHERMO_NO_CACHE"
+
+#: Cache every compile, however short: the default (1 s) skips almost all of jthermo's.
+MIN_COMPILE_SECONDS = 0.0
+#: Bound of the cache directory; least recently used entries are evicted beyond it. A bound is
+#: what makes JAX lock the directory during reads and writes (safe between processes).
+MAX_CACHE_BYTES = 4 * 1024**3
+
+#: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
+COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
+                  "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                  "/jax/core/compile/backend_compile_duration")
+
+_state: dict = {"dir": None, "reason": "not enabled"}
+_spans: list[tuple[float, float]] = []
+_lock = threading.Lock()
+_listening = False
+
+
+def _off(value: str | None) -> bool:
+    return (value or "").strip().lower() not in ("", "0", "false", "no", "off")
+
+
+def default_cache_dir() -> Path:
+    """Where the cache lives: `$JTHERMO_CACHE_DIR`, else `$XDG_CACHE_HOME/jthermo/jax`, else
+    `~/.cache/jthermo/jax`."""
+    explicit = os.environ.get(ENV_DIR)
+    if explicit:
+        return Path(explicit).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg).expanduser() if xdg else Path("~/.cache").expanduser()
+    return base / "jthermo" / "jax"
+
+
+def _writable(path: Path) -> str | None:
+    """None when `path` can be created and written into, else the reason it cannot."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except (OSError, ValueError) as exc:  # ValueError: a path with a NUL byte
+        return f"{path}: {getattr(exc, 'strerror', None) or exc}"
+    return None
+
+
+def enable_cache(path: str | os.PathLike | None = None) -> Path | None:
+    """Switch on JAX's persistent compilation cache for this process and its children.
+
+    **Arguments:**
+
+    - `path`: the cache directory; default `default_cache_dir()`.
+
+    **Returns:** the directory in use, or None when the cache stays off (`JTHERMO_NO_CACHE`
+    set, or the directory cannot be written: `cache_info()` says why). Never raises.
+    Call it before the first compile: JAX opens the cache once per process.
+    """
+    if _off(os.environ.get(ENV_OFF)):
+        disable_cache(f"{ENV_OFF} is set")
+        return None
+    target = Path(path).expanduser() if path is not None else default_cache_dir()
+    reason = _writable(target)
+    if reason is not None:
+        disable_cache(f"cannot write {reason}")
+        return None
+    import jax
+
+    try:
+        import filelock  # noqa: F401  (JAX locks the directory with it when a bound is set)
+
+        bound = MAX_CACHE_BYTES
+    except ImportError:
+        bound = -1  # unbounded, unlocked: entries are zlib streams, a torn read is rejected
+    settings = {"jax_enable_compilation_cache": True, "jax_compilation_cache_dir": str(target),
+                "jax_persistent_cache_min_compile_time_secs": MIN_COMPILE_SECONDS,
+                "jax_persistent_cache_min_entry_size_bytes": -1,
+                "jax_compilation_cache_max_size": bound}
+    for name, value in settings.items():
+        jax.config.update(name, value)
+        # worker processes (sweeps) inherit the cache
+        os.environ[name.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
+    _state.update(dir=target, reason=None)
+    return target
+
+
+def disable_cache(reason: str = "disabled") -> None:
+    """Keep the cache off in this process and its children (`jthermo --no-cache`), even where
+    the environment names a JAX cache directory."""
+    import jax
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    os.environ[ENV_OFF] = "1"
+    _state.update(dir=None, reason=reason)
+
+
+def cache_info() -> str:
+    """One line: the cache directory in use and its entry count, or why there is none."""
+    d = _state["dir"]
+    if d is None:
+        return f"compilation cache off ({_state['reason']})"
+    try:
+        n = sum(1 for p in Path(d).iterdir() if p.name.endswith("-cache"))
+    except OSError:
+        n = 0
+    return f"compilation cache {d} ({n} entries)"
+
+
+# ---------------------------------------------------------------- compile-time accounting
+
+
+def _on_span(event: str, start: float, end: float, **_) -> None:
+    if event in COMPILE_EVENTS:
+        with _lock:
+            _spans.append((start, end))
+
+
+def _listen() -> None:
+    global _listening
+    with _lock:
+        if _listening:
+            return
+        _listening = True
+    import jax.monitoring
+
+    jax.monitoring.register_event_time_span_listener(_on_span)
+
+
+def union_seconds(spans, lo: float, hi: float) -> float:
+    """Length of the union of the intervals `spans`, clipped to `[lo, hi]`."""
+    total, reach = 0.0, lo
+    for a, b in sorted(spans):
+        a, b = max(a, reach), min(b, hi)
+        if b > a:
+            total += b - a
+            reach = b
+    return total
+
+
+class Stopwatch:
+    """Wall time since construction, split into compile and run seconds.
+
+    Compile time is the union of the time spans of JAX's tracing, lowering and backend
+    compile events (a cache hit counts as its short load); `run_s` is the rest.
+    """
+
+    def __init__(self):
+        _listen()
+        self.start = time.time()
+
+    def split(self) -> dict[str, float]:
+        """`{"seconds": total, "compile_s": ..., "run_s": ...}` so far, rounded to 1 ms."""
+        now = time.time()
+        with _lock:
+            spans = list(_spans)
+        compile_s = union_seconds(spans, self.start, now)
+        total = now - self.start
+        return {"seconds": round(total, 3), "compile_s": round(compile_s, 3),
+                "run_s": round(max(total - compile_s, 0.0), 3)}
