@@ -25,10 +25,11 @@ def _system(seed=0, nx=3, nu=2, ny=2):
     return A, B, C, np.sort_complex(np.linalg.eigvals(Lam))
 
 
-def _noise_free(T=1000, seed=0):
-    """Noise-free data in periodic steady state with a zero-mean input per period, so that the
-    sample means are exactly the operating point (otherwise the mean offset adds a state)."""
-    A, B, C, poles = _system(seed)
+def _noise_free(T=1000, seed=0, nx=3):
+    """Noise-free data of order `nx` in periodic steady state with a zero-mean input per period,
+    so that the sample means are exactly the operating point (otherwise the mean offset adds a
+    state)."""
+    A, B, C, poles = _system(seed, nx=nx)
     rng = np.random.default_rng(seed + 10)
     period = rng.standard_normal((T // 2, B.shape[1]))
     period -= period.mean(0)
@@ -84,9 +85,18 @@ def test_variants_share_order_and_are_stable():
 def test_choose_order_gap():
     assert choose_order([10.0, 9.0, 8.0, 0.1, 0.09]) == 3
     assert choose_order([1.0, 1e-15, 1e-16]) == 1
-    assert choose_order([5, 4, 3, 2, 1e-6, 1e-7], max_order=2) in (1, 2)
     with pytest.raises(ModelError, match="at least two"):
         choose_order([1.0])
+
+
+def test_choose_order_finds_the_data_order_below_max_order():
+    # noise-free data of a second-order system: the Hankel singular values vanish after two
+    data, (_, _, _, poles) = _noise_free(nx=2)
+    assert len(poles) == 2
+    _, svals = n4sid(data, None, horizon=6)
+    assert svals[1] > 1e-3 * svals[0] and svals[2] < 1e-8 * svals[0]
+    assert choose_order(svals, max_order=4) == 2   # a cap above the order: the order itself
+    assert choose_order(svals, max_order=1) == 1   # a cap below the order binds
 
 
 def test_project_stable():
