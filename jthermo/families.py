@@ -14,4 +14,7 @@ ORDER_NAMES = {
 }
 
 #: closed-loop scenarios `jthermo.closedloop.make_scenario` builds (`jthermo simulate --scenario`)
-SCENARIO_KINDS = ("tracking", "powder", "print", "preheat", "ensemble")
+SCENARIO_KINDS = ("tracking", "powder", "print", "preheat", "ensemble", "load")
+#: the scenarios of a fitted model's own plant (`closedloop.model_scenario`): `powder` and
+#: `print` belong to the virtual printer; `load` (input-referred load steps) to fitted models
+MODEL_SCENARIO_KINDS = ("tracking", "load", "preheat", "ensemble")

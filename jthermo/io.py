@@ -179,6 +179,11 @@ def _build(spec: Any, trusted: tuple[str, ...], arrays: list | None) -> Any:
             raise ConfigError(f"saved file names `{spec['cls']}`, which is not a dataclass or Module")
         obj = object.__new__(cls)
         names = {f.name for f in dataclasses.fields(cls)}
+        # fields added since the file was written take their defaults (older files load)
+        for f in dataclasses.fields(cls):
+            if f.name not in spec["fields"] and f.default is not dataclasses.MISSING:
+                object.__setattr__(obj, f.name, f.default)
+                names.discard(f.name)
         if set(spec["fields"]) != names:
             raise ConfigError(
                 f"saved `{spec['cls']}` has fields {sorted(spec['fields'])}, this jthermo has "
@@ -373,6 +378,18 @@ def load_model(path: str | os.PathLike, *, trusted_modules: tuple[str, ...] = TR
     if header.get("kind") == "fit_result":
         return load(path, trusted_modules=trusted_modules).model
     return load(path, kind="model", trusted_modules=trusted_modules)
+
+
+def load_envelope(path: str | os.PathLike):
+    """The recording's `models.Envelope` stored with a saved model (`jthermo fit --out`) or fit
+    result, or None for a file written without one (before envelopes, or by hand)."""
+    from .models.envelope import Envelope
+
+    header = load_header(path)
+    env = (header.get("meta") or {}).get("envelope")
+    if env is None and header.get("kind") == "fit_result":
+        return getattr(load(path), "envelope", None)
+    return None if env is None else Envelope.from_dict(env)
 
 
 def load_controller(path: str | os.PathLike, *,

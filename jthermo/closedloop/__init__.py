@@ -8,10 +8,12 @@ x_{k+1} = f(x_k, u_k, d_k)              (plant, one sample Ts)
 
 Plants are the virtual printer (`jthermo.printer.Printer`, disturbances `PrinterDisturbance`:
 recoat flags, laser power per zone, surroundings) or any fitted `AbstractModel`. A fitted
-model has no recoat or laser input, so its scenario carries `ModelDisturbance`: the measured
-signals `w` it was fitted with (`w[:, 0]` = surroundings temperature) and an additive *output*
-disturbance `dy`, the open-loop response of a reference printer to the same recoat/laser events
-(superposition: exact for a linear plant). Batches come from `rollouts` (vmap over scenarios and,
+model is a plant in its own right: `model_scenario` builds its tests from its recording
+(`models.Envelope`: sample time, set points in the recorded range, input-referred load steps,
+noise). Its scenario carries `ModelDisturbance`: the measured signals `w` it was fitted with
+and an additive *output* disturbance `dy` (the load's response; with a `reference` printer,
+the printer's open-loop response to the same recoat/laser events — superposition: exact for
+a linear plant). Batches come from `rollouts` (vmap over scenarios and,
 with `plant_axis=0`, over a stacked batch of plants). Everything is pure and differentiable with
 respect to controller gains and plant parameters.
 """
@@ -21,6 +23,8 @@ from .scenarios import (
     STEP_C as STEP_C, WINDOW_C as WINDOW_C, ModelDisturbance as ModelDisturbance,
     Scenario as Scenario, Trajectory as Trajectory, make_scenario as make_scenario,
     PREVIEW_S as PREVIEW_S, event_schedule as event_schedule,
+    MODEL_KINDS as MODEL_KINDS, model_duration as model_duration,
+    model_scenario as model_scenario,
 )
 from .scoring import (
     DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, cost as cost, metrics as metrics,

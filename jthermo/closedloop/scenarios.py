@@ -14,14 +14,15 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import ConfigError
+from ..families import MODEL_SCENARIO_KINDS as MODEL_KINDS
 from ..families import SCENARIO_KINDS as KINDS
 from ..models._base import AbstractModel
+from ..models.envelope import Envelope, check_reachable, equilibrium_input, steady_output
 from ..printer import (
     Printer,
     PrinterDisturbance,
     disturbances,
     grid_edges,
-    make_printer,
     simulate_open_loop,
 )
 
@@ -32,6 +33,8 @@ DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "prehe
 REALISTIC_EFFECTS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
                      "recoat_cooling", "laser_exposure", "ambient_variation", "sensor_noise")
 STEP_C = 4.0          # the thesis' reference step, °C on all channels
+STEP_SHARE = 0.2      # a fitted model's tracking step: this share of each output's recorded range
+LOAD_SHARE = 0.25     # its load step: this share of each input's recorded std (input-referred)
 WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
 PREVIEW_S = 15.0      # how far ahead the build job announces its events to the controller, s
 JITTER_S = 2.0        # timing error of the announced events, ± s (uniform, per rollout)
@@ -160,7 +163,8 @@ def _printer_scenario(kind: str, printer: Printer, T: int, key, noise_std: float
 def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
                   n_rollouts: int | None = None, noise_std: float = 0.05,
                   step_c: float = STEP_C, window: float = WINDOW_C,
-                  reference: Printer | None = None) -> Scenario:
+                  reference: Printer | None = None, envelope: Envelope | None = None,
+                  setpoint=None) -> Scenario:
     """Build a thesis test scenario for `plant` (a batch with `n_rollouts`).
 
     **Arguments:**
@@ -169,15 +173,19 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
       per-layer laser exposure pattern), `"preheat"` (cold start at the surroundings, set point
       the window centre: start-up), `"ensemble"` (random start and set point within ±step_c/2,
       random layer phase, every disturbance the printer has; different per rollout).
-    - `plant`: a `Printer` or a fitted `AbstractModel` (then `reference`, default a realistic
-      printer with as many zones, provides the window, the surroundings and the output
-      disturbances).
+    - `plant`: a `Printer`, or a fitted `AbstractModel`: then its own scenarios
+      (`model_scenario`, from its recording's `Envelope`), unless a `reference` printer is
+      given to provide the window, the surroundings and the output disturbances.
+      `envelope` and `setpoint` go to `model_scenario` (fitted models only).
     - `duration` (s, default `DEFAULT_DURATION[kind]`), `key` (a PRNG key or integer seed),
       `noise_std` (white measurement noise, °C, added to the printer's `sensor_noise`).
     """
     if kind not in KINDS:
         raise ConfigError(f"make_scenario: unknown scenario `{kind}` (known: {', '.join(KINDS)})")
-    duration = DEFAULT_DURATION[kind] if duration is None else duration
+    if kind == "load" and (isinstance(plant, Printer) or reference is not None):
+        raise ConfigError("make_scenario: `load` is a fitted model's scenario; the virtual "
+                          "printer's disturbances are `powder` and `print`")
+    duration = DEFAULT_DURATION.get(kind, 1200.0) if duration is None else duration
     if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
         raise ConfigError(f"make_scenario: duration must be a positive number of seconds, got {duration!r}")
     if n_rollouts is not None and (not isinstance(n_rollouts, (int, np.integer)) or n_rollouts < 1):
@@ -185,10 +193,14 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
     key = _as_key(key)
     if isinstance(plant, Printer):
         printer, model = plant, None
+    elif isinstance(plant, AbstractModel) and reference is None:
+        # a fitted model is a plant in its own right: its scenarios come from its recording
+        return model_scenario(kind, plant, duration, key, n_rollouts=n_rollouts,
+                              step_c=None if step_c == STEP_C else step_c, window=window,
+                              envelope=envelope, setpoint=setpoint)
     elif isinstance(plant, AbstractModel):
         model = plant
-        printer = reference if reference is not None else make_printer(
-            int(model.n_outputs), REALISTIC_EFFECTS)
+        printer = reference
         if printer.n_outputs != model.n_outputs:
             raise ConfigError(f"make_scenario: the model has {model.n_outputs} outputs, the "
                               f"reference printer {printer.n_outputs}")
@@ -242,3 +254,108 @@ def _model_disturbance(model: AbstractModel, printer: Printer, d: PrinterDisturb
         dy = dy + ya - y0
     return ModelDisturbance(w=w, dy=dy)
 
+
+
+# ----------------------------------------------------------------------------- a fitted model's own
+
+
+def model_duration(model: AbstractModel) -> float:
+    """A fitted model's natural scenario length, s: five times its slowest time constant,
+    between 200 and 5000 samples."""
+    A = np.asarray(model.to_statespace().A, np.float64)
+    rho = float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
+    ts = float(model.ts)
+    tau = -ts / math.log(rho) if 0.0 < rho < 1.0 else 0.0
+    return ts * float(np.clip(round(5.0 * tau / ts), 200, 5000))
+
+
+def model_scenario(kind: str, model: AbstractModel, duration: float | None = None, key=0, *,
+                   n_rollouts: int | None = None, envelope: Envelope | None = None,
+                   setpoint=None, step_c=None, load=None, window: float = WINDOW_C) -> Scenario:
+    """A closed-loop test of a fitted model on its own terms: sample time, set points, input
+    limits, load sizes and noise from its recording's `Envelope` (`envelope`, default
+    `Envelope.from_model`), never from the virtual printer.
+
+    **Arguments:**
+    - `kind`: `"tracking"` (a step of `step_c` °C per output, default `STEP_SHARE` of the
+      recorded range, up to the set point, from the equilibrium below it), `"load"` (at the set
+      point, an input-referred heat sink of `load` per input — default `LOAD_SHARE` of the
+      recorded input std, at most half the distance to the input limits — switched on at
+      20–30 % and off at 60–70 % of the run), `"preheat"` (start-up: from the model's
+      equilibrium with the heaters off to the set point), `"ensemble"` (random set point within
+      ±step/4, start within one step below it, and a load of random sign; per rollout).
+    - `duration`: s, default `model_duration(model)`; `key`: PRNG key or seed.
+    - `setpoint`: °C, scalar or per output; default `envelope.default_setpoint`. A set point
+      the inputs cannot hold is a `ConfigError` saying what they can reach.
+    - `window`: half-width of the metrics' window, °C (at least 3 noise std).
+
+    The plant starts at steady state (`Scenario.y0`); white measurement noise of the
+    recording's `noise_std`; the measured signals `w` are held at their recorded means.
+    """
+    if kind not in MODEL_KINDS:
+        raise ConfigError(f"model_scenario: scenario `{kind}` is not one of a fitted model's "
+                          f"({', '.join(MODEL_KINDS)}); `powder` and `print` need the virtual "
+                          "printer (make_scenario(..., reference=printer))")
+    env = (Envelope.from_model(model) if envelope is None else envelope).check(model)
+    duration = model_duration(model) if duration is None else duration
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"model_scenario: duration must be a positive number of seconds, got {duration!r}")
+    if n_rollouts is not None and (not isinstance(n_rollouts, (int, np.integer)) or n_rollouts < 1):
+        raise ConfigError(f"model_scenario: n_rollouts must be a positive integer, got {n_rollouts!r}")
+    T = int(round(duration / env.ts))
+    if T < 2:
+        raise ConfigError(f"model_scenario: duration {duration} s is shorter than two samples")
+    r = check_reachable(model, env, env.default_setpoint(model) if setpoint is None else setpoint)
+    w = env.signals(model)
+    lo, hi = np.asarray(env.u_min), np.asarray(env.u_max)
+    y_off = steady_output(model, lo, w)
+    step = STEP_SHARE * env.span if step_c is None else np.broadcast_to(
+        np.abs(np.asarray(step_c, np.float64)), r.shape)
+    u_star = equilibrium_input(model, r, w)
+    size = LOAD_SHARE * np.asarray(env.u_std) if load is None else np.broadcast_to(
+        np.asarray(load, np.float64), u_star.shape)
+    size = np.minimum(size, 0.5 * np.minimum(u_star - lo, hi - u_star))
+    dt = jnp.asarray(model.to_statespace().A).dtype
+    S = jnp.asarray(model.step_response(T), dt)                      # (T, ny, nu)
+    consts = {k: jnp.asarray(v, dt) for k, v in (("r", r), ("step", step), ("y_off", y_off),
+                                                 ("size", size), ("w", w),
+                                                 ("noise", env.noise_std))}
+    key = _as_key(key)
+    keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
+    r_, dy, v, y0 = _build_model_scenario(kind, S, consts, T, keys, n_rollouts is not None)
+    wT = jnp.broadcast_to(consts["w"], (*r_.shape[:-2], T, w.shape[0]))
+    return Scenario(r=r_, d=ModelDisturbance(w=wT, dy=dy), v=v, y0=y0, kind=kind,
+                    window=max(float(window), 3.0 * float(np.max(env.noise_std))), ts=env.ts)
+
+
+@eqx.filter_jit
+def _build_model_scenario(kind, S, c, T, keys, batched):
+    def shifted(k0):       # the step response delayed to start at sample k0: (T, ny, nu)
+        idx = jnp.arange(T) - k0
+        return jnp.where((idx >= 0)[:, None, None], S[jnp.clip(idx, 0, T - 1)], 0.0)
+
+    def one(k):
+        k_t, k_on, k_off, k_r, k_s, k_v = jax.random.split(k, 6)
+        r, zero = c["r"], jnp.zeros_like(c["r"])
+        sign = -1.0
+        if kind == "tracking":
+            y0 = jnp.maximum(r - c["step"], c["y_off"])
+        elif kind == "preheat":
+            y0 = c["y_off"]
+        elif kind == "ensemble":
+            r = r + c["step"] * jax.random.uniform(k_r, r.shape, r.dtype, -0.25, 0.25)
+            y0 = jnp.maximum(r - c["step"] * jax.random.uniform(k_t, r.shape, r.dtype),
+                             c["y_off"])
+            sign = jnp.where(jax.random.bernoulli(k_s), 1.0, -1.0)
+        else:   # load
+            y0 = r
+        if kind in ("load", "ensemble"):
+            on = jax.random.randint(k_on, (), int(0.2 * T), max(int(0.3 * T), int(0.2 * T) + 1))
+            off = jax.random.randint(k_off, (), int(0.6 * T), max(int(0.7 * T), int(0.6 * T) + 1))
+            dy = (shifted(on) - shifted(off)) @ (sign * c["size"])
+        else:
+            dy = jnp.broadcast_to(zero, (T, r.shape[0]))
+        v = c["noise"] * jax.random.normal(k_v, (T, r.shape[0]), r.dtype)
+        return jnp.broadcast_to(r, (T, r.shape[0])), dy, v, y0
+
+    return jax.vmap(one)(keys) if batched else one(keys)

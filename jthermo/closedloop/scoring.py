@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..control._base import U_MAX, U_MIN
 from ..errors import ConfigError
 from .scenarios import Scenario, Trajectory
 
@@ -52,11 +53,16 @@ def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
         "time_to_ready_s": first_in * ts,
         "effort": jnp.mean(traj.u),
         "input_variation": jnp.mean(jnp.abs(jnp.diff(traj.u, axis=0))),
+        "saturated_fraction": jnp.mean((traj.u <= U_MIN + SATURATED)
+                                       | (traj.u >= U_MAX - SATURATED)),
     }
 
 
 METRICS = ("mse", "mse_true", "max_abs_error_C", "max_neighbour_diff_C", "time_outside_window_s",
-           "overshoot_C", "settling_time_s", "time_to_ready_s", "effort", "input_variation")
+           "overshoot_C", "settling_time_s", "time_to_ready_s", "effort", "input_variation",
+           "saturated_fraction")
+#: an input this close to a limit (power fraction) counts as saturated
+SATURATED = 1e-6
 
 
 def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) -> dict:
@@ -69,7 +75,8 @@ def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) 
     largest excursion beyond the final set point in the direction of the step;
     `settling_time_s`: time after which every zone stays inside the window (the run length if
     it never settles); `time_to_ready_s`: first time every zone is inside the window (ready
-    to print; the run length if never); `effort`: mean input; `input_variation`: mean |Δu|.
+    to print; the run length if never); `effort`: mean input; `input_variation`: mean |Δu|;
+    `saturated_fraction`: share of samples (and inputs) at an input limit.
     """
     vals = _metrics_jit(traj, scenario)
     if per_rollout:

@@ -86,8 +86,10 @@ def canonical_family(name: str) -> str:
 
 def design(family: str, model, *, setpoint=None, **kwargs):
     """Design a controller of the named family from a model, at `design_point(model,
-    setpoint)`: the model's nominal operating point, or the equilibrium that holds it at
-    `setpoint` (°C) when one is given.
+    setpoint)`: the equilibrium that holds the model at `setpoint` (°C, scalar or per
+    output), with its input as every family's bias; without one, the model's nominal
+    operating point (a fitted model's: where its recording was made — pass the set point the
+    loop will run at, e.g. `Envelope.default_setpoint(model)`).
 
     **Arguments:**
     - `family`: one of `FAMILIES` — `"pi_untuned"` (identical PI per zone, the original
@@ -103,8 +105,8 @@ def design(family: str, model, *, setpoint=None, **kwargs):
     **Returns:** an `AbstractController`.
     """
     family = canonical_family(family)
-    if setpoint is not None or hasattr(model, "nominal_point"):
-        model = design_point(model, setpoint)
+    # every family is designed at an equilibrium of the model, with that equilibrium's bias
+    model = design_point(model, setpoint)
     if family == "pi_untuned":
         return decoupled.design_untuned_pi(model, **kwargs)
     if family == "pi_lambda":

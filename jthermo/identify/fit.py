@@ -20,6 +20,7 @@ import numpy as np
 
 from ..data import IOData, require_excitation
 from ..errors import ConfigError, DataError, ModelError
+from ..models.envelope import Envelope
 
 # the fitters register themselves in `FITTERS` when their modules load
 from .greybox import fit_greybox
@@ -94,7 +95,8 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
         o, table = select_orders(data, family, criterion=criterion,
                                  full_a=bool(kw.get("full_a", False)), seed=seed, n_starts=1)
     res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
-    return _complete(res, family, table, t0)
+    return dataclasses.replace(_complete(res, family, table, t0),
+                               envelope=Envelope.from_data(data))
 
 
 #: arguments of the family fitters that `fit` sets itself (from the data, orders, seed, ...)

@@ -32,6 +32,8 @@ class FitResult:
       families per output, `(ny, p, p)` / `(ny, p)` in the layout of
       `Polynomial.flat_coefficients`.
     - `x0`: an estimated initial state where the family estimates one; `extra`: anything else.
+    - `envelope`: what the recording says about the plant (`models.Envelope`: sample time,
+      recorded range, input limits, rest level, noise), set by `fit`.
     """
 
     model: Any
@@ -45,6 +47,7 @@ class FitResult:
     std: Any = None
     x0: Any = None
     extra: dict = dataclasses.field(default_factory=dict)
+    envelope: Any = None
 
     @classmethod
     def from_pem(cls, model, res, *, seconds: float = float("nan"), data: IOData | None = None,

@@ -7,3 +7,7 @@ from .polynomial import (
     ARMAX as ARMAX, ARX as ARX, BJ as BJ, OE as OE, BoxJenkins as BoxJenkins,
     Polynomial as Polynomial,
 )
+from .envelope import (
+    Envelope as Envelope, check_reachable as check_reachable,
+    equilibrium_input as equilibrium_input, steady_output as steady_output,
+)

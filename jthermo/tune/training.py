@@ -41,9 +41,10 @@ def as_kinds(kind) -> tuple[str, ...]:
 
 
 def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float = DURATION,
-                 seed: int = 0, n_batches: int = 1):
+                 seed: int = 0, n_batches: int = 1, scenario_kw: Mapping | None = None):
     """Training batches: for each batch, a list of `(plant, kind, Scenario)` with `rollouts`
-    disturbance realisations each, drawn from `seed` (keys folded with plant and kind)."""
+    disturbance realisations each, drawn from `seed` (keys folded with plant and kind);
+    `scenario_kw` (e.g. a fitted model's `envelope` and `setpoint`) goes to `make_scenario`."""
     if not isinstance(rollouts, (int, np.integer)) or rollouts < 1:
         raise ControlError(f"tune: rollouts must be a positive integer, got {rollouts!r}")
     kinds = as_kinds(kind)
@@ -54,7 +55,8 @@ def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float =
         for i, p in enumerate(plants):
             for j, k in enumerate(kinds):
                 key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(base, b), i), j)
-                batch.append((p, k, make_scenario(k, p, duration, key, n_rollouts=int(rollouts))))
+                batch.append((p, k, make_scenario(k, p, duration, key, n_rollouts=int(rollouts),
+                                                  **dict(scenario_kw or {}))))
         out.append(batch)
     return out
 
@@ -172,7 +174,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
          references: Sequence[AbstractController] = (), guard: bool = True,
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
-         params: Sequence[str] | None = None,
+         params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -200,6 +202,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     - `params`: names of the controller fields to tune (e.g. `("q1", "q2", "qi", "qw", "b0",
       "tau_r")` for an LQG: its weights, not its design model or operating point); default
       every array leaf.
+    - `scenario_kw`: passed to `make_scenario` (a fitted model's `envelope`, `setpoint`).
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (training costs relative to the references when normalised).
@@ -211,7 +214,8 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
     spec = _field_filter(controller, params)
     batches = scenarios if scenarios is not None else make_batches(
-        pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches)
+        pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches,
+        scenario_kw=scenario_kw)
     batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
     refs = [controller, *references]
     if normalise:
@@ -237,7 +241,8 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         sc0 = batches[0][0].scenarios
         B, T = (sc0.r.shape[1], sc0.r.shape[2]) if batches[0][0].stacked else sc0.r.shape[:2]
         val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
-                                       seed=int(seed) + VALIDATION)[0])
+                                       seed=int(seed) + VALIDATION,
+                                       scenario_kw=scenario_kw)[0])
     chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau)
     info["seconds"] = time.perf_counter() - t0
     idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]
