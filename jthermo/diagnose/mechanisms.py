@@ -290,16 +290,19 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     """Coupled simulation `(T, n)` of all zones' fitted models (neighbours simulated, not
     measured): what the validation fit uses.
 
-    `Theta (n, P)` per-zone parameters; `rec` = [x0 (n), wall0 (n), drift (Kv)] the record's
-    own initial states (°C) and surroundings drift; `f` dict with `u`, `events (T, n)`,
+    `Theta (n, P)` per-zone parameters; `rec` = [x0 (n), wall0 (n), drift (Kv)[, level]] the
+    record's own initial states (°C), surroundings drift and (optional, used where the
+    surroundings are not measured: `ts_free`) the record's own surroundings level offset (°C); `f` dict with `u`, `events (T, n)`,
     `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`, `ts`, `t_ref`. The lamps start at
     their steady state for `u_pad`.
     """
     n = lay.n
     dt = Theta.dtype
-    x0, w0, dr = rec[:n], rec[n:2 * n], rec[2 * n:]
+    kv = f["Phi"].shape[1]
+    x0, w0, dr = rec[:n], rec[n:2 * n], rec[2 * n:2 * n + kv]
+    lev = rec[2 * n + kv] if rec.shape[0] > 2 * n + kv else 0.0
     g = lambda nm: Theta[:, lay.sl(nm)]
-    ts_level = f["ts_level"] + f["ts_free"] * jnp.median(g("ts0")[:, 0])
+    ts_level = f["ts_level"] + f["ts_free"] * (jnp.median(g("ts0")[:, 0]) + lev)
     ts_seq = ts_level + on[7] * (f["wdev"] + f["Phi"] @ dr)
 
     def zone_input(th):

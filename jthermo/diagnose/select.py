@@ -6,8 +6,9 @@ augmented model per mechanism of the library (`mechanisms.py`; those that need n
 when there are two zones or more), and keeps a mechanism only if it passes the two tests of
 `decide.py` (a likelihood ratio on the estimation record, a Diebold–Mariano comparison on the
 validation record, whitened residuals, family-wise false-alarm rate `decide.ALPHA`): the
-augmented model has to predict a record it was not fitted on, where only initial states, and
-for `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
+augmented model has to predict a record it was not fitted on, where only initial states (and
+the surroundings level when no surroundings signal is measured, for every model alike), and for
+`ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
 Significant candidates are ranked by their validation MSE; explanations within the test's resolution
 of the top one are reported as its `rivals`. Combinations are grown greedily from the top one
 (up to `MAX_COMBINED` mechanisms), each addition fitted and kept only if it passes the same
@@ -322,8 +323,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     def validate(models):
         """Coupled simulations `(M, Tv, n)` of (θ, mechanism set) pairs on the validation record."""
         Mn = len(models)
-        R = 2 * n + kv
+        R = 2 * n + kv + 1              # + the record's own surroundings level (when not measured)
         rec0, rmask = np.zeros((Mn, R)), np.zeros((Mn, R))
+        rmask[:, -1] = ts_free
         for j, (th, st) in enumerate(models):
             rec0[j, :n] = yv[0]
             _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
@@ -331,7 +333,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
             rec0[j, n:2 * n] = tsl + (yv[0].mean() - tsl) / (1.0 + gam)
             rmask[j, :n] = 1.0
             rmask[j, n:2 * n] = float("heat_accumulation" in st)
-            rmask[j, 2 * n:] = float("ambient_variation" in st and not measured_var)
+            rmask[j, 2 * n:2 * n + kv] = float("ambient_variation" in st and not measured_var)
         fper = {"events": jnp.asarray(np.stack([ev_v] * Mn)),
                 "delay": jnp.asarray(np.array([best_delay if "input_delay" in st else 0.0
                                                for _, st in models]))}

@@ -96,6 +96,7 @@ def _real_pairs():
     return pairs
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not REAL.is_dir(), reason="real recordings not present")
 @pytest.mark.parametrize("pair", _real_pairs(), ids=["klipper", "tclab_cace"])
 def test_real_recordings_do_not_crash(pair):
