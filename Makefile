@@ -15,8 +15,10 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/jthermo demo
 
+# --dist loadfile: a test file runs on one worker, so its module-scoped fixtures (fits, tuned
+# controllers) are computed once; compiled code is shared through the persistent cache.
 test: $(STAMP)
-	$(PY) -m pytest -n 2 -m "not slow" --durations=15
+	$(PY) -m pytest -n 2 --dist loadfile -m "not slow" --durations=15
 
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[dev,bench]"
