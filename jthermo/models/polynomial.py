@@ -10,7 +10,7 @@ $l = i$; a full matrix polynomial A is allowed when $n_d = n_f = 0$), $B_{ij}(q)
 of $n_k$ samples), and monic $C_i$, $D_i$, $F_{ij}$. Signals are deviations from the operating
 point `(u0, y0)` and zero before $t = 0$; `simulate(u)` returns absolute outputs.
 
-Stability: the fitting code (`jthermo.identify.fit`) parametrises every monic C, D and F
+Stability: the fitting code (`jthermo.identify.polynomial`) parametrises every monic C, D and F
 polynomial by reflection coefficients $\\kappa = \\tanh\\rho$ (Schur–Cohn step-up recursion,
 `poly_from_reflection`), so returned C, D and F are stable by construction; A (ARX, ARMAX) is
 free and its stability is not enforced.
