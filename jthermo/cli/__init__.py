@@ -21,6 +21,7 @@ Imports of the library are lazy (inside each command), so `jthermo --help` is fa
                 [--report DIR]
     jthermo sweep [CONFIG.toml] [--ray ADDRESS] [--results FILE] [--summary] [--workers N]
     jthermo demo [--name NAME] [--quick]
+    jthermo export CTRL --to {c,json} --out DIR [--name NAME] [--json REPORT.json]
 
 The commands live by family: `identify` (fit, validate), `control` (simulate, generate, tune),
 `diagnose`, `batch` (sweep, demo); `common` holds the argument types and input/output checks.
@@ -34,7 +35,7 @@ import sys
 import warnings
 
 from ..errors import JThermoError
-from . import batch, control, diagnose, identify
+from . import batch, control, diagnose, export, identify
 from .common import Parser, UsageError
 
 EXIT_OK = 0
@@ -44,7 +45,7 @@ EXIT_INTERRUPT = 130
 COMMANDS = {"fit": identify.cmd_fit, "validate": identify.cmd_validate,
             "simulate": control.cmd_simulate, "generate": control.cmd_generate,
             "tune": control.cmd_tune, "diagnose": diagnose.cmd_diagnose,
-            "sweep": batch.cmd_sweep, "demo": batch.cmd_demo}
+            "sweep": batch.cmd_sweep, "demo": batch.cmd_demo, "export": export.cmd_export}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p.add_argument("--version", action="version", version=f"jthermo {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for family in (identify, control, diagnose, batch):
+    for family in (identify, control, diagnose, batch, export):
         family.add_parsers(sub)
     return p
 

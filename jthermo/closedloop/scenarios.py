@@ -94,9 +94,9 @@ def event_schedule(printer: Printer, d: PrinterDisturbance, key, *, preview_s: f
                    jitter_s: float = JITTER_S, wrong_p: float = WRONG_P) -> Float[Array, "T ns"]:
     """The event schedule a controller is told, from the events that happen (`d`).
 
-    Row k is `[recoat, exposure 1..N]` of sample $k + P + \delta$: the recoat flag and, per
+    Row k is `[recoat, exposure 1..N]` of sample $k + P + \\delta$: the recoat flag and, per
     zone, 1 while the laser exposes it; $P$ = `preview_s` / Ts (the job announces its events
-    ahead), $\delta$ uniform in ±`jitter_s` / Ts per rollout (the announced timing is off), and
+    ahead), $\\delta$ uniform in ±`jitter_s` / Ts per rollout (the announced timing is off), and
     each zone's exposure flipped with probability `wrong_p` per layer period (the announced
     map is wrong; only while the laser runs at all). Zero beyond the run. Traceable in `key`.
     """
@@ -185,6 +185,11 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
     if kind == "load" and (isinstance(plant, Printer) or reference is not None):
         raise ConfigError("make_scenario: `load` is a fitted model's scenario; the virtual "
                           "printer's disturbances are `powder` and `print`")
+    if isinstance(plant, AbstractModel) and reference is None:
+        # a fitted model is a plant in its own right: its scenarios come from its recording
+        return model_scenario(kind, plant, duration, key, n_rollouts=n_rollouts,
+                              step_c=None if step_c == STEP_C else step_c, window=window,
+                              envelope=envelope, setpoint=setpoint)
     duration = DEFAULT_DURATION.get(kind, 1200.0) if duration is None else duration
     if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
         raise ConfigError(f"make_scenario: duration must be a positive number of seconds, got {duration!r}")
@@ -193,11 +198,6 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
     key = _as_key(key)
     if isinstance(plant, Printer):
         printer, model = plant, None
-    elif isinstance(plant, AbstractModel) and reference is None:
-        # a fitted model is a plant in its own right: its scenarios come from its recording
-        return model_scenario(kind, plant, duration, key, n_rollouts=n_rollouts,
-                              step_c=None if step_c == STEP_C else step_c, window=window,
-                              envelope=envelope, setpoint=setpoint)
     elif isinstance(plant, AbstractModel):
         model = plant
         printer = reference

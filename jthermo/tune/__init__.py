@@ -41,4 +41,9 @@ from .training import (
 )
 from .report import (
     evaluate as evaluate, printer_model as printer_model, tune_report as tune_report,
+    CLASSICAL as CLASSICAL, classical_designs as classical_designs, robustness as robustness,
+)
+from .own import (
+    OWN_SCENARIOS as OWN_SCENARIOS, classical_at as classical_at, judge as judge,
+    tune_own_plant as tune_own_plant,
 )

@@ -14,6 +14,7 @@ import numpy as np
 from ..closedloop import REALISTIC_EFFECTS, cost, make_scenario, metrics, rollouts
 from ..control._base import AbstractController
 from ..control.design import design
+from ..control.margins import peak_sensitivity
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
@@ -27,9 +28,11 @@ def _simulate_cost(plant, controller, scenarios, weights):
 
 
 def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_OUT,), *,
-             rollouts: int = 8, duration: float = DURATION, weights=None) -> dict:
+             rollouts: int = 8, duration: float = DURATION, weights=None,
+             scenario_kw=None) -> dict:
     """Held-out evaluation: per scenario, the mean cost and metrics over `rollouts`
-    realisations for each seed in `seeds` (use seeds never used in tuning).
+    realisations for each seed in `seeds` (use seeds never used in tuning); `scenario_kw`
+    goes to `make_scenario` (a fitted model's `envelope`, `setpoint`).
 
     **Returns:** `{"cost": mean over scenarios, "scenarios": {kind: {"cost", "mse", ...}}}`.
     """
@@ -38,7 +41,7 @@ def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_
         costs, mets = [], []
         for s in seeds:
             sc = make_scenario(k, plant, duration, jax.random.key(int(s)),
-                               n_rollouts=int(rollouts))
+                               n_rollouts=int(rollouts), **dict(scenario_kw or {}))
             traj, J = _simulate_cost(plant, controller, sc, weights)
             costs.append(float(J))
             mets.append(metrics(traj, sc))
@@ -80,17 +83,75 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
     raise ControlError(f"tune: unsupported plant {type(plant).__name__}")
 
 
-def _held_out_comparison(ctrls, plant, seeds, rollouts, duration, weights) -> dict:
-    """Start, tuned and lambda-PI controllers (`ctrls`) on held-out `seeds` of `plant`: their
-    mean costs, `improvement_percent` = 100·(1 − tuned/lambda_pi) and per-scenario MSE/cost."""
-    ev = {name: evaluate(c, plant, SCENARIOS, seeds, rollouts=rollouts, duration=duration,
-                         weights=weights) for name, c in ctrls.items()}
+#: the classical designs `best_classical` is taken over (from the same design model)
+CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg")
+
+
+def classical_designs(model, families: Sequence[str] = CLASSICAL) -> dict:
+    """`{family: controller}` of the classical designs on `model`; a design rule that does not
+    apply to the model (a `ControlError`, e.g. IMC on non-minimum-phase zeros) is left out."""
+    out = {}
+    for f in families:
+        try:
+            out[f] = design(f, model)
+        except ControlError:
+            continue
+    return out
+
+
+def _held_out_comparison(ctrls, plant, seeds, rollouts, duration, weights,
+                         classical=None) -> dict:
+    """Start, tuned and lambda-PI controllers (`ctrls`) and the `classical` designs
+    (`{family: controller}`) on held-out `seeds` of `plant`: their mean costs,
+    `improvement_percent` = 100·(1 − tuned/lambda_pi), the best classical design and
+    `improvement_vs_best_classical_percent` = 100·(1 − tuned/best classical), per-scenario
+    MSE/cost. Each distinct controller is simulated once."""
+    classical = classical or {}
+    done: dict[int, dict] = {}
+
+    def ev(c):
+        if id(c) not in done:
+            done[id(c)] = evaluate(c, plant, SCENARIOS, seeds, rollouts=rollouts,
+                                   duration=duration, weights=weights)
+        return done[id(c)]
+
+    res = {name: ev(c) for name, c in ctrls.items()}
     suffix = {"start": "before", "tuned": "after", "lambda_pi": "lambda_pi"}
-    scen = {k: {f"{q}_{suffix[name]}": ev[name]["scenarios"][k][q]
+    scen = {k: {f"{q}_{suffix[name]}": res[name]["scenarios"][k][q]
                 for q in ("mse", "cost") for name in ctrls} for k in SCENARIOS}
-    tuned, lam_c = ev["tuned"]["cost"], ev["lambda_pi"]["cost"]
-    return {"start_cost": ev["start"]["cost"], "tuned_cost": tuned, "lambda_pi_cost": lam_c,
-            "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen}
+    tuned, lam_c = res["tuned"]["cost"], res["lambda_pi"]["cost"]
+    out = {"start_cost": res["start"]["cost"], "tuned_cost": tuned, "lambda_pi_cost": lam_c,
+           "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen}
+    costs = {f: ev(c)["cost"] for f, c in classical.items()}
+    finite = {f: v for f, v in costs.items() if np.isfinite(v)}
+    if finite:
+        best = min(finite, key=finite.get)
+        out.update(best_classical=best, best_classical_cost=finite[best],
+                   improvement_vs_best_classical_percent=100.0 * (1.0 - tuned / finite[best]),
+                   classical_costs=costs)
+    return out
+
+
+def robustness(ctrls: dict, plant, model, seeds, *, rollouts: int, duration: float,
+               weights=None, gain_change: float = 0.2) -> dict:
+    """The loops of `ctrls` (`{name: controller}`) judged beyond their tuning: peak sensitivity
+    $M_s$ on the linear `model` (`control.margins.peak_sensitivity`; None for a controller
+    with no linear feedback form) and, for a `Printer`, the held-out cost with every heater gain
+    scaled by 1 ± `gain_change`."""
+    out: dict = {"ms": {}, "stable": {}}
+    for name, c in ctrls.items():
+        try:
+            m = peak_sensitivity(model, c)
+        except ControlError:
+            m = {"ms": None, "stable": None}
+        out["ms"][name], out["stable"][name] = m["ms"], m["stable"]
+    if isinstance(plant, Printer):
+        for sign, label in ((1.0, "plus"), (-1.0, "minus")):
+            p = eqx.tree_at(lambda q: q.gain, plant, plant.gain * (1.0 + sign * gain_change))
+            out[f"gain_{label}_{round(100 * gain_change)}_cost"] = {
+                name: evaluate(c, p, SCENARIOS, seeds, rollouts=rollouts, duration=duration,
+                               weights=weights)["cost"] for name, c in ctrls.items()}
+    return out
 
 
 def tune_report(controller_family: str, *, plant="printer", model=None, rollouts: int = 8,
@@ -98,6 +159,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
                 eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
+                check_robustness: bool = True,
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -107,11 +169,16 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     perturbed copies of it (`plant_ensemble`), guarded on validation seeds against the start
     and the designs named in `references` (families designed on the same model), and evaluates
     start, tuned and the lambda-tuned diagonal PI on the held-out seed `seed + HELD_OUT` in
-    the three scenarios; for the built-in printer also on the printer with `changed_powder`
-    (`"auto"`: PA11 when tuned on PA12, else PA12; None: skip), which tuning never saw.
+    the three scenarios, with every classical design of `CLASSICAL` on the same model and seeds
+    (the best of them: `best_classical`); for the built-in printer also on the printer with
+    `changed_powder` (`"auto"`: PA11 when tuned on PA12, else PA12; None: skip), which tuning
+    never saw; with `check_robustness`, the peak sensitivity of the tuned, start and best
+    classical loops on `model` and their cost at ±20 % heater gain (`robustness`).
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
-    `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `scenarios`
+    `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
+    `best_classical_cost`, `improvement_vs_best_classical_percent`, `classical_costs`,
+    `robustness` (`{"ms", "stable", "gain_plus_20_cost", "gain_minus_20_cost"}`), `scenarios`
     (per-scenario MSE and cost before/after, and of the lambda PI), `changed_powder` (the same
     figures on the other powder, or None), `history`, `seconds`, and
     the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
@@ -132,15 +199,22 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
     ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi}
-    held = _held_out_comparison(ctrls, pl, seeds, er, duration, weights)
+    classical = {**classical_designs(model), "pi_lambda": lam_pi}
+    held = _held_out_comparison(ctrls, pl, seeds, er, duration, weights, classical)
     changed = None
     if isinstance(plant, str) and changed_powder:
         # the same controllers on the printer with the other powder, never seen in tuning
         other = _plant_from("printer", zones=zones, powder=changed_powder, plant_seed=plant_seed)
         changed = {"powder": changed_powder,
-                   **_held_out_comparison(ctrls, other, seeds, er, duration, weights)}
+                   **_held_out_comparison(ctrls, other, seeds, er, duration, weights, classical)}
+    robust = None
+    if check_robustness:
+        best = classical.get(held.get("best_classical"))
+        robust = robustness({"tuned": res.controller, "start": start,
+                             **({} if best is None else {"best_classical": best})},
+                            pl, model, seeds, rollouts=er, duration=duration, weights=weights)
     return {"controller": controller_family, **held,
-            "changed_powder": changed,
+            "changed_powder": changed, "robustness": robust,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
             "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
             "ensemble": len(plants),
