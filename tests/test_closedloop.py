@@ -53,7 +53,10 @@ def test_same_seed_same_run_other_seed_other_run_and_vmap_is_a_loop(printer):
     assert set(m) >= {"mse", "max_neighbour_diff_C", "time_outside_window_s", "overshoot_C",
                       "settling_time_s", "effort", "time_to_ready_s"}
     assert all(np.isfinite(v) for v in m.values())
-    assert m["mse"] < 10.0
+    # measured: 0.58 °C² here (0.56-0.78 over 30 scenario and 5 printer seeds); the loop left
+    # open at the steady input gives 2.8, at u = 0.5 4.0. Below 1 °C² (an rms error inside the
+    # ±1 °C process window) the PI is doing its job, with a 1.7x margin for numerics.
+    assert m["mse"] < 1.0
 
 
 def test_cost_gradient_matches_central_differences(printer):
@@ -98,7 +101,7 @@ def test_fitted_model_plant_equals_printer_by_superposition():
 
 
 def test_scenarios_and_run(printer):
-    assert set(KINDS) == {"tracking", "powder", "print", "preheat", "ensemble"}
+    assert set(KINDS) == {"tracking", "powder", "print", "preheat", "ensemble", "load"}
     sc = {k: make_scenario(k, printer, T, 3) for k in ("tracking", "powder", "print", "preheat")}
     for s in sc.values():
         assert isinstance(s, Scenario) and s.r.shape == (T, N) and s.v.shape == (T, N)

@@ -35,6 +35,11 @@ def add_parsers(sub) -> None:
     sp.add_argument("--controller-file", metavar="CTRL", help="a controller saved by `jthermo tune --out`")
     sp.add_argument("--plant", default="printer", metavar="printer|MODEL",
                     help="the virtual printer (default) or a saved model file")
+    sp.add_argument("--model", metavar="MODEL",
+                    help="design --controller from this saved model (default: the plant)")
+    sp.add_argument("--setpoint", type=setpoints, metavar="T[,T...]",
+                    help="set point, °C: one value or one per output (a fitted plant only; "
+                         "default: the middle of the recorded range)")
     sp.add_argument("--powder", default=None, help="powder preset of the virtual printer")
     sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4)
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=8)
@@ -63,6 +68,12 @@ def add_parsers(sub) -> None:
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
     sp.add_argument("--steps", type=positive_int(100000), default=150,
                     help="Adam iterations (default 150)")
+    sp.add_argument("--setpoint", type=setpoints, metavar="T[,T...]",
+                    help="set point, °C: one value or one per output (a fitted plant only; "
+                         "default: the middle of the recorded range)")
+    sp.add_argument("--validation-plant", metavar="MODEL",
+                    help="judge the tuned and classical designs on this model as well "
+                         "(e.g. fitted to another record); never tuned on")
     sp.add_argument("--out", metavar="CTRL", help="save the tuned controller here")
     add_common(sp)
 
@@ -78,6 +89,41 @@ def _plant(args):
 
     input_file(args.plant, "--plant")
     return io.load_model(args.plant), str(args.plant)
+
+
+def setpoints(text: str) -> list[float]:
+    """`--setpoint`: one temperature or a comma-separated one per output, °C."""
+    import math
+
+    try:
+        vals = [float(v) for v in str(text).split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers in °C, got {text!r}") from None
+    if not vals or not all(math.isfinite(v) for v in vals):
+        raise argparse.ArgumentTypeError(f"expected finite numbers in °C, got {text!r}")
+    return vals
+
+
+def _own_plant(args, plant, model_file):
+    """The envelope and set point of a fitted plant: the recording stored with `model_file`
+    (else with the plant's file; a stand-in for files without one) and `--setpoint` checked
+    against what the heaters can reach (exit 2 with one line otherwise)."""
+    from .. import io
+    from ..models.envelope import Envelope, check_reachable
+
+    env = None
+    for f in (model_file, args.plant):
+        if f is not None and f != "printer":
+            env = io.load_envelope(f)
+            if env is not None:
+                break
+    env = (env or Envelope.from_model(plant)).check(plant)
+    sp = args.setpoint
+    if sp is not None and len(sp) not in (1, env.n_outputs):
+        raise ConfigError(f"--setpoint: give one value or {env.n_outputs} (one per output), "
+                          f"got {len(sp)}")
+    r = check_reachable(plant, env, env.default_setpoint(plant) if sp is None else sp)
+    return env, r
 
 
 def _controller_family(name: str) -> str:
@@ -102,7 +148,7 @@ def _accepted(fn, kwargs: dict) -> dict:
     return {k: v for k, v in kwargs.items() if k in params}
 
 
-def _one_trajectory(cl, kind, controller, plant, duration, seed) -> dict:
+def _one_trajectory(cl, kind, controller, plant, duration, seed, scenario_kw=None) -> dict:
     """The first rollout of a scenario, for figures: `t, y, u, r` as NumPy arrays.
 
     `controller` is a controller module or `"untuned"` (the original identical PI per zone)."""
@@ -113,7 +159,7 @@ def _one_trajectory(cl, kind, controller, plant, duration, seed) -> dict:
         from ..control import DiagonalPI
 
         controller = DiagonalPI.untuned(int(plant.n_outputs), ts=plant.ts)
-    sc = cl.make_scenario(kind, plant, duration, jax.random.key(int(seed)))
+    sc = cl.make_scenario(kind, plant, duration, jax.random.key(int(seed)), **(scenario_kw or {}))
     tr = cl.simulate(plant, controller, sc)
     return {"t": np.arange(sc.n_samples) * sc.ts, "y": np.asarray(tr.y), "u": np.asarray(tr.u),
             "r": np.asarray(tr.r)}
@@ -145,22 +191,37 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
 
         plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
                              powder=args.powder or "PA12", seed=args.seed)
+    from ..models import AbstractModel
+
+    own = isinstance(plant, AbstractModel)
+    if not own and (args.setpoint is not None or args.model is not None):
+        raise ConfigError("simulate: --setpoint and --model are for a fitted plant (--plant MODEL)")
+    scenario_kw: dict[str, Any] = {}
+    if own:
+        env, r = _own_plant(args, plant, args.model)
+        scenario_kw = {"envelope": env, "setpoint": r}
     if isinstance(controller, str) and controller != "untuned":
         from ..control.design import design
-        from ..models import AbstractModel
 
-        model = plant if isinstance(plant, AbstractModel) else require(
-            "jthermo.tune", "the printer's design model").printer_model(plant)
-        controller = design(controller, model)
-    kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration, "seed": args.seed}
+        if args.model is not None:
+            input_file(args.model, "--model")
+            model = io.load_model(args.model)
+        else:
+            model = plant if own else require(
+                "jthermo.tune", "the printer's design model").printer_model(plant)
+        controller = design(controller, model, **({"setpoint": r} if own else {}))
+    kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
+                              "seed": args.seed, "scenario_kw": scenario_kw}
     out = cl.run(args.scenario, controller, plant, **_accepted(cl.run, kwargs))
     seconds = time.perf_counter() - t0
     traj = out.pop("trajectory", None) if isinstance(out, dict) else None
     if plot is not None and traj is None:
-        traj = _one_trajectory(cl, args.scenario, controller, plant, args.duration, args.seed)
+        traj = _one_trajectory(cl, args.scenario, controller, plant, args.duration, args.seed,
+                               scenario_kw)
     report = {"scenario": args.scenario,
               "controller": args.controller or str(args.controller_file),
-              "plant": plant_desc, "zones": out.get("zones", args.zones), "rollouts": args.rollouts,
+              "plant": plant_desc, "design_model": args.model,
+              "zones": out.get("zones", args.zones), "rollouts": args.rollouts,
               **{k: v for k, v in out.items() if k not in ("scenario", "controller")},
               "seed": args.seed}
     report.setdefault("seconds", seconds)
@@ -217,12 +278,31 @@ def cmd_tune(args: argparse.Namespace) -> dict:
     plant, _ = _plant(args)
     tune = require("jthermo.tune", "tuning")
     args.controller = _controller_family(args.controller)
+    from ..models import AbstractModel
+
+    own = isinstance(plant, AbstractModel)
+    if not own and (args.setpoint is not None or args.validation_plant is not None):
+        raise ConfigError("tune: --setpoint and --validation-plant are for a fitted plant "
+                          "(--plant MODEL)")
+    validation = None
+    if own:
+        model = plant if model is None else model
+        env, r = _own_plant(args, model, args.model)
+        if args.validation_plant is not None:
+            input_file(args.validation_plant, "--validation-plant")
+            validation = io.load_model(args.validation_plant)
     bar = progress_bar(args, f"tune {args.controller}", total=args.steps)
     t0 = time.perf_counter()
     try:
-        rep = tune.tune_report(args.controller, plant=plant, model=model, rollouts=args.rollouts,
-                               steps=args.steps, seed=args.seed, zones=args.zones,
-                               powder=args.powder, progress=bar)
+        if own:
+            rep = tune.tune_own_plant(args.controller, model, plant=plant, envelope=env,
+                                      setpoint=r, validation_plant=validation,
+                                      rollouts=args.rollouts, steps=args.steps, seed=args.seed,
+                                      progress=bar)
+        else:
+            rep = tune.tune_report(args.controller, plant=plant, model=model,
+                                   rollouts=args.rollouts, steps=args.steps, seed=args.seed,
+                                   zones=args.zones, powder=args.powder, progress=bar)
     finally:
         bar.close()
     rep = dict(rep)

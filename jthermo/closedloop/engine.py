@@ -258,11 +258,12 @@ def _controller_from(controller, n: int, ts: float):
 
 
 def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float | None = None,
-        seed: int = 0, zones: int = 4, powder: str = "PA12") -> dict:
+        seed: int = 0, zones: int = 4, powder: str = "PA12", scenario_kw=None) -> dict:
     """Simulate `rollouts` runs of scenario `kind` and report the metrics (means over rollouts).
 
     `plant` defaults to `make_printer(zones, REALISTIC_EFFECTS, powder=powder, seed=seed)`;
-    `controller` is a controller module or `"untuned"` (the original identical PI per zone).
+    `controller` is a controller module or `"untuned"` (the original identical PI per zone);
+    `scenario_kw` goes to `make_scenario` (a fitted model's `envelope` and `setpoint`).
 
     **Returns:** `{"scenario", "controller", "zones", "rollouts", "duration", "seed", "metrics",
     "cost", "seconds"}`.
@@ -278,12 +279,14 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     n_ctrl = getattr(ctrl, "zones", None)
     if n_ctrl is not None and n_ctrl != ny:
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
-    sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)), n_rollouts=int(rollouts))
+    sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)), n_rollouts=int(rollouts),
+                       **dict(scenario_kw or {}))
     traj, J = _rollouts_and_cost(plant, ctrl, sc)
     m = metrics(traj, sc)
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
             else controller, "zones": int(getattr(plant, "zones", ny)), "rollouts": int(rollouts),
             "duration": float(sc.n_samples * ts), "seed": int(seed), "metrics": m,
+            "setpoints": np.asarray(sc.r[0, 0]).tolist(), "ts": float(ts),
             "cost": float(J), "seconds": time.perf_counter() - t0}
 
 

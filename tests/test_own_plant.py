@@ -1,0 +1,116 @@
+"""A user's own plant end to end, not the printer: a one-heater first-order-plus-lag record at
+Ts = 0.5 s -> fit -> envelope -> design at the set point -> tune -> simulate; set points
+beyond reach are one-line errors; model files written before envelopes still load."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jthermo import io
+from jthermo.closedloop import make_scenario, model_scenario, run
+from jthermo.control.design import design
+from jthermo.data import IOData
+from jthermo.errors import ConfigError, ControlError
+from jthermo.identify import fit
+from jthermo.models import Envelope, equilibrium_input
+from jthermo.tune import judge, tune_own_plant
+
+TS, K, TAU, DELAY, REST = 0.5, 80.0, 20.0, 2, 25.0
+
+
+def record(seed: int = 0, n: int = 1200) -> IOData:
+    """Random heater steps in [0, 1] held 15-60 s, through K e^{-s L}/(1 + s TAU), noise 0.05."""
+    rng = np.random.default_rng(seed)
+    u = np.zeros(n)
+    k = 40
+    while k < n:
+        hold = int(rng.integers(30, 120))
+        u[k:k + hold] = rng.uniform(0.0, 1.0)
+        k += hold
+    a = np.exp(-TS / TAU)
+    y = np.full(n, REST)
+    for i in range(1, n):
+        ui = u[i - 1 - DELAY] if i - 1 - DELAY >= 0 else 0.0
+        y[i] = REST + a * (y[i - 1] - REST) + (1 - a) * K * ui
+    y = y + 0.05 * rng.standard_normal(n)
+    return IOData(u=u[:, None], y=y[:, None], w=np.zeros((n, 0)), ts=TS, input_names=("h",),
+                  output_names=("T",), signal_names=())
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    res = fit(record(0), "arx", orders=(1, 1, DELAY + 1))
+    return res.model, res.envelope
+
+
+def test_envelope_comes_from_the_recording(fitted):
+    model, env = fitted
+    data = record(0)
+    assert env.ts == TS and env.n_outputs == 1 and env.n_inputs == 1
+    assert env.y_min[0] == pytest.approx(data.y.min()) and env.y_max[0] == pytest.approx(data.y.max())
+    assert env.rest[0] == pytest.approx(REST, abs=0.2)          # before the first heater step
+    assert 0.02 < env.noise_std[0] < 0.1                         # the 0.05 °C added noise
+    assert (env.u_min, env.u_max) == ((0.0,), (1.0,))
+    assert Envelope.from_dict(env.to_dict()) == env
+    r = env.default_setpoint(model)
+    assert env.y_min[0] < r[0] < env.y_max[0]
+    # the set point's equilibrium input: (r - rest) / K for this plant
+    assert equilibrium_input(model, r)[0] == pytest.approx((r[0] - REST) / K, abs=0.02)
+
+
+def test_scenarios_run_at_the_models_own_sample_time(fitted):
+    model, env = fitted
+    sc = model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=70.0)
+    assert sc.ts == TS and sc.r.shape == (120, 1) and float(sc.r[0, 0]) == 70.0
+    assert float(sc.y0[0]) == pytest.approx(70.0 - 0.2 * (env.y_max[0] - env.y_min[0]))
+    ld = make_scenario("load", model, 60.0, 1, n_rollouts=2, envelope=env, setpoint=70.0)
+    assert ld.r.shape == (2, 120, 1) and float(np.min(ld.d.dy)) < -0.5   # a heat sink
+    with pytest.raises(ConfigError, match="beyond reach"):
+        model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=130.0)
+    with pytest.raises(ConfigError, match="virtual printer"):
+        make_scenario("powder", model, 60.0, 0, envelope=env)
+
+
+def test_design_biases_at_the_setpoint(fitted):
+    model, _ = fitted
+    c = design("pi_lambda", model, setpoint=65.0)
+    assert float(c.u0[0]) == pytest.approx((65.0 - REST) / K, abs=0.02)
+    assert c.ts == TS
+
+
+def test_fit_design_tune_simulate_end_to_end(fitted):
+    model, env = fitted
+    other = fit(record(1), "arx", orders=(1, 1, DELAY + 1)).model   # another record's fit
+    rep = tune_own_plant("pi", model, envelope=env, setpoint=65.0, validation_plant=other,
+                         rollouts=2, steps=3, duration=200.0, classical=("pi_lambda",))
+    assert rep["setpoints"] == [65.0] and rep["ts"] == TS
+    assert set(rep["saturated_fraction"]) == {"tracking", "load", "preheat"}
+    assert all(0.0 <= v < 0.9 for v in rep["saturated_fraction"].values())
+    assert rep["validation"]["verdict"] == "settled"
+    out = run("tracking", rep["tuned"], other, rollouts=2, duration=200.0,
+              scenario_kw={"envelope": env, "setpoint": 65.0})
+    assert out["setpoints"] == [65.0] and out["ts"] == TS
+    assert out["metrics"]["settling_time_s"] < 200.0 and out["metrics"]["overshoot_C"] < 4.0
+    with pytest.raises(ConfigError, match="beyond reach"):
+        tune_own_plant("pi", model, envelope=env, setpoint=500.0, steps=1, rollouts=1)
+
+
+def test_judge_rejects_saturated_or_unsettled_loops():
+    ok = {"mse": 1.0, "saturated_fraction": 0.1, "settling_time_s": 50.0}
+    assert judge({"tracking": ok}, 100.0) is None
+    assert "input limit" in judge({"tracking": {**ok, "saturated_fraction": 1.0}}, 100.0)
+    assert "does not settle" in judge({"preheat": {**ok, "settling_time_s": 100.0}}, 100.0)
+    assert "non-finite" in judge({"load": {**ok, "mse": float("nan")}}, 100.0)
+    with pytest.raises(ControlError):
+        raise ControlError(judge({"tracking": {**ok, "saturated_fraction": 1.0}}, 100.0))
+
+
+def test_model_files_without_an_envelope_still_work(fitted, tmp_path):
+    model, env = fitted
+    io.save(model, tmp_path / "old.jtm", meta={"family": "arx"})
+    assert io.load_envelope(tmp_path / "old.jtm") is None
+    io.save(model, tmp_path / "new.jtm", meta={"envelope": env.to_dict()})
+    assert io.load_envelope(tmp_path / "new.jtm") == env
+    stand_in = Envelope.from_model(model)
+    assert stand_in.ts == TS and stand_in.rest[0] == pytest.approx(REST, abs=1.0)
