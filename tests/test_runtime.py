@@ -38,6 +38,7 @@ def _entries(d: Path) -> set[str]:
 def test_second_process_compiles_nothing_new_and_no_cache_writes_nothing(tmp_path):
     cache = tmp_path / "cache"
     _, first = _jthermo(tmp_path, cache)
+    record = (tmp_path / "g.csv").read_bytes()
     written = _entries(cache)
     assert written, "the first run wrote no cache entries"
     for rep in (first,):
@@ -46,6 +47,7 @@ def test_second_process_compiles_nothing_new_and_no_cache_writes_nothing(tmp_pat
         assert rep["compile_s"] + rep["run_s"] == pytest.approx(rep["seconds"], abs=2e-3)
     r, second = _jthermo(tmp_path, cache, "--verbose")
     assert _entries(cache) == written, "the second run compiled something the first had cached"
+    assert (tmp_path / "g.csv").read_bytes() == record, "cached code gave another record"
     assert f"compilation cache {cache} ({len(written)} entries)" in r.stderr
     fresh = tmp_path / "fresh"
     _jthermo(tmp_path, fresh, "--no-cache")
