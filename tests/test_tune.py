@@ -197,10 +197,26 @@ def test_tune_guard_never_returns_worse_or_nan():
     assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(eqx.filter(
         c, eqx.is_inexact_array)))
     assert np.all(np.asarray(c.q1) > 0) and np.all(np.asarray(c.q2) > 0)
-    if res.guard["passed"]:
-        rows = {r["iteration"]: r for r in res.guard["candidates"]}
-        chosen = rows[res.guard["chosen"]]
-        assert chosen["mse_ratio_worst"] <= 1.0 and chosen["cost_ratio"] <= 1.0
+    # 15 steps beat the start and the lambda PI by ~13 % in mse (measured): the guard passes at
+    # its full margin, picks the lowest objective among the snapshots that clear it, and what
+    # it reports holds when the loops are simulated again outside its bookkeeping
+    g = res.guard
+    assert g["passed"] is True and g["margin"] == 0.01
+    rows = {r["iteration"]: r for r in g["candidates"]}
+    clear = [r for r in rows.values()
+             if r["mse_ratio_worst"] <= 1.0 - g["margin"] and r["cost_ratio"] <= 1.0]
+    chosen = rows[g["chosen"]]
+    assert chosen in clear and chosen["objective"] == min(r["objective"] for r in clear)
+    assert c is not start and c is next(k for it, _, k in res.snapshots if it == g["chosen"])
+    sc = batch[0][0][2]
+    mse, total = {}, {}
+    for name, k in (("tuned", c), ("start", start), ("lambda", lam)):
+        tr = rollouts(plant, k, sc)
+        mse[name], total[name] = metrics(tr, sc)["mse"], float(cost(tr, sc))
+    best_ref = min(mse["start"], mse["lambda"])
+    assert mse["tuned"] <= (1.0 - g["margin"]) * best_ref and total["tuned"] <= total["start"]
+    np.testing.assert_allclose([mse["tuned"] / best_ref, total["tuned"] / total["start"]],
+                               [chosen["mse_ratio_worst"], chosen["cost_ratio"]], rtol=1e-6)
     # the tuned loop is stable: a long step response settles
     ys, _ = closed_loop(c, plant, step_reference(plant, 600, 0.5))
     assert np.all(np.isfinite(ys)) and np.max(np.abs(ys[-1] - plant.y0 - 0.5)) < 1e-2

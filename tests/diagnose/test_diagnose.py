@@ -6,50 +6,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jthermo.data import from_arrays
 from jthermo.diagnose import MECHANISMS, diagnose, to_json, write_report
 from jthermo.diagnose import mechanisms as M
 from jthermo.diagnose.localise import detect_periodic, event_matrix, localise
 from jthermo.errors import DataError
-from jthermo.models.greybox import BedModel, ExtendedBedModel
-
-T_EST, T_VAL = 900, 450
-CAP = np.array([36.0, 40.0])
-LOSS = np.array([0.6, 0.55])
-GAIN = np.array([[35.0, 6.0], [5.0, 32.0]])
-TS = 145.0
-
-
-def _prbs(T, n, seed):
-    rng = np.random.default_rng(seed)
-    u = np.empty((T, n))
-    for j in range(n):
-        t, level = 0, int(rng.integers(0, 2))
-        while t < T:
-            h = int(rng.integers(3, 16))
-            u[t:t + h, j] = 0.7 if level else 0.3
-            t += h
-            level = 1 - level
-    return u
-
-
-def _record(effect, seed):
-    T = T_EST + T_VAL
-    u = _prbs(T, 2, seed)
-    w = np.full((T, 1), TS)
-    if effect == "lateral_conduction":
-        model = ExtendedBedModel.from_physical(CAP, LOSS, GAIN, coupling=[0.25], edges=[(0, 1)])
-    else:
-        model = BedModel.from_physical(CAP, LOSS, GAIN)
-    u_in = u
-    if effect == "input_delay":
-        u_in = np.concatenate([np.full((4, 2), 0.5), u[:-4]])
-    x0 = jnp.asarray(TS + GAIN @ np.full(2, 0.5) / LOSS)
-    y = np.asarray(model.simulate(u_in, w, x0=x0))
-    y = y + 0.05 * np.random.default_rng(seed + 100).normal(size=y.shape)
-    d = from_arrays(u, y, 1.0, w, signal_names=["ambient"])
-    return d.replace(u=u[:T_EST], y=y[:T_EST], w=w[:T_EST]), d.replace(
-        u=u[T_EST:], y=y[T_EST:], w=w[T_EST:], t0=float(T_EST))
+from tests.diagnose.records import prbs as _prbs
+from tests.diagnose.records import record as _record
 
 
 @pytest.fixture(scope="module")
