@@ -31,22 +31,20 @@ REAL = ROOT.parent / "shared" / "data" / "real"
 
 #: (name, estimation run, validation run or None for a 2/3 split, actuator, published validation SAE)
 PAIRS = [
-    ("tclab_cace2020 2 heaters", "tclab_cace2020/id_2heaters", "tclab_cace2020/val_2heaters", "any", 840.95),
-    ("tclab_cace2020 2 heaters, resistive-pwm", "tclab_cace2020/id_2heaters", "tclab_cace2020/val_2heaters",
-     "resistive-pwm", 840.95),
-    ("tclab_cace2020 1 heater", "tclab_cace2020/id_1heater", "tclab_cace2020/val_1heater", "resistive-pwm", 1991.23),
-    ("tclab_rawlings", "tclab_rawlings/prbs_kr2022", "tclab_rawlings/prbs_mlid2024", "resistive-pwm", None),
-    ("tclab_apm_mimo_steps", "tclab_apm_mimo_steps", None, "resistive-pwm", None),
-    ("tclab_kantor step a → b", "tclab_kantor_cbe30338/step_q1_50_a", "tclab_kantor_cbe30338/step_q1_50_b",
-     "resistive-pwm", None),
-    ("tclab_dowling sine 5 min", "tclab_dowling_pyomo_doe/sine_5min_run1", "tclab_dowling_pyomo_doe/sine_5min_run2",
-     "resistive-pwm", None),
+    ("tclab_cace2020 2 heaters", "tclab_cace2020/id_2heaters", "tclab_cace2020/val_2heaters", "resistive-pwm", 840.95),
     ("klipper hot-end", "klipper_onionheater/heattest_200", "klipper_onionheater/heattest_fan_200",
      "resistive-pwm", None),
-    ("klipper hot-end (fan runs)", "klipper_onionheater/heattest_fan_200", "klipper_onionheater/heattest_fan_200_2",
-     "resistive-pwm", None),
+    ("tclab_cace2020 1 heater", "tclab_cace2020/id_1heater", "tclab_cace2020/val_1heater", "resistive-pwm", 1991.23),
     ("daisy_heating_system (lamp → plate)", "daisy_heating_system", None, "any", None),
     ("daisy_hair_dryer (PT326)", "daisy_hair_dryer", None, "any", None),
+    ("tclab_kantor step a → b", "tclab_kantor_cbe30338/step_q1_50_a", "tclab_kantor_cbe30338/step_q1_50_b",
+     "resistive-pwm", None),
+    ("tclab_apm_mimo_steps", "tclab_apm_mimo_steps", None, "resistive-pwm", None),
+    ("tclab_dowling sine 5 min", "tclab_dowling_pyomo_doe/sine_5min_run1", "tclab_dowling_pyomo_doe/sine_5min_run2",
+     "resistive-pwm", None),
+    ("tclab_rawlings", "tclab_rawlings/prbs_kr2022", "tclab_rawlings/prbs_mlid2024", "resistive-pwm", None),
+    ("klipper hot-end (fan runs)", "klipper_onionheater/heattest_fan_200", "klipper_onionheater/heattest_fan_200_2",
+     "resistive-pwm", None),
 ]
 
 #: why the named physics is plausible (or not) for each device
@@ -79,6 +77,9 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
+    prev = out / "diagnose_real.json"
+    if args.only and prev.exists():           # rerun of some rows: keep the others
+        rows = [r for r in json.loads(prev.read_text()) if args.only not in r["data"]]
     for name, est_rel, val_rel, act, pub in PAIRS:
         if args.only and args.only not in name:
             continue
@@ -103,6 +104,7 @@ def main(argv=None):
             row.update({"status": f"CRASH {type(e).__name__}: {e}", "trace": traceback.format_exc()})
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
+        rows.sort(key=lambda r: [p[0] for p in PAIRS].index(r["data"]) if r["data"] in [p[0] for p in PAIRS] else 99)
         print(name, row["status"], row.get("named"), flush=True)
         write(rows, out)
     return 0
