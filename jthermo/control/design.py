@@ -96,8 +96,9 @@ def design(family: str, model, *, setpoint=None, **kwargs):
       solution), `"pi_lambda"` (lambda-tuned diagonal PI), `"pi_decoupled"` (W1 = (CB)⁻¹ by
       default), `"feedforward"` (neutral by default), `"imc"`, `"lqg"`, `"gated_pi"`
       (lambda-tuned PI used inside a ±band around the set point), `"pi_mimo"` (full-matrix
-      MIMO PI, starting as the decoupled PI; `edges=` pairs of zones for a neighbour-sparse
-      one), `"pi_ff"` (that MIMO PI plus the schedule feed-forward, `taps=`), `"lqg_ff"`
+      MIMO PI, starting as the PI `start=` (default `"pi_untuned"`, the best classical PI on
+      the printer in `experiments/results/schedule_ff_study.json`; or `"pi_lambda"`,
+      `"pi_decoupled"`); `edges=` pairs of zones for a neighbour-sparse one), `"pi_ff"` (that MIMO PI plus the schedule feed-forward, `taps=`), `"lqg_ff"`
       (the LQG plus the schedule feed-forward).
     - `model`: any fitted `AbstractModel` (or StateSpace).
     - keyword arguments go to the family's design function.
@@ -127,7 +128,14 @@ def design(family: str, model, *, setpoint=None, **kwargs):
     if family in ("pi_mimo", "pi_ff"):
         taps = kwargs.pop("taps", None)
         edges = kwargs.pop("edges", None)
-        fb = mimo_from(decoupled.design_decoupled_pi(model, **kwargs), edges=edges)
+        start = canonical_family(kwargs.pop("start", "pi_untuned"))
+        starts = {"pi_untuned": decoupled.design_untuned_pi,
+                  "pi_lambda": decoupled.design_lambda_pi,
+                  "pi_decoupled": decoupled.design_decoupled_pi}
+        if start not in starts:
+            raise ControlError(f"design: a MIMO PI starts from one of {', '.join(starts)}, "
+                               f"got {start!r}")
+        fb = mimo_from(starts[start](model, **kwargs), edges=edges)
         return fb if family == "pi_mimo" else with_schedule(fb, *(() if taps is None else (taps,)))
     if family == "lqg_ff":
         taps = kwargs.pop("taps", None)

@@ -78,8 +78,9 @@ def tables(ctrl) -> dict:
     {name: array}, ...}` (`"feedforward"`: the schedule FIR taps, when there is one)."""
     if isinstance(ctrl, ScheduleFF):
         out = _feedback_tables(ctrl.feedback)
+        h_rec, h_las = ctrl.effective_taps()
         out["feedforward"] = {"taps": ctrl.taps, "n_schedule": ctrl.n_schedule,
-                              "h_recoat": _arr(ctrl.h_recoat), "h_laser": _arr(ctrl.h_laser)}
+                              "h_recoat": _arr(h_rec), "h_laser": _arr(h_las)}
     else:
         out = _feedback_tables(ctrl)
     for name, a in list(out["tables"].items()) + list((out.get("feedforward") or {}).items()):
@@ -135,9 +136,9 @@ def _pi_code(t: dict, p: str) -> tuple[str, str, str]:
     {_matvec("kpe", "Kp", f"{p}_NU", f"{p}_NU", "e")}
     for (int i = 0; i < {p}_NU; ++i) {{
         double integ = s->integ[i] + kie[i];
-        double req = u0[i] + uadd[i] + kpe[i] + integ;
-        u[i] = clip(req, {_num(U_MIN)}, {_num(U_MAX)});
-        s->integ[i] = integ + (u[i] - req);
+        double v = u0[i] + kpe[i] + integ;
+        u[i] = clip(v + uadd[i], {_num(U_MIN)}, {_num(U_MAX)});
+        s->integ[i] = integ + (clip(v, {_num(U_MIN)}, {_num(U_MAX)}) - v);
     }}"""
         return fields, init, step
     lo, hi = _num(t["u_min"]), _num(t["u_max"])

@@ -1,14 +1,15 @@
 """MIMO PI: full (or neighbour-sparse) N×N gain matrices, the structure a PLC runs.
 
-$$I_k = I_{k-1} + K_i e_k, \\qquad u_k = u_0 + u^{add}_k + K_p e_k + I_k, \\qquad e_k = r_k - y_k,$$
+$$I_k = I_{k-1} + K_i e_k, \\qquad v_k = u_0 + K_p e_k + I_k, \\qquad
+u_k = \\mathrm{sat}(v_k + u^{add}_k), \\qquad e_k = r_k - y_k,$$
 
-saturated to [`U_MIN`, `U_MAX`] with back-calculation to the exact limit: after saturation the
-integrator becomes $I_k + \\mathrm{sat}(u_k) - u_k$, so it holds exactly the value that keeps
+saturated to [`U_MIN`, `U_MAX`] with back-calculation to the exact limit: the integrator becomes
+$I_k + \\mathrm{sat}(v_k) - v_k$ (the feedback's own request, not the feed-forward's), so it holds exactly the value that keeps
 the input at its limit (Åström & Hägglund 2006, §3.5), as `DecoupledPI` does in its
 decoupled coordinates. A decoupled PI $W_1(K_p e + I)$ is the MIMO PI with $K_p = W_1
 \\mathrm{diag}(k_p)$, $K_i = W_1 \\mathrm{diag}(k_p T_s / T_i)$ (`mimo_from`): tuning both
 matrices end to end is tuning the PI and its static decoupler jointly. `u_add` is an additive
-input inside the anti-windup (a schedule feed-forward, `schedule_ff`).
+input after the anti-windup (a schedule feed-forward, `schedule_ff`).
 """
 
 from __future__ import annotations
@@ -67,9 +68,11 @@ class MIMOPI(AbstractController):
         kp, ki = self.gains()
         e = r[:self.zones] - y[:self.zones]
         integ = state.integ + ki @ e
-        u_req = self.u0 + u_add + kp @ e + integ
-        u = jnp.clip(u_req, U_MIN, U_MAX)
-        return u, MIMOPIState(integ + (u - u_req))
+        v = self.u0 + kp @ e + integ
+        u = jnp.clip(v + u_add, U_MIN, U_MAX)
+        # back-calculation on the feedback's own request: a feed-forward pulse that saturates
+        # the heater does not pull the integrator (it would undo the pulse once it ends)
+        return u, MIMOPIState(integ + (jnp.clip(v, U_MIN, U_MAX) - v))
 
     def step(self, state: MIMOPIState, y: Output, r: Setpoint) -> tuple[Input, MIMOPIState]:
         return self.step_offset(state, y, r, 0.0)

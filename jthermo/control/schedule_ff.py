@@ -9,8 +9,9 @@ and the per-zone exposure indicator). The feed-forward is a short learned impuls
 $$u^{ff}_{k,i} = \\sum_{j<L} h^{rec}_{j,i}\\, s_{k-j,0} + h^{las}_{j,i}\\, s_{k-j,1+i},$$
 
 so heater i can start $P$ samples before a recoat lands and keep going for $L - P$ after it.
-It enters the feedback controller inside its saturation and anti-windup (`step_offset` of
-`MIMOPI` and `LQG`), and is tuned by gradient with the feedback gains (all taps start at 0:
+It enters the feedback controller inside its saturation (`step_offset` of `MIMOPI`, whose
+back-calculation sees the feedback's own request, and of `LQG`, whose observer sees the
+applied input), and is tuned by gradient with the feedback gains (all taps start at 0:
 the wrapped controller unchanged).
 """
 
@@ -43,6 +44,9 @@ class ScheduleFF(AbstractController):
     feedback: MIMOPI | LQG
     h_recoat: Float[Array, "L nu"]         # power fraction per recoat event, per tap and heater
     h_laser: Float[Array, "L nu"]          # power fraction per exposed sample, zone i -> heater i
+    # taps are stored in units of `scale` (power fraction): an optimiser step of order 1e-2 on
+    # a stored tap moves the heater by `scale` × that, the size of the step the feedback takes
+    scale: float = eqx.field(static=True, default=0.05)
 
     def __check_init__(self):
         if not isinstance(self.feedback, (MIMOPI, LQG)):
@@ -70,8 +74,14 @@ class ScheduleFF(AbstractController):
         return ScheduleFFState(self.feedback.init(y0, r0), ev)
 
     def feedforward(self, events: Float[Array, "L ns"]) -> Input:
-        """$u^{ff}$ from the schedule history (newest row first)."""
-        return events[:, 0] @ self.h_recoat + jnp.sum(self.h_laser * events[:, 1:], axis=0)
+        """$u^{ff}$ from the schedule history (newest row first); the effective taps are
+        `scale` × the stored ones (`effective_taps`)."""
+        h_rec, h_las = self.effective_taps()
+        return events[:, 0] @ h_rec + jnp.sum(h_las * events[:, 1:], axis=0)
+
+    def effective_taps(self) -> tuple[Array, Array]:
+        """`(h_recoat, h_laser)` in power fraction per event sample."""
+        return self.scale * self.h_recoat, self.scale * self.h_laser
 
     def step_schedule(self, state: ScheduleFFState, y: Output, r: Setpoint,
                       schedule) -> tuple[Input, ScheduleFFState]:
