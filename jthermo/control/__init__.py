@@ -14,3 +14,5 @@ from .rules import (decoupling_matrix as decoupling_matrix, fit_step_model as fi
                     step_models as step_models)
 from .mimo_pi import MIMOPI as MIMOPI, mimo_from as mimo_from, neighbour_mask as neighbour_mask
 from .schedule_ff import ScheduleFF as ScheduleFF, with_schedule as with_schedule
+from .relay import (DiagonalPID as DiagonalPID, design_pid_relay as design_pid_relay,
+                    relay_test as relay_test)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import ControlError
 from ..models._base import StateSpace
-from . import decoupled, feedforward, imc, lqg
+from . import decoupled, feedforward, imc, lqg, relay
 from .mimo_pi import mimo_from
 from .schedule_ff import with_schedule
 from .gated import gated
@@ -70,12 +70,13 @@ def design_point(model, setpoint=None, signals=None, inputs=None) -> StateSpace:
 # --------------------------------------------------------------------------------------
 
 FAMILIES = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg", "gated_pi",
-            "pi_mimo", "pi_ff", "lqg_ff")
+            "pi_mimo", "pi_ff", "lqg_ff", "pid_relay")
 # short names users type, e.g. `jthermo tune --controller pi` (PI means the lambda-tuned design)
 ALIASES = {"pi": "pi_lambda", "lambda": "pi_lambda", "diagonal_pi": "pi_lambda",
            "untuned": "pi_untuned", "original": "pi_untuned", "decoupled": "pi_decoupled",
            "ff": "feedforward", "gated": "gated_pi", "lqg_integral": "lqg",
-           "mimo_pi": "pi_mimo", "mimo": "pi_mimo", "pi_schedule": "pi_ff"}
+           "mimo_pi": "pi_mimo", "mimo": "pi_mimo", "pi_schedule": "pi_ff",
+           "relay": "pid_relay", "pid": "pid_relay", "zn": "pid_relay"}
 
 
 def canonical_family(name: str) -> str:
@@ -99,7 +100,8 @@ def design(family: str, model, *, setpoint=None, **kwargs):
       MIMO PI, starting as the PI `start=` (default `"pi_untuned"`, the best classical PI on
       the printer in `experiments/results/schedule_ff_study.json`; or `"pi_lambda"`,
       `"pi_decoupled"`); `edges=` pairs of zones for a neighbour-sparse one), `"pi_ff"` (that MIMO PI plus the schedule feed-forward, `taps=`), `"lqg_ff"`
-      (the LQG plus the schedule feed-forward).
+      (the LQG plus the schedule feed-forward), `"pid_relay"` (the firmware's relay auto-tune
+      run on the model, then Ziegler–Nichols PID: `relay.design_pid_relay`).
     - `model`: any fitted `AbstractModel` (or StateSpace).
     - keyword arguments go to the family's design function.
 
@@ -137,6 +139,8 @@ def design(family: str, model, *, setpoint=None, **kwargs):
                                f"got {start!r}")
         fb = mimo_from(starts[start](model, **kwargs), edges=edges)
         return fb if family == "pi_mimo" else with_schedule(fb, *(() if taps is None else (taps,)))
+    if family == "pid_relay":
+        return relay.design_pid_relay(model, **kwargs)
     if family == "lqg_ff":
         taps = kwargs.pop("taps", None)
         return with_schedule(lqg.design_lqg(model, **kwargs), *(() if taps is None else (taps,)))

@@ -62,15 +62,21 @@ def printer_model(printer):
     disc = printer.discretise()
     d = printer.default_disturbance()
 
+    Ad, Bd = _linearise(disc, x0, u0, d)
+    n = printer.n_outputs
+    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:n]
+    return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=printer.output(x0))
+
+
+@eqx.filter_jit
+def _linearise(disc, x0, u0, d):
+    """Jacobians of the one-sample map in the state and the input (one compiled program: the
+    eager version dispatched hundreds of small ones)."""
     def f(z, u):
         buf = jnp.broadcast_to(u, x0.buffer.shape)        # the delay line holds u: no delay
         return disc.step(PrinterState(z=z, buffer=buf, since=x0.since), u, d).z
 
-    Ad = jax.jacfwd(f, 0)(x0.z, u0)
-    Bd = jax.jacfwd(f, 1)(x0.z, u0)
-    n = printer.n_outputs
-    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:n]
-    return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=printer.output(x0))
+    return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0)
 
 
 def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
@@ -84,7 +90,8 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
 
 
 #: the classical designs `best_classical` is taken over (from the same design model)
-CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg")
+CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg",
+             "pid_relay")
 
 
 def classical_designs(model, families: Sequence[str] = CLASSICAL) -> dict:
