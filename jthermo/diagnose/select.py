@@ -32,6 +32,7 @@ from ..errors import DataError
 from ..models.greybox import first_order_start
 from . import decide as D
 from . import mechanisms as M
+from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones
 from .localise import detect_periodic, event_matrix, localise
@@ -67,31 +68,6 @@ def _ambient_column(data):
         if "ambient" in low or "surround" in low:
             return j
     return None
-
-
-def _check(est, val):
-    for nm, d in (("estimation", est), ("validation", val)):
-        if not hasattr(d, "y") or not hasattr(d, "u"):
-            raise DataError(f"diagnose: the {nm} data must be IOData")
-    if est.n_outputs != val.n_outputs or est.n_inputs != val.n_inputs:
-        raise DataError(f"diagnose: estimation ({est.n_inputs} inputs, {est.n_outputs} outputs) and "
-                        f"validation ({val.n_inputs}, {val.n_outputs}) data do not match")
-    # logged runs of one device differ in their mean step by a fraction of a percent (clock
-    # jitter): the validation record is simulated at the estimation record's sample time
-    if abs(est.ts - val.ts) > TS_TOLERANCE * est.ts:
-        raise DataError(f"diagnose: sample times differ: {est.ts:g} s and {val.ts:g} s")
-    _n, nu = est.n_outputs, est.n_inputs
-    need = 10 * (3 + nu)
-    for nm, d in (("estimation", est), ("validation", val)):
-        if d.n_samples < need:
-            raise DataError(f"diagnose: the {nm} data have {d.n_samples} samples; at least {need} "
-                            "are needed")
-    if np.any(np.std(est.u, axis=0) < 1e-9):
-        j = int(np.argmin(np.std(est.u, axis=0)))
-        raise DataError(f"diagnose: input `u_{est.input_names[j]}` is constant in the estimation "
-                        "data and cannot excite the system")
-    if np.any(est.u < -1e-9) and "power" not in " ".join(est.notes):
-        pass  # inputs are power fractions on the printer; other systems may differ: no check
 
 
 def _record_arrays(data, amb_col, level, lay, n_knots):
@@ -191,7 +167,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     `augmented`, plus `localisation` and `candidates` (every refit's figures) and `seconds`.
     """
     t_start = time.perf_counter()
-    _check(est, val)
+    est, val, dropped = drop_idle_inputs(est, val)
+    check_records(est, val, TS_TOLERANCE)
     mechanisms = tuple(mechanisms)
     for m in mechanisms:
         if m not in M.MECHANISMS:
@@ -470,6 +447,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                      "fit_percent": [float(v) for v in base_fit], "sum_abs_error": sae(e_base)},
         "findings": findings,
         "flagged": flagged,
+        "inputs_left_out": [f"u_{nm}" for nm in dropped],
         "augmented": {"mechanisms": list(chosen),
                       "mean_fit_percent": float(np.mean(aug_fit)),
                       "fit_percent": [float(v) for v in aug_fit], "sum_abs_error": sae(e_aug),

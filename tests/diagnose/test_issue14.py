@@ -56,6 +56,19 @@ def test_null_one_zone_record_stays_quiet():
     assert res["decision"]["family_false_alarm_rate"] == D.ALPHA
 
 
+def test_inputs_constant_in_both_records_are_left_out():
+    from jthermo.diagnose.checks import drop_idle_inputs
+
+    rng = np.random.default_rng(0)
+    u = np.c_[rng.random(100), np.zeros(100)]
+    d = from_arrays(u, rng.random((100, 2)), 1.0)
+    e, v, dropped = drop_idle_inputs(d, d)
+    assert dropped == ["2"] and e.n_inputs == 1 and v.input_names == ("1",)
+    u2 = u.copy()
+    u2[50:, 1] = 0.5                     # used in one record: kept
+    assert drop_idle_inputs(d, d.replace(u=u2))[2] == []
+
+
 def test_predictive_test_false_alarm_rate_on_noise():
     """Two equally good predictions of coloured noise: the one-sided test rejects about as
     often as its level says (z is close to standard normal under the null)."""
