@@ -257,7 +257,8 @@ def plot_pzmap(models, *, path: str | os.PathLike | None = None) -> Figure:
 
 def plot_closed_loop(t, y, u, r, window: float = 1.0, *, names=None,
                      path: str | os.PathLike | None = None) -> Figure:
-    """Closed-loop scenario: temperatures with the set point and its ±`window` °C band, and inputs."""
+    """Closed-loop scenario: temperatures with each zone's own set point (dashed, in the zone's
+    colour) and its ±`window` °C band, and inputs."""
     t = np.asarray(t, dtype=np.float64)
     y = _as_2d(y, "y")
     u = _as_2d(u, "u")
@@ -274,11 +275,13 @@ def plot_closed_loop(t, y, u, r, window: float = 1.0, *, names=None,
     a0, a1 = _grid(fig, 2, 1, sharex=True, height_ratios=[2, 1])[:, 0]
     names = names or [str(i + 1) for i in range(y.shape[1])]
     for i in range(y.shape[1]):
-        a0.plot(t, y[:, i], lw=1.0, label=f"y_{names[i]}" if y.shape[1] <= 8 else None)
-    r_mean = r.mean(axis=1)
-    a0.plot(t, r_mean, "k--", lw=1.0, label="set point")
-    a0.fill_between(t, r_mean - window, r_mean + window, color="0.5", alpha=0.2,
-                    label=f"±{window:g} °C")
+        line, = a0.plot(t, y[:, i], lw=1.0, label=f"y_{names[i]}" if y.shape[1] <= 8 else None)
+        # each zone's own set point, in its colour, with its ±window band
+        a0.plot(t, r[:, i], "--", color=line.get_color(), lw=1.0,
+                label=("set point" if y.shape[1] == 1 else f"r_{names[i]}")
+                if y.shape[1] <= 8 else None)
+        a0.fill_between(t, r[:, i] - window, r[:, i] + window, color=line.get_color(),
+                        alpha=0.12, label=f"±{window:g} °C" if i == 0 else None)
     a0.set_ylabel("temperature (°C)")
     a0.legend(fontsize="x-small", ncol=2, loc="lower right")
     for j in range(u.shape[1]):

@@ -81,3 +81,14 @@ def test_no_pyplot_import():
     code = "import sys, jthermo.plots; print('matplotlib.pyplot' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_closed_loop_draws_each_zones_set_point():
+    """Two zones at 55 and 45 °C: two set-point lines at their own levels, not one at 50."""
+    t = np.arange(50.0)
+    y = np.column_stack([np.full(50, 54.0), np.full(50, 46.0)])
+    fig = P.plot_closed_loop(t, y, np.full((50, 2), 0.5), np.array([55.0, 45.0]))
+    dashed = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "--"]
+    assert sorted(float(ln.get_ydata()[0]) for ln in dashed) == [45.0, 55.0]
+    assert [ln.get_color() for ln in dashed] == [ln.get_color() for ln in fig.axes[0].get_lines()
+                                                 if ln.get_linestyle() == "-"]
