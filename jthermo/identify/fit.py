@@ -26,6 +26,7 @@ from ..models.envelope import Envelope
 from .greybox import fit_greybox
 from .orders import CRITERIA, DEFAULT_GRIDS, select_orders
 from .polynomial import fit_polynomial, n_params_per_output, poly_cost, poly_residual
+from .screening import screen_orders
 from .result import FAMILIES, FITTERS, ORDER_NAMES, FitResult
 from .statespace import fit_statespace
 
@@ -89,14 +90,46 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
     fitter = FITTERS[family]
     _check_options(fitter.options, kw, family)
     table = None
-    if o is None and family in DEFAULT_GRIDS:
+    if o is None and family in DEFAULT_GRIDS and not kw.get("full_a", False):
         if progress:
-            progress(f"choosing {family} orders by {criterion}")
-        o, table = select_orders(data, family, criterion=criterion,
-                                 full_a=bool(kw.get("full_a", False)), seed=seed, n_starts=1)
-    res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
+            progress(f"screening {family} orders by {criterion}")
+        candidates, table = screen_orders(data, family, criterion=criterion)
+        res = _confirm(data, family, fitter, candidates, table, criterion, seed=seed,
+                       n_starts=n_starts, progress=progress, **kw)
+    else:
+        if o is None and family in DEFAULT_GRIDS:     # a full A: the PEM grid
+            o, table = select_orders(data, family, criterion=criterion, full_a=True, seed=seed,
+                                     n_starts=1)
+        res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
     return dataclasses.replace(_complete(res, family, table, t0),
                                envelope=Envelope.from_data(data))
+
+
+def _confirm(data: IOData, family: str, fitter, candidates: list[dict], table: list[dict],
+             criterion: str, **kw) -> FitResult:
+    """PEM fits of the screened `candidates` (the chosen orders, and a close runner-up);
+    with two, the one whose one-step prediction errors score better by `criterion` wins.
+    A candidate that fails (`FitError`) is skipped while another remains."""
+    from ..errors import FitError
+    from .orders import information_criterion
+
+    results, failures = [], []
+    for o in candidates:
+        try:
+            r = fitter.run(data, family, o, **kw)
+        except FitError as exc:
+            failures.append(exc)
+            continue
+        eps = r.model.residuals(data.y, data.u)
+        p = n_params_per_output(family, o, data.n_inputs, data.n_outputs) * data.n_outputs
+        value = information_criterion(eps, p, criterion)
+        table.append({**o, "stage": "pem", "n_params": p, criterion: value, "chosen": False})
+        results.append((value if np.isfinite(value) else np.inf, len(table) - 1, r))
+    if not results:
+        raise failures[0]
+    value, row, best = min(results, key=lambda t: t[0])
+    table[row]["chosen"] = True
+    return best
 
 
 #: arguments of the family fitters that `fit` sets itself (from the data, orders, seed, ...)

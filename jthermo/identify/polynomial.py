@@ -27,6 +27,7 @@ from ..models.polynomial import (
     rational_sum, reflection_from_poly,
 )
 from .arx import arx_ls, perturb_starts
+from .guard import check_model
 from .operating_point import (
     OFFSETS, estimate_rest_level, known_rest_level, offset_mode, operating_point,
 )
@@ -179,7 +180,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
         return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
                              std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
-                             n_steps=0, offset=offset)
+                             n_steps=0, offset=offset, reference=None, start_model=None)
     if progress:
         progress(f"ARX start (na={max(n_den, 1)}, nb={nb}, offset={offset})")
     start = arx_ls(dy, du, max(n_den, 1), nb, nkt, full_a=arx_full, offset=est, u0=u0,
@@ -217,12 +218,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     if not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
-    a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(res.theta)
-    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=yref)
-    if est:
-        kappa = jax.vmap(lambda th: _kappa(th, spec))(res.theta)
-        A1 = jnp.eye(ny, dtype=y.dtype) + jnp.sum(model.a_matrices(), axis=0)
-        model = eqx.tree_at(lambda mm: mm.y0, model, yref + jnp.linalg.solve(A1, kappa))
+    model = _model_from_theta(res.theta, spec, nkt, ts, u0, yref)
     cov = std = None
     if covariance:
         Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(res.theta)
@@ -231,7 +227,20 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
                        n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
-                       offset=offset)
+                       offset=offset, reference=start,
+                       start_model=_model_from_theta(jnp.asarray(theta0, y.dtype), spec, nkt, ts,
+                                                     u0, yref))
+
+
+def _model_from_theta(theta, spec: PolySpec, nkt, ts: float, u0, yref) -> Polynomial:
+    """The `Polynomial` of per-output parameter vectors `theta (ny, p)`."""
+    a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(theta)
+    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=yref)
+    if spec.offset:
+        kappa = jax.vmap(lambda th: _kappa(th, spec))(theta)
+        A1 = jnp.eye(theta.shape[0], dtype=theta.dtype) + jnp.sum(model.a_matrices(), axis=0)
+        model = eqx.tree_at(lambda mm: mm.y0, model, yref + jnp.linalg.solve(A1, kappa))
+    return model
 
 
 def polynomial_orders(family: str, o: dict) -> dict:
@@ -265,11 +274,39 @@ def fit_polynomial_family(data: IOData, family: str, orders: dict, *, seed: int 
                                               full_a) + n0 + 1, what=f"{family} model")
     model, info = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
                                  progress=progress, **pk, **kw)
-    return FitResult(model=model, family=family, orders=orders, converged=info["converged"],
-                     cost=info["cost"], covariance=info["covariance"], std=info["std"],
-                     extra={"start_costs": info["start_costs"], "n_steps": info["n_steps"],
-                            "offset": info["offset"]})
+    model, check, repaired = guard_polynomial(model, info, data, family, orders)
+    extra = {"start_costs": info["start_costs"], "n_steps": info["n_steps"],
+             "offset": info["offset"], "check": check.to_dict()}
+    if repaired:
+        extra["repaired"] = repaired
+    return FitResult(model=model, family=family, orders=orders,
+                     converged=bool(info["converged"] and check.ok and not repaired),
+                     cost=info["cost"], covariance=None if repaired else info["covariance"],
+                     std=None if repaired else info["std"], extra=extra)
 
 
-__all__ = ["POLYNOMIAL_FAMILIES", "PolySpec", "fit_polynomial", "fit_polynomial_family",
+def guard_polynomial(model: Polynomial, info: dict, data: IOData, family: str, orders: dict):
+    """`guard.check_model` of a fitted polynomial model against its ARX reference; a model
+    that fails is replaced by the PEM's start point (the ARX-based estimate in the family's
+    structure) when that one passes, otherwise the fit fails.
+
+    **Returns:** `(model, check, repaired)`: `repaired` says what was replaced ('' if nothing).
+
+    **Raises:** `FitError` (one line) when neither the fitted model nor its start passes.
+    """
+    check = check_model(model, data, info.get("reference"))
+    if check.ok:
+        return model, check, ""
+    start = info.get("start_model")
+    if start is not None:
+        c0 = check_model(start, data, info.get("reference"))
+        if c0.ok:
+            return start, c0, (f"PEM result rejected ({check.reason()}); the ARX-based start "
+                               f"point is returned instead")
+    orders_txt = ", ".join(f"{k} {v}" for k, v in orders.items())
+    raise FitError(f"fit: {family} [{orders_txt}]: {check.reason()}; no stable model found "
+                   f"(try other orders)")
+
+
+__all__ = ["POLYNOMIAL_FAMILIES", "PolySpec", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
            "n_params_per_output", "poly_args", "poly_cost", "poly_residual", "polynomial_orders"]

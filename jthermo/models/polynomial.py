@@ -386,13 +386,17 @@ class Polynomial(AbstractModel):
 
     # -- exact state-space realisation -----------------------------------------------------
     def to_statespace(self) -> StateSpace:
-        """Exact innovations realisation (observer canonical form per output for a diagonal A;
-        input/noise block plus output-shift states for a full A)."""
+        """Exact innovations realisation: with input denominators F (OE, BJ) one small block
+        per input-output pair and one noise block per output (`_parallel_statespace`);
+        otherwise observer canonical form per output for a diagonal A, and input/noise block
+        plus output-shift states for a full A."""
         ny, nu = self.n_outputs, self.n_inputs
         dt = self.b.dtype
         L = self._max_lag()
         bl = self._b_lags()                                               # (ny, nu, L+1)
         one = jnp.ones((ny, 1), dt)
+        if self.nf and (not self.full_a or ny == 1):
+            return self._parallel_statespace()
         if not self.full_a or ny == 1:
             # per output: den = A_i D_i prod_j F_ij ; num_j = B_ij D_i prod_{l!=j} F_il ;
             # num_e = C_i prod_j F_ij
@@ -462,6 +466,53 @@ class Polynomial(AbstractModel):
         K = jnp.concatenate([Kw, E], axis=0)
         C = jnp.concatenate([Cw, -Abar], axis=1)
         return StateSpace(A, B, C, Dwu, K, ts=self.ts_, u0=self.u0, y0=self.y0)
+
+    def _parallel_statespace(self) -> StateSpace:
+        """Parallel realisation of a diagonal-A row with input denominators: pair (i, j) is an
+        observer canonical block of $B_{ij}/(A_i F_{ij})$, output i's noise block realises
+        $C_i/(A_i D_i)$ (innovations gain). A common denominator $A_i D_i \\prod_j F_{ij}$ would
+        multiply up to `nu` nearly equal poles (every heater of a zone sees the zone's time
+        constant), whose companion matrix has eigenvalues that rounding moves by
+        $\\epsilon^{1/nu}$: outside the unit circle at 16 inputs."""
+        ny, nu = self.n_outputs, self.n_inputs
+        dt = self.b.dtype
+        L = self._max_lag()
+        one = jnp.ones((ny, 1), dt)
+        Ai = jnp.concatenate([one, self.a[:, 0, :]], axis=1)                  # (ny, na+1)
+        Fij = jnp.concatenate([jnp.ones((ny, nu, 1), dt), self.f], axis=2)
+        den = _polymul(Ai[:, None, :], Fij)                                   # (ny, nu, na+nf+1)
+        n = max(L, den.shape[2] - 1)
+        den = jnp.pad(den, ((0, 0), (0, 0), (0, n + 1 - den.shape[2])))
+        num = jnp.pad(self._b_lags(), ((0, 0), (0, 0), (0, n - L)))          # (ny, nu, n+1)
+        P = ny * nu
+        e0 = jnp.eye(n, dtype=dt)[0]
+        Ablk = jnp.eye(n, k=1, dtype=dt)[None] - den.reshape(P, n + 1)[:, 1:, None] * e0[None, None, :]
+        Ap = jnp.einsum("pq,pkl->pkql", jnp.eye(P, dtype=dt), Ablk).reshape(P * n, P * n)
+        Bblk = num[:, :, 1:] - den[:, :, 1:] * num[:, :, :1]                  # (ny, nu, n)
+        Bp = jnp.einsum("ijk,jl->ijkl", Bblk, jnp.eye(nu, dtype=dt)).reshape(P * n, nu)
+        Cp = jnp.einsum("iq,jk->iqjk", jnp.eye(ny, dtype=dt),
+                        jnp.broadcast_to(e0, (nu, n))).reshape(ny, P * n)
+        # noise block of each output: C_i / (A_i D_i), observer canonical with gain K
+        de = _polymul(Ai, jnp.concatenate([one, self.d], axis=1))             # (ny, na+nd+1)
+        ce = jnp.concatenate([one, self.c], axis=1)
+        m = max(de.shape[1], ce.shape[1]) - 1
+        de = jnp.pad(de, ((0, 0), (0, m + 1 - de.shape[1])))
+        ce = jnp.pad(ce, ((0, 0), (0, m + 1 - ce.shape[1])))
+        eye = jnp.eye(ny, dtype=dt)
+        if m:
+            em = jnp.eye(m, dtype=dt)[0]
+            Aeb = jnp.eye(m, k=1, dtype=dt)[None] - de[:, 1:, None] * em[None, None, :]
+            Ae = jnp.einsum("ij,ikl->ikjl", eye, Aeb).reshape(ny * m, ny * m)
+            Ke = jnp.einsum("ij,ik->ikj", eye, ce[:, 1:] - de[:, 1:]).reshape(ny * m, ny)
+            Ce = jnp.einsum("ij,k->ijk", eye, em).reshape(ny, ny * m)
+        else:
+            Ae, Ke, Ce = (jnp.zeros((0, 0), dt), jnp.zeros((0, ny), dt), jnp.zeros((ny, 0), dt))
+        ne = Ae.shape[0]
+        A = jnp.block([[Ap, jnp.zeros((P * n, ne), dt)], [jnp.zeros((ne, P * n), dt), Ae]])
+        B = jnp.concatenate([Bp, jnp.zeros((ne, nu), dt)], axis=0)
+        K = jnp.concatenate([jnp.zeros((P * n, ny), dt), Ke], axis=0)
+        C = jnp.concatenate([Cp, Ce], axis=1)
+        return StateSpace(A, B, C, num[:, :, 0], K, ts=self.ts_, u0=self.u0, y0=self.y0)
 
 
 def ARX(a, b, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polynomial:
