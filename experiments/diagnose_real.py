@@ -37,7 +37,7 @@ PAIRS = [
     ("tclab_cace2020 1 heater", "tclab_cace2020/id_1heater", "tclab_cace2020/val_1heater", "resistive-pwm", 1991.23),
     ("daisy_heating_system (lamp → plate)", "daisy_heating_system", None, "any", None),
     ("daisy_hair_dryer (PT326)", "daisy_hair_dryer", None, "any", None),
-    ("tclab_kantor step a → b", "tclab_kantor_cbe30338/step_q1_50_a", "tclab_kantor_cbe30338/step_q1_50_b",
+    ("tclab_kantor step b → c", "tclab_kantor_cbe30338/step_q1_50_b", "tclab_kantor_cbe30338/step_q1_50_c",
      "resistive-pwm", None),
     ("tclab_apm_mimo_steps", "tclab_apm_mimo_steps", None, "resistive-pwm", None),
     ("tclab_dowling sine 5 min", "tclab_dowling_pyomo_doe/sine_5min_run1", "tclab_dowling_pyomo_doe/sine_5min_run2",
