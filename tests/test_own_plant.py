@@ -114,3 +114,13 @@ def test_model_files_without_an_envelope_still_work(fitted, tmp_path):
     assert io.load_envelope(tmp_path / "new.jtm") == env
     stand_in = Envelope.from_model(model)
     assert stand_in.ts == TS and stand_in.rest[0] == pytest.approx(REST, abs=1.0)
+
+
+def test_fit_result_prints_a_readable_summary():
+    res = fit(record(0), "arx", orders=(1, 1, DELAY + 1))
+    text = repr(res)
+    assert text == res.summary() and "covariance" not in text and "Array" not in text
+    assert "arx" in text and "'nk': 3" in text and "converged" in text
+    gain = float(text.split("DC gain (°C per input): [[")[1].split("]]")[0])
+    assert gain == pytest.approx(K, rel=0.02)
+    assert "poles (3, z-plane, Ts 0.5 s)" in text

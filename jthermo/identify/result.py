@@ -59,6 +59,30 @@ class FitResult:
                    converged=bool(res.converged), cost=float(res.cost), seconds=float(seconds),
                    covariance=res.covariance, std=res.std, extra=dict(info or {}))
 
+    def __repr__(self) -> str:
+        return self.summary()
+
+    def summary(self) -> str:
+        """A readable summary: family, orders, convergence, cost, fit % where the fitter
+        reports one, the model's static gain $G(1)$ and its poles (no covariance arrays)."""
+        import numpy as np
+
+        lines = [f"FitResult: {self.family or type(self.model).__name__} {self.orders}, "
+                 f"{'converged' if self.converged else 'NOT converged'}, cost {self.cost:.4g}, "
+                 f"{self.seconds:.3g} s"]
+        if "fit_percent" in self.extra:
+            lines.append(f"  fit %: {np.round(np.asarray(self.extra['fit_percent']), 2).tolist()}")
+        try:
+            ss = self.model.to_statespace()
+            lines.append(f"  DC gain (°C per input): "
+                         f"{np.round(np.asarray(ss.dcgain(), np.float64), 4).tolist()}")
+            poles = np.linalg.eigvals(np.asarray(ss.A, np.float64))
+            lines.append(f"  poles ({poles.size}, z-plane, Ts {float(ss.ts):g} s): "
+                         f"{np.round(np.sort_complex(poles), 4).tolist()}")
+        except Exception as exc:  # noqa: BLE001 - a summary never fails on an odd model
+            lines.append(f"  (no state-space view: {type(exc).__name__})")
+        return "\n".join(lines)
+
 
 class Fitter(NamedTuple):
     """How `fit` runs the fitter of a model family.
