@@ -3,7 +3,7 @@ with it (`lqg_ff`) on the realistic virtual printer and report them on held-out 
 every classical design (`best_classical`), lambda PI, the unseen powder, Ms and ±20 % gain.
 
     .venv/bin/python experiments/schedule_ff_study.py [--families pi_ff,lqg_ff] [--steps 40]
-        [--rollouts 4] [--duration 300] [--ensemble 0]
+        [--rollouts 4] [--eval-rollouts 4] [--duration 300] [--ensemble 0] [--ff-init 1] [--out PATH]
 
 Writes experiments/results/schedule_ff_study.json (one `jthermo tune`-style report per family,
 without the tuned controller) and a Markdown table beside it. Settings are recorded in the
@@ -12,6 +12,7 @@ output; the defaults are a reduced run (2-core machine), not the CLI's 150 steps
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -31,7 +32,13 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--rollouts", type=int, default=4)
     ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--eval-rollouts", type=int, default=None,
+                    help="held-out rollouts per scenario (default: --rollouts); the same "
+                         "held-out seed and draws for every design")
     ap.add_argument("--ensemble", type=int, default=0)
+    ap.add_argument("--ff-init", type=int, default=1,
+                    help="1: feed-forward taps start at the model-based inverse of each event "
+                         "(tune.ff_init); 0: at zero")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(HERE / "results" / "schedule_ff_study.json"))
     args = ap.parse_args(argv)
@@ -40,9 +47,12 @@ def main(argv=None):
     for fam in args.families.split(","):
         t0 = time.perf_counter()
         rep = tune_report(fam, steps=args.steps, rollouts=args.rollouts, duration=args.duration,
-                          ensemble=args.ensemble, seed=args.seed)
+                          ensemble=args.ensemble, seed=args.seed,
+                          eval_rollouts=args.eval_rollouts, ff_init=bool(args.ff_init))
         rep.pop("tuned")
         rep["settings"] = vars(args)
+        rep["command"] = " ".join([".venv/bin/python", "experiments/schedule_ff_study.py",
+                                   *(argv if argv is not None else sys.argv[1:])])
         rep["wall_s"] = time.perf_counter() - t0
         results[fam] = jsonable(rep)
         out.write_text(json.dumps(results, indent=1) + "\n")
@@ -63,7 +73,9 @@ def main(argv=None):
                     f"{(rb.get('gain_plus_20_cost') or {}).get('tuned', float('nan')):.4f} | "
                     f"{(rb.get('gain_minus_20_cost') or {}).get('tuned', float('nan')):.4f} |")
     s = results[next(iter(results))]["settings"]
-    md = (f"# Schedule feed-forward study (reduced run)\n\nSettings: {s}. Costs are held-out "
+    cmds = sorted({r.get("command", "?") for r in results.values()})
+    md = (f"# Schedule feed-forward study (reduced run)\n\nCommand(s): "
+          + "; ".join(f"`{c}`" for c in cmds) + f"\n\nSettings: {s}. Costs are held-out "
           "means over the tracking, powder and print scenarios (`jthermo.tune.evaluate`).\n\n"
           + "\n".join(rows) + "\n")
     out.with_suffix(".md").write_text(md)

@@ -15,9 +15,11 @@ from ..closedloop import REALISTIC_EFFECTS, cost, make_scenario, metrics, rollou
 from ..control._base import AbstractController
 from ..control.design import design
 from ..control.margins import peak_sensitivity
+from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
+from .ff_init import init_schedule_ff
 from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, plant_ensemble, tune
 
 
@@ -166,7 +168,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 powder: str = "PA12", duration: float = DURATION, plant_seed: int = 0,
                 eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
-                check_robustness: bool = True,
+                check_robustness: bool = True, ff_init: bool = True,
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -180,7 +182,9 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     (the best of them: `best_classical`); for the built-in printer also on the printer with
     `changed_powder` (`"auto"`: PA11 when tuned on PA12, else PA12; None: skip), which tuning
     never saw; with `check_robustness`, the peak sensitivity of the tuned, start and best
-    classical loops on `model` and their cost at ±20 % heater gain (`robustness`).
+    classical loops on `model` and their cost at ±20 % heater gain (`robustness`). With
+    `ff_init`, a schedule feed-forward family on a `Printer` starts with its taps at the
+    least-squares inverse of each event's effect (`ff_init.init_schedule_ff`), not at zero.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -197,6 +201,9 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     if model is None:
         model = pl if isinstance(pl, AbstractModel) else printer_model(pl)
     start = design(controller_family, model)
+    if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
+        # schedule feed-forward taps from the printer's response to each event (`ff_init`)
+        start = init_schedule_ff(start, pl)
     lam_pi = design("pi_lambda", model)
     refs = [design(f, model) for f in references if f != controller_family]
     plants = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
@@ -228,4 +235,5 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
             "history": [float(h) for h in res.history], "rollouts": int(rollouts),
             "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds),
             "duration": float(duration), "zones": int(getattr(pl, "zones", 0) or 0),
-            "powder": powder, "seconds": time.perf_counter() - t0, "tuned": res.controller}
+            "powder": powder, "ff_init": bool(ff_init and isinstance(start, ScheduleFF)),
+            "seconds": time.perf_counter() - t0, "tuned": res.controller}

@@ -86,3 +86,24 @@ def test_event_schedule_preview_jitter_and_wrong_map():
     wrong = np.asarray(event_schedule(p, sc.d, jax.random.key(1), jitter_s=0.0, wrong_p=0.5))
     assert np.any(wrong[:, 1:] != exact[:, 1:]) and np.array_equal(wrong[:, 0], exact[:, 0])
     assert sc.s.shape == (300, 3)
+
+
+def test_ff_init_cancels_most_of_the_events_open_loop():
+    """The model-based start of the taps (`tune.ff_init`): within ±limit, and on the printer's
+    own open-loop responses it removes most of a recoat's and an exposure's effect."""
+    from jthermo.tune.ff_init import _shifted, event_responses, init_schedule_ff
+    from jthermo.tune.report import printer_model
+
+    pr = make_printer(2, ["recoat_cooling", "laser_exposure"], seed=0)
+    ctrl = init_schedule_ff(design("pi_ff", printer_model(pr), taps=30), pr, limit=0.3)
+    h_rec, h_las = (np.asarray(h) for h in ctrl.effective_taps())
+    assert np.max(np.abs(h_rec)) <= 0.3 + 1e-12 and np.max(np.abs(h_las)) <= 0.3 + 1e-12
+    R = event_responses(pr, 30, preview=int(round(PREVIEW_S / pr.ts)))
+    cols = [_shifted(R["G"][m], 30) for m in range(2)]
+    rec = R["recoat"].reshape(-1) + np.concatenate(cols, axis=1) @ h_rec.T.reshape(-1)
+    las = R["laser"][0].reshape(-1) + cols[0] @ h_las[:, 0]
+    rms = lambda v: float(np.sqrt(np.mean(v ** 2)))  # noqa: E731
+    assert rms(rec) < 0.5 * rms(R["recoat"])
+    assert rms(las) < 0.8 * rms(R["laser"][0])
+    with pytest.raises(ControlError):
+        init_schedule_ff(design("pi_mimo", printer_model(pr)), pr)
