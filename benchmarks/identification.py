@@ -13,6 +13,9 @@ fit call only.
 Usage:
     python benchmarks/identification.py [--quick] [--peers none|sippy|all] [--n 4 16]
         [--families arx armax oe bj ss] [--peer-timeout 900] [--json PATH]
+    python benchmarks/identification.py --default-path --n 16 --families oe bj
+        (the default path a user takes: `jthermo fit` with automatic orders, cold, from the
+        shell, wall time and peak RSS, gap to the true model; `default_path`)
 
 Writes a Markdown table to stdout and to `benchmarks/results/identification.md`.
 """
@@ -353,6 +356,70 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# ----------------------------------------------------------------------------- default path
+
+
+def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> list[dict]:
+    """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
+    automatic orders, in a fresh process with an empty compilation cache (JTHERMO_CACHE_DIR),
+    on W1 records in absolute °C (ambient 25 °C, 6000 estimation + 3000 validation samples).
+    Wall time and peak RSS from /usr/bin/time; gap = validation fit minus the true model's
+    (the noise-free W1 plant simulated from rest vs measured)."""
+    import subprocess
+    import tempfile
+
+    from jthermo.data import atomic_write_text, from_arrays, save_csv
+
+    rows = []
+    for N in Ns:
+        est, val = W.make_dataset(N, 6000, seed, 1), W.make_dataset(N, 3000, seed, 2)
+        truth = W.fit_percent(val["y"], val["y_clean"])
+        with tempfile.TemporaryDirectory() as tmp:
+            tmp = Path(tmp)
+            for name, d in (("est", est), ("val", val)):
+                save_csv(from_arrays(d["u"], 25.0 + d["y"]), tmp / f"{name}.csv")
+            for fam in families:
+                print(f"[default path] N={N} {fam} ...", file=sys.stderr, flush=True)
+                js, tm = tmp / f"{fam}.json", tmp / f"{fam}.time"
+                env = {**os.environ, "JTHERMO_CACHE_DIR": str(tmp / f"cache_{fam}")}
+                cmd = ["/usr/bin/time", "-f", "%e %M", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
+                       "fit", str(tmp / "est.csv"), "--model", fam, "--validation",
+                       str(tmp / "val.csv"), "--json", str(js)]
+                p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+                wall, rss = (float(v) for v in tm.read_text().split()[-2:])
+                row = {"family": fam, "N": N, "exit": p.returncode, "wall_s": wall,
+                       "peak_rss_mb": rss / 1024, "true_fit": truth, "load": os.getloadavg()[0]}
+                if p.returncode == 0:
+                    r = json.loads(js.read_text())
+                    row.update(orders=r["orders"], fit=r["mean_fit_percent"],
+                               gap=r["mean_fit_percent"] - truth, converged=r["converged"],
+                               repaired=r.get("repaired"))
+                else:
+                    row["error"] = (p.stderr.strip().splitlines() or [""])[-1][:160]
+                rows.append(row)
+                if out is not None:
+                    atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1))
+                    atomic_write_text(out, default_markdown(rows))
+    return rows
+
+
+def default_markdown(rows: list[dict]) -> str:
+    lines = ["# Default path: `jthermo fit` with automatic orders, cold, from the shell", "",
+             "W1 records in absolute °C (6000 + 3000 samples, Ts = 1 s), fresh process and empty "
+             "compilation cache per row; wall and peak RSS by /usr/bin/time; gap = validation fit "
+             "(MATLAB compare, initial state estimated) minus the true model's fit; load = "
+             "1-minute load average (2-core machine shared with other jobs).", "",
+             "| family | N | orders | fit % | true % | gap | converged | wall s | peak RSS MB | load | note |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())
+        note = r.get("error") or r.get("repaired") or ""
+        lines.append(f"| {r['family']} | {r['N']} | {o} | {_fmt(r.get('fit'))} | {_fmt(r['true_fit'])} | "
+                     f"{_fmt(r.get('gap'))} | {r.get('converged', '—')} | {_fmt(r['wall_s'], 1)} | "
+                     f"{_fmt(r['peak_rss_mb'], 0)} | {_fmt(r['load'], 1)} | {note} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="N = 4 only; skip SIPPY OE and BJ")
@@ -366,7 +433,16 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
     ap.add_argument("--estimate-level", action="store_true",
                     help="jthermo estimates the rest level instead of taking W1's 0 °C")
+    ap.add_argument("--default-path", action="store_true",
+                    help="time `jthermo fit` with automatic orders from the shell (cold), per --n "
+                    "and --families; writes results/identification_default_n<N>.md/.json")
     args = ap.parse_args(argv)
+    if args.default_path:
+        fams = [f for f in args.families if f != "n4sid"]
+        for N in args.n or [4]:
+            default_path(load_workloads(), [N], fams,
+                         out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}.md")
+        return 0
     global REST_LEVEL
     if args.estimate_level:
         REST_LEVEL = None

@@ -123,6 +123,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "converged": bool(getattr(res, "converged", True)),
         "cost": getattr(res, "cost", None),
         "criterion_table": getattr(res, "criterion_table", None),
+        "checks": (getattr(res, "extra", None) or {}).get("check"),
+        "repaired": (getattr(res, "extra", None) or {}).get("repaired"),
         "data": str(args.data),
         "validation": args.validation,
         "n_samples": est.n_samples,
