@@ -22,11 +22,18 @@ from ..data import IOData, require_excitation
 from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
 from .operating_point import OPERATING_POINTS
-from .pem import minimize
+from .pem import minimize, minimize_matrix_free
 from .result import FitResult, register_fitter
 from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
 
 FOCUS = ("prediction", "simulation")
+
+#: above this many bytes of dense Jacobian (all starts, T·ny × p float64) the PEM runs from the
+#: best N4SID start alone with matrix-free Gauss–Newton (`minimize_matrix_free`): at N = 16
+#: zones the dense Jacobian of 4 starts is 2.5 GB and the solve took 12 GB
+DENSE_JACOBIAN_BYTES = 256 * 2**20
+#: step cap of the matrix-free solve (its `converged` flag says whether the cap cut it short)
+MATRIX_FREE_STEPS = 30
 
 
 def ss_residuals(theta: Float[Array, " p"], args: Any) -> Float[Array, "T ny"]:
@@ -180,8 +187,8 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
         raise ModelError(f"fit_statespace: operating_point must be auto, mean or rest, "
                          f"got {operating_point!r}")
     output_error = focus == "simulation"
-    template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon,
-                                operating_point)
+    # one start first: its size decides between the dense and the matrix-free solve
+    template, theta_m = _starts(data, n, 1, seed, output_error, horizon, operating_point)
     rest = operating_point == "rest"
     if estimate_x0 is None:
         estimate_x0 = not rest
@@ -190,6 +197,17 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     if data.n_samples * data.n_outputs <= n_par:
         raise FitError(f"fit_statespace: {data.n_samples} samples are too few for "
                        f"{n_par} parameters")
+    large = int(n_starts) * data.n_samples * data.n_outputs * n_par * 8 > DENSE_JACOBIAN_BYTES
+    if not large and int(n_starts) > 1:
+        template, theta_m = _starts(data, n, int(n_starts), seed, output_error, horizon,
+                                    operating_point)
+
+    def solve(fn, theta0, args, **kw):
+        if large:
+            return minimize_matrix_free(fn, theta0[0], args,
+                                        max_steps=min(max_steps, MATRIX_FREE_STEPS))
+        return minimize(fn, theta0, args, **kw)
+
     dtype = template.A.dtype
     y = jnp.asarray(data.y, dtype)
     du = jnp.asarray(data.u, dtype) - template.u0
@@ -198,7 +216,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
         # at rest at u = 0 before the record: x0 = 0, only the output level is estimated
         theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], data.n_outputs))], axis=1)
         args = (template, y, du, dw)
-        res = minimize(ss_residuals_level, jnp.asarray(theta0, dtype), args, solver=solver,
+        res = solve(ss_residuals_level, jnp.asarray(theta0, dtype), args, solver=solver,
                        max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         p = template.n_params()
@@ -211,7 +229,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
         extra = n + data.n_outputs
         theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], extra))], axis=1)
         args = (template, y, du, dw)
-        res = minimize(ss_residuals_offset, jnp.asarray(theta0, dtype), args, solver=solver,
+        res = solve(ss_residuals_offset, jnp.asarray(theta0, dtype), args, solver=solver,
                        max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         p = template.n_params()
@@ -219,7 +237,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
         template = eqx.tree_at(lambda m: m.y0, template, template.y0 + theta[p + n:])
     else:
         args = (template, y, du, dw)
-        res = minimize(_ss_residuals_x0zero, jnp.asarray(theta_m, dtype), args, solver=solver,
+        res = solve(_ss_residuals_x0zero, jnp.asarray(theta_m, dtype), args, solver=solver,
                        max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         x0 = jnp.zeros(n, dtype)
