@@ -20,8 +20,8 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from jthermo.io import jsonable  # noqa: E402
-from jthermo.tune import tune_report  # noqa: E402
+from jthermo.io import jsonable
+from jthermo.tune import tune_report
 
 HERE = Path(__file__).resolve().parent
 
@@ -40,11 +40,13 @@ def main(argv=None):
                     help="1: feed-forward taps start at the model-based inverse of each event "
                          "(tune.ff_init); 0: at zero")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--table-only", action="store_true",
+                    help="only rewrite the Markdown table from the JSON at --out")
     ap.add_argument("--out", default=str(HERE / "results" / "schedule_ff_study.json"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     results = json.loads(out.read_text()) if out.exists() else {}
-    for fam in args.families.split(","):
+    for fam in ([] if args.table_only else args.families.split(",")):
         t0 = time.perf_counter()
         rep = tune_report(fam, steps=args.steps, rollouts=args.rollouts, duration=args.duration,
                           ensemble=args.ensemble, seed=args.seed,
@@ -59,25 +61,34 @@ def main(argv=None):
         print(fam, {k: rep.get(k) for k in ("tuned_cost", "best_classical", "best_classical_cost",
                                             "improvement_vs_best_classical_percent",
                                             "improvement_percent")}, flush=True)
-    rows = ["| family | tuned | lambda PI | best classical | vs lambda PI % | vs best classical % "
-            "| unseen powder vs best classical % | Ms tuned | cost +20 % gain | cost −20 % gain |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
+    rows = [("| family | FF start | start | tuned | lambda PI | best classical | vs lambda PI % "
+             "| vs best classical % | unseen powder vs best classical % | Ms tuned "
+             "| cost +20 % gain | cost −20 % gain |"),
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for fam, r in results.items():
         ch = r.get("changed_powder") or {}
         rb = r.get("robustness") or {}
-        rows.append(f"| {fam} | {r['tuned_cost']:.4f} | {r['lambda_pi_cost']:.4f} | "
+        init = {True: "inverse", False: "zero"}.get(r.get("ff_init"), "zero (before ff_init)")
+        rows.append(f"| {fam} | {init} | {r['start_cost']:.4f} | {r['tuned_cost']:.4f} | "
+                    f"{r['lambda_pi_cost']:.4f} | "
                     f"{r['best_classical']} {r['best_classical_cost']:.4f} | "
-                    f"{r['improvement_percent']:.1f} | {r['improvement_vs_best_classical_percent']:.1f} | "
+                    f"{r['improvement_percent']:.1f} | "
+                    f"{r['improvement_vs_best_classical_percent']:.1f} | "
                     f"{ch.get('improvement_vs_best_classical_percent', float('nan')):.1f} | "
                     f"{(rb.get('ms') or {}).get('tuned') or float('nan'):.2f} | "
                     f"{(rb.get('gain_plus_20_cost') or {}).get('tuned', float('nan')):.4f} | "
                     f"{(rb.get('gain_minus_20_cost') or {}).get('tuned', float('nan')):.4f} |")
-    s = results[next(iter(results))]["settings"]
+    s = {k: v for k, v in results[next(iter(results))]["settings"].items()
+         if k not in ("families", "table_only")}
     cmds = sorted({r.get("command", "?") for r in results.values()})
-    md = (f"# Schedule feed-forward study (reduced run)\n\nCommand(s): "
+    md = ("# Schedule feed-forward study (reduced run)\n\nCommand(s): "
           + "; ".join(f"`{c}`" for c in cmds) + f"\n\nSettings: {s}. Costs are held-out "
           "means over the tracking, powder and print scenarios (`jthermo.tune.evaluate`).\n\n"
-          + "\n".join(rows) + "\n")
+          + "\n".join(rows) + "\n\nClassical designs on the same held-out seeds "
+          "(cost): " + "; ".join(f"{fam}: " + ", ".join(
+              f"{k} {v:.4f}" for k, v in sorted(r.get("classical_costs", {}).items(),
+                                                key=lambda kv: kv[1]))
+              for fam, r in results.items()) + "\n")
     out.with_suffix(".md").write_text(md)
     print(md)
 

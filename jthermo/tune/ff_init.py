@@ -95,7 +95,7 @@ def init_schedule_ff(ctrl: ScheduleFF, printer: Printer, *, preview_s: float = P
     if nu != printer.n_inputs or nu != printer.zones:
         raise ControlError(f"init_schedule_ff: {nu} heaters in the controller, printer has "
                            f"{printer.n_inputs} inputs and {printer.zones} zones")
-    P = int(round(preview_s / printer.ts))
+    P = round(preview_s / printer.ts)
     R = event_responses(printer, L, preview=P)
     cols = [_shifted(R["G"][m], L) for m in range(nu)]
     g2 = float(np.mean(np.sum(R["G"] ** 2, axis=(1, 2))))
@@ -124,5 +124,5 @@ def init_schedule_ff(ctrl: ScheduleFF, printer: Printer, *, preview_s: float = P
         for i in range(nu):
             h_las[:, i] = fit(cols[i], R["laser"][i].reshape(-1))
     dt = ctrl.h_recoat.dtype
-    to = lambda h: jnp.asarray(h / ctrl.scale, dt)  # noqa: E731
+    to = lambda h: jnp.asarray(h / ctrl.scale, dt)
     return eqx.tree_at(lambda c: (c.h_recoat, c.h_laser), ctrl, (to(h_rec), to(h_las)))
