@@ -357,8 +357,9 @@ def _mf_impl(residual_fn, theta0, args, max_steps: int, cg_steps: int):
     phi, c, _, k, _ = jax.lax.while_loop(cond, body, init)
     # honest convergence: the (almost) undamped Gauss–Newton step from the result would lower
     # the cost by less than EXPECTED_IMPROVEMENT_TOL (`minimize`'s rule)
+    # (relative to the start's cost where the residual vanishes)
     delta, g = gn_step(phi, 1e-9)
-    improvement = -(g @ delta) / jnp.maximum(c, jnp.finfo(dtype).tiny)
+    improvement = -(g @ delta) / jnp.maximum(c, 1e-16 * c0 + jnp.finfo(dtype).tiny)
     return phi / d, c, k, improvement
 
 
