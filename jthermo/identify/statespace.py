@@ -7,6 +7,12 @@ simulation error (`focus="simulation"`, K = 0) with Levenberg–Marquardt
 (`jthermo.identify.pem.minimize`). The initial state is estimated with the other parameters.
 The returned model is stable (A's eigenvalues are projected inside the unit circle if the
 optimum lies outside it).
+
+Scale: when the dense Jacobians of all starts (T·ny × p each) would exceed
+`DENSE_JACOBIAN_BYTES` (at N = 16 zones: 96 000 residuals × ~800 parameters), the PEM runs
+from the first N4SID estimate alone with matrix-free Gauss–Newton
+(`jthermo.identify.pem.minimize_matrix_free`, at most `MATRIX_FREE_STEPS` steps; `converged`
+says whether the cap cut it short, and the covariance is NaN).
 """
 
 from __future__ import annotations
