@@ -348,8 +348,8 @@ def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
 
     est, val = _arx_csv(tmp_path / "est.csv"), _arx_csv(tmp_path / "val.csv", seed=1)
 
-    def fake(e, v, *, seed, progress):
-        assert e.n_outputs == 2 and seed == 7
+    def fake(e, v, *, seed, progress, actuator):
+        assert e.n_outputs == 2 and seed == 7 and actuator == "any"
         return {"verdict": "no_significant_mismatch", "baseline": {"model": "greybox", "mean_fit_percent": 90.0,
                                                                    "fit_percent": [90.0, 90.0]},
                 "findings": [], "augmented": None, "_arrays": np.zeros(3)}

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import ConfigError
-from .common import add_common, info, input_file, output_path
+from .common import add_common, info, input_file, output_path, write_report
 
 
 def add_parsers(sub) -> None:
@@ -37,6 +37,6 @@ def cmd_export(args: argparse.Namespace) -> dict:
     report = {"controller": str(args.controller), "type": type(ctrl).__name__, "kind": t["kind"],
               "schedule_feedforward": "feedforward" in t, "to": args.to, "files": files,
               "ts": t["ts"], "inputs": t["n"]}
-    io.write_json(js, report)
+    report = write_report(args, js, report)
     info(args, f"exported {report['type']} ({t['kind']}) to " + ", ".join(files))
     return report
