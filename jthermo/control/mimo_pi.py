@@ -39,6 +39,11 @@ class MIMOPI(AbstractController):
     u0: Float[Array, " nu"]         # input at zero integrator, power fraction
     mask: tuple | None = eqx.field(static=True, default=None)
     ts: float = eqx.field(static=True, default=1.0)
+    # the stored kp, ki are in units of these (1: plain gains); `rescaled` sets them to the
+    # gains' diagonal magnitude so that an optimiser step of order 1e-2 on a stored entry,
+    # diagonal or not, moves the loop by that fraction of the start's gains
+    kp_scale: float = eqx.field(static=True, default=1.0)
+    ki_scale: float = eqx.field(static=True, default=1.0)
 
     def __check_init__(self):
         n = self.u0.shape[0] if self.u0.ndim == 1 else -1
@@ -53,11 +58,22 @@ class MIMOPI(AbstractController):
         return int(self.u0.shape[0])
 
     def gains(self) -> tuple[Array, Array]:
-        """The effective `(Kp, Ki)` (masked)."""
+        """The effective `(Kp, Ki)` (masked, in plain units)."""
+        kp, ki = self.kp_scale * self.kp, self.ki_scale * self.ki
         if self.mask is None:
-            return self.kp, self.ki
+            return kp, ki
         m = jnp.asarray(self.mask, self.kp.dtype)
-        return self.kp * m, self.ki * m
+        return kp * m, ki * m
+
+    def rescaled(self) -> MIMOPI:
+        """The same controller with kp, ki stored in units of the mean magnitude of their
+        effective diagonals (`kp_scale`, `ki_scale`): what gradient tuning should start from,
+        as the off-diagonal entries start at 0 and cannot be tuned in log space."""
+        kp, ki = self.kp_scale * self.kp, self.ki_scale * self.ki
+        s_p = float(np.mean(np.abs(np.diag(np.asarray(kp))))) or 1.0
+        s_i = float(np.mean(np.abs(np.diag(np.asarray(ki))))) or 1.0
+        return MIMOPI(kp=kp / s_p, ki=ki / s_i, u0=self.u0, mask=self.mask, ts=self.ts,
+                      kp_scale=s_p, ki_scale=s_i)
 
     def init(self, y0: Output, r0: Setpoint) -> MIMOPIState:
         return MIMOPIState(integ=jnp.zeros_like(self.u0 + 0.0 * y0[:self.zones]))

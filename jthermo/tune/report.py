@@ -15,6 +15,7 @@ from ..closedloop import REALISTIC_EFFECTS, cost, make_scenario, metrics, rollou
 from ..control._base import AbstractController
 from ..control.design import design
 from ..control.margins import peak_sensitivity
+from ..control.mimo_pi import MIMOPI
 from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
@@ -89,6 +90,18 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
     if isinstance(plant, (Printer, AbstractModel)):
         return plant
     raise ControlError(f"tune: unsupported plant {type(plant).__name__}")
+
+
+def _rescaled(ctrl):
+    """A MIMO PI (alone or inside a schedule feed-forward) with its gain matrices stored in
+    units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
+    moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
+    against integral gains of order 1e-3 per sample destabilised the loop in one step."""
+    if isinstance(ctrl, MIMOPI):
+        return ctrl.rescaled()
+    if isinstance(ctrl, ScheduleFF) and isinstance(ctrl.feedback, MIMOPI):
+        return eqx.tree_at(lambda c: c.feedback, ctrl, ctrl.feedback.rescaled())
+    return ctrl
 
 
 #: the classical designs `best_classical` is taken over (from the same design model)
@@ -204,6 +217,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
         # schedule feed-forward taps from the printer's response to each event (`ff_init`)
         start = init_schedule_ff(start, pl)
+    start = _rescaled(start)
     lam_pi = design("pi_lambda", model)
     refs = [design(f, model) for f in references if f != controller_family]
     plants = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \

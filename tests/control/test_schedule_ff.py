@@ -98,12 +98,32 @@ def test_ff_init_cancels_most_of_the_events_open_loop():
     ctrl = init_schedule_ff(design("pi_ff", printer_model(pr), taps=30), pr, limit=0.3)
     h_rec, h_las = (np.asarray(h) for h in ctrl.effective_taps())
     assert np.max(np.abs(h_rec)) <= 0.3 + 1e-12 and np.max(np.abs(h_las)) <= 0.3 + 1e-12
-    R = event_responses(pr, 30, preview=int(round(PREVIEW_S / pr.ts)))
+    R = event_responses(pr, 30, preview=round(PREVIEW_S / pr.ts))
     cols = [_shifted(R["G"][m], 30) for m in range(2)]
     rec = R["recoat"].reshape(-1) + np.concatenate(cols, axis=1) @ h_rec.T.reshape(-1)
     las = R["laser"][0].reshape(-1) + cols[0] @ h_las[:, 0]
-    rms = lambda v: float(np.sqrt(np.mean(v ** 2)))  # noqa: E731
+    rms = lambda v: float(np.sqrt(np.mean(v ** 2)))
     assert rms(rec) < 0.5 * rms(R["recoat"])
     assert rms(las) < 0.8 * rms(R["laser"][0])
     with pytest.raises(ControlError):
         init_schedule_ff(design("pi_mimo", printer_model(pr)), pr)
+
+
+def test_rescaled_mimo_pi_is_the_same_loop():
+    """`MIMOPI.rescaled` (what `tune_report` tunes): gains stored in units of their diagonal,
+    the same effective gains and the same input, inside a schedule feed-forward too."""
+    from jthermo.tune.report import _rescaled
+
+    plant = bed_plant(N, seed=1)
+    c = design("pi_ff", plant, taps=L)
+    r = _rescaled(c)
+    fb = r.feedback
+    assert fb.kp_scale > 0 and fb.ki_scale > 0
+    np.testing.assert_allclose(np.abs(np.diag(np.asarray(fb.kp))).mean(), 1.0, rtol=1e-12)
+    for a, b in zip(c.feedback.gains(), fb.gains()):
+        np.testing.assert_allclose(a, b, rtol=1e-13)
+    y, ref = jnp.asarray(plant.y0) + 0.3, jnp.asarray(plant.y0)
+    s = jnp.ones(1 + N)
+    u1, _ = c.step_schedule(c.init(y, ref), y, ref, s)
+    u2, _ = r.step_schedule(r.init(y, ref), y, ref, s)
+    np.testing.assert_allclose(u1, u2, rtol=1e-13)
