@@ -3,11 +3,12 @@ feed-forward (`jthermo.tune.ff_init.init_schedule_ff`) cancels on the realistic 
 (PA12, plant seed 0, default taps and preview): rms and peak of the output deviation over the
 fit horizon without and with the feed-forward, for a recoat and for one exposed sample per zone.
 
-    .venv/bin/python experiments/ff_init_check.py
+    .venv/bin/python experiments/ff_init_check.py [--taps 40]
 
-Writes experiments/results/ff_init_check.json.
+Writes experiments/results/ff_init_check.json (default taps) or ff_init_check_taps<L>.json.
 """
 
+import argparse
 import json
 from pathlib import Path
 
@@ -26,9 +27,12 @@ from jthermo.tune.report import printer_model
 HERE = Path(__file__).resolve().parent
 
 
-def main():
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--taps", type=int, default=None)
+    args = ap.parse_args(argv)
     pr = make_printer(4, REALISTIC_EFFECTS, powder="PA12", seed=0)
-    ctrl = design("pi_ff", printer_model(pr))
+    ctrl = design("pi_ff", printer_model(pr), **({} if args.taps is None else {"taps": args.taps}))
     L, P = ctrl.taps, round(PREVIEW_S / pr.ts)
     R = ff_init.event_responses(pr, L, preview=P)
     h_rec, h_las = (np.asarray(h) for h in ff_init.init_schedule_ff(ctrl, pr).effective_taps())
@@ -44,7 +48,8 @@ def main():
         las = R["laser"][i].reshape(-1) + cols[i] @ h_las[:, i]
         out["laser"].append({"zone": i, "rms_without": rms(R["laser"][i]), "rms_with": rms(las)})
     out["max_abs_tap"] = float(max(np.max(np.abs(h_rec)), np.max(np.abs(h_las))))
-    path = HERE / "results" / "ff_init_check.json"
+    path = HERE / "results" / ("ff_init_check.json" if args.taps is None
+                                else f"ff_init_check_taps{args.taps}.json")
     path.write_text(json.dumps(out, indent=1) + "\n")
     print(json.dumps(out, indent=1))
 
