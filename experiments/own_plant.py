@@ -110,6 +110,16 @@ def device_study(name, spec, steps, rollouts, seed):
             "tracking_improvement_percent": gain, "failed": failed,
             "accept_20_percent": bool(gain >= 20.0),
             "overshoot_C": table[tuned]["overshoot_C"],
+            "tracking_floor_mse": first["validation"]["tracking_floor_mse"],
+            "max_attainable_percent": None if first["validation"]["tracking_floor_mse"] is None
+            else 100.0 * (1.0 - first["validation"]["tracking_floor_mse"]
+                          / table[best]["tracking_mse"]),
+            "tuning": {label: {"moved": res["moved"], "guard": res["guard"],
+                               "guard_candidates": res["guard_candidates"],
+                               "train_start_cost": res["train_start_cost"],
+                               "train_tuned_cost": res["train_tuned_cost"],
+                               "history_min": min(res["history"]) if res["history"] else None}
+                       for label, res in runs.items()},
             "tuned_gains": {label: {k: np.asarray(getattr(c, k)).tolist()
                                     for k in ("kp", "ti", "td") if hasattr(c, k)}
                             for label, c in ctrls.items()},
@@ -158,7 +168,23 @@ def markdown(results, args) -> str:
                   f"**{r['best_tuned']}**, {r['tracking_improvement_percent']:.1f} % below it "
                   f"(acceptance ≥ 20 %: {'met' if r['accept_20_percent'] else 'NOT met'}); its "
                   f"overshoot {r['overshoot_C']:.3g} °C", ""]
-        lines += [f"- {label} failed: {why}" for label, why in r["failed"].items()] + [""]
+        if r.get("tracking_floor_mse") is not None:
+            lines += [(f"- tracking-MSE floor on the evaluation plant (every heater at full "
+                       f"power until the set point, zero error after; `tune.own.tracking_floor`):"
+                       f" {r['tracking_floor_mse']:.4g} °C², so no controller within the input "
+                       f"limits can be more than {r['max_attainable_percent']:.1f} % below "
+                       f"{r['best_classical']} here"), ""]
+        for label, t in r.get("tuning", {}).items():
+            g = t["guard"]
+            worst = min((c["mse_ratio_worst"] for c in (t["guard_candidates"] or [])
+                         if c["iteration"] != 0), default=float("nan"))
+            lines.append(f"- {label}: training objective {t['train_start_cost']:.3g} -> best "
+                         f"{t['history_min']:.3g}; guard {'passed' if g.get('passed') else 'FAILED'}"
+                         f" (chosen iteration {g.get('chosen')}, margin {g.get('margin')}; best "
+                         f"worst-item mse ratio of a moved iterate {worst:.4f}); gains "
+                         f"{'moved' if t['moved'] else 'NOT moved (the start kept)'}: "
+                         f"{r['tuned_gains'][label]}")
+        lines += [""] + [f"- {label} failed: {why}" for label, why in r["failed"].items()] + [""]
     return "\n".join(lines) + "\n"
 
 

@@ -4,17 +4,19 @@ beyond reach are one-line errors; model files written before envelopes still loa
 
 from __future__ import annotations
 
+import equinox as eqx
 import numpy as np
 import pytest
 
 from jthermo import io
-from jthermo.closedloop import make_scenario, model_scenario, run
+from jthermo.closedloop import make_scenario, model_scenario, run, simulate
 from jthermo.control.design import design
 from jthermo.data import IOData
 from jthermo.errors import ConfigError, ControlError
 from jthermo.identify import fit
 from jthermo.models import Envelope, equilibrium_input
-from jthermo.tune import judge, tune_own_plant
+from jthermo.tune import judge, tune, tune_own_plant
+from jthermo.tune.own import tracking_floor
 
 TS, K, TAU, DELAY, REST = 0.5, 80.0, 20.0, 2, 25.0
 
@@ -88,6 +90,11 @@ def test_fit_design_tune_simulate_end_to_end(fitted):
     assert set(rep["saturated_fraction"]) == {"tracking", "load", "preheat"}
     assert all(0.0 <= v < 0.9 for v in rep["saturated_fraction"].values())
     assert rep["validation"]["verdict"] == "settled"
+    # what the tuning did is reported: whether the gains moved, and the heaters' floor
+    assert isinstance(rep["moved"], bool) and "passed" in rep["guard"]
+    assert 0.0 < rep["tracking_floor_mse"] <= rep["scenarios"]["tuned"]["tracking"]["mse"]
+    assert 0.0 < rep["validation"]["tracking_floor_mse"] <= min(
+        v["tracking"]["mse"] for v in rep["validation"]["scenarios"].values())
     out = run("tracking", rep["tuned"], other, rollouts=2, duration=200.0,
               scenario_kw={"envelope": env, "setpoint": 65.0})
     assert out["setpoints"] == [65.0] and out["ts"] == TS
@@ -124,3 +131,22 @@ def test_fit_result_prints_a_readable_summary():
     gain = float(text.split("DC gain (°C per input): [[")[1].split("]]")[0])
     assert gain == pytest.approx(K, rel=0.02)
     assert "poles (3, z-plane, Ts 0.5 s)" in text
+
+
+def test_tuning_moves_a_detuned_pid(fitted):
+    """The gradient reaches the PID's gains through its clip and conditional integration: from
+    a Ziegler–Nichols PID detuned to a quarter of its gain, tuning on the tracking step lowers
+    the cost and raises the gain; no classical-level loop beats the full-power floor."""
+    model, env = fitted
+    kw = {"envelope": env, "setpoint": 65.0}
+    zn = design("pid_relay", model, setpoint=65.0)
+    slow = eqx.tree_at(lambda c: c.kp, zn, zn.kp / 4)
+    res = tune(slow, model, kind="tracking", rollouts=2, steps=15, lr=0.1, duration=150.0,
+               guard=False, normalise=False, scenario_kw=kw)
+    assert res.tuned_cost < 0.9 * res.start_cost
+    assert float(res.controller.kp[0]) > 1.2 * float(slow.kp[0])
+    sc = model_scenario("tracking", model, 150.0, 0, **kw)
+    floor = tracking_floor(model, env, 65.0, 150.0, 0)
+    for c in (zn, slow, res.controller):
+        e = np.asarray(simulate(model, c, sc).y) - np.asarray(sc.r)
+        assert 0.0 < floor <= float(np.mean(e ** 2))

@@ -9,10 +9,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
+import equinox as eqx
+import jax
 import numpy as np
 
-from ..closedloop import model_duration
+from ..closedloop import model_duration, model_scenario, simulate
 from ..control.design import design
+from ..control.relay import DiagonalPID
 from ..errors import ConfigError, ControlError
 from ..models._base import AbstractModel
 from ..models.envelope import Envelope, check_reachable
@@ -63,6 +66,27 @@ def judge(scenarios: dict, duration: float, who: str = "tuned") -> str | None:
             return (f"the {who} loop does not settle within ±window in `{kind}` "
                     f"({duration:g} s run, MSE {m['mse']:.3g} °C²)")
     return None
+
+
+def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0
+                   ) -> float | None:
+    """Lower bound of the tracking step's MSE (°C²) on `plant` for any controller within the
+    input limits: every heater at full power from the start, the error counted only until
+    each output first reaches its set point and taken as zero afterwards. Valid for a plant
+    whose heaters only heat (non-negative step responses, as a heater's fit has); a step that
+    full power does not complete within the run counts in full. None for a non-square plant.
+    No tuning can bring the tracking MSE below this: an acceptance asking for less is out of
+    reach of the heaters, not of the tuner."""
+    if int(plant.n_inputs) != int(plant.n_outputs):
+        return None
+    sc = model_scenario("tracking", plant, duration, seed, envelope=envelope, setpoint=setpoint)
+    n = int(plant.n_outputs)
+    full = DiagonalPID(np.zeros(n), np.full(n, 1e12), np.zeros(n),
+                       np.asarray(envelope.u_max, np.float64)[:n], ts=float(plant.ts))
+    tr = simulate(plant, full, sc)
+    e = np.asarray(tr.y) - np.asarray(tr.r)
+    before = np.cumsum(e >= 0.0, axis=0) == 0         # not yet at the set point
+    return float(np.sum(np.where(before, e, 0.0) ** 2) / e.size)
 
 
 def _evaluate_all(ctrls, plant, seeds, rollouts, duration, weights, kw) -> dict:
@@ -147,6 +171,11 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
            "scenarios": held, "validation": None,
            "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
            "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
+           "guard_candidates": (res.guard or {}).get("candidates"),
+           "moved": not all(np.allclose(np.asarray(a), np.asarray(b)) for a, b in zip(
+               jax.tree_util.tree_leaves(eqx.filter(start, eqx.is_inexact_array)),
+               jax.tree_util.tree_leaves(eqx.filter(res.controller, eqx.is_inexact_array)))),
+           "tracking_floor_mse": tracking_floor(plant, env, r, duration, seeds[0]),
            "history": [float(h) for h in res.history], "rollouts": int(rollouts),
            "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds)}
     if validation_plant is not None:
@@ -157,10 +186,12 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
                                                duration) or "settled",
             "best_classical": vbest,
             "improvement_vs_best_classical_percent":
-                100.0 * (1.0 - val["tuned"]["cost"] / val[vbest]["cost"]) if vbest else None}
+                100.0 * (1.0 - val["tuned"]["cost"] / val[vbest]["cost"]) if vbest else None,
+            "tracking_floor_mse": tracking_floor(validation_plant, env, r, duration, seeds[0])}
     out["seconds"] = time.perf_counter() - t0
     out["tuned"] = res.controller
     return out
 
 
-__all__ = ["MAX_SATURATED", "OWN_SCENARIOS", "classical_at", "judge", "tune_own_plant"]
+__all__ = ["MAX_SATURATED", "OWN_SCENARIOS", "classical_at", "judge", "tracking_floor",
+           "tune_own_plant"]
