@@ -51,9 +51,9 @@ def main():
     lqg = run(design("lqg", fd.model, setpoint=r))
     floor = tracking_floor(fe.model, env, r, dur, HELD_OUT)
     lines = ["# Hot-end: hand-moved Ziegler–Nichols PID near the full-power floor", "",
-             "`python experiments/own_plant_probe.py`: tracking step on the evaluation plant "
-             f"(seed {HELD_OUT}, one rollout). Floor {floor:.4g} °C²; LQG MSE {lqg[0]:.4g} °C², "
-             f"overshoot {lqg[1]:.3g} °C.", "",
+             ("`python experiments/own_plant_probe.py`: tracking step on the evaluation plant "
+              f"(seed {HELD_OUT}, one rollout). Floor {floor:.4g} °C²; LQG MSE {lqg[0]:.4g} °C², "
+              f"overshoot {lqg[1]:.3g} °C."), "",
              "| kp × | ti × | td × | tracking MSE (°C²) | vs LQG (%) | overshoot (°C) |",
              "|---|---|---|---|---|---|"]
     for kf, tif, tdf in itertools.product((1.0, 2.0, 4.0), (1.0, 3.0), (1.0, 2.0, 4.0)):
