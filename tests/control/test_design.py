@@ -197,6 +197,7 @@ def test_family_aliases():
     from jthermo.control.design import ALIASES, canonical_family
 
     assert canonical_family("PI") == "pi_lambda" and canonical_family("lqg") == "lqg"
+    assert canonical_family("PID") == "pid_relay"
     assert all(v in FAMILIES for v in ALIASES.values())
     with pytest.raises(ControlError, match="unknown controller family"):
-        design("pid", bed_plant())
+        design("pid_autotune", bed_plant())
