@@ -96,7 +96,9 @@ def _rescaled(ctrl):
     """A MIMO PI (alone or inside a schedule feed-forward) with its gain matrices stored in
     units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
     moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
-    against integral gains of order 1e-3 per sample destabilised the loop in one step."""
+    against integral gains per sample far below that destabilised the loop in one step (on the
+    4-zone printer: training objective 0 -> 19 after the first Adam step,
+    experiments/results/schedule_ff_study_ff_init.json)."""
     if isinstance(ctrl, MIMOPI):
         return ctrl.rescaled()
     if isinstance(ctrl, ScheduleFF) and isinstance(ctrl.feedback, MIMOPI):
