@@ -28,7 +28,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import DataError
+from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
 from . import decide as D
 from . import mechanisms as M
@@ -177,6 +177,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         raise DataError(f"diagnose: unknown actuator `{actuator}` (known: {', '.join(ACTUATORS)})")
     if est.n_outputs < 2:
         mechanisms = tuple(m for m in mechanisms if m not in NEEDS_NEIGHBOURS)
+    if not mechanisms:
+        raise ConfigError("diagnose: no candidate mechanism left to try (neighbour mechanisms "
+                          "need at least two zones)")
     step = [0]
     total = 6
 

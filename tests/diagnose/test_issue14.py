@@ -121,3 +121,14 @@ def test_real_recordings_do_not_crash(pair):
     res = diagnose(est, val)
     assert res["verdict"] in ("mismatch", "no_significant_mismatch")
     assert np.isfinite(res["baseline"]["mean_fit_percent"])
+
+
+def test_no_candidate_left_is_a_one_line_error():
+    from jthermo.errors import ConfigError
+
+    rng = np.random.default_rng(0)
+    rec = [from_arrays(rng.uniform(0, 1, (120, 1)), 30 + rng.normal(0, 0.1, (120, 1)))
+           for _ in range(2)]
+    for mechanisms in ((), ("lateral_conduction",)):   # a one-zone record has no neighbour
+        with pytest.raises(ConfigError, match="no candidate mechanism"):
+            diagnose(*rec, mechanisms=mechanisms)
