@@ -38,7 +38,9 @@ ENV_OFF = "JTHERMO_NO_CACHE"
 #: Cache every compile, however short: the default (1 s) skips almost all of jthermo's.
 MIN_COMPILE_SECONDS = 0.0
 #: Bound of the cache directory; least recently used entries are evicted beyond it. A bound is
-#: what makes JAX lock the directory during reads and writes (safe between processes).
+#: what makes JAX lock the directory during reads and writes (safe between processes); its
+#: price is that JAX scans every entry on each write, so a write costs time in proportion to the
+#: number of entries (the test suite keeps its own directory, `tests/conftest.py`).
 MAX_CACHE_BYTES = 4 * 1024**3
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).

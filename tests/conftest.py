@@ -8,12 +8,15 @@ import pytest  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 # Compiled code is shared across tests, xdist workers and runs through the persistent
-# compilation cache (the same directory as the `jthermo` command: $JTHERMO_CACHE_DIR, else
-# $XDG_CACHE_HOME/jthermo/jax, else ~/.cache/jthermo/jax; JTHERMO_NO_CACHE=1 switches it off).
-# Set before the first compile: JAX opens the cache once per process.
+# compilation cache: $JTHERMO_CACHE_DIR when set, else a `jax-tests` directory beside the
+# command's own cache ($XDG_CACHE_HOME/jthermo/jax-tests, else ~/.cache/jthermo/jax-tests), so
+# the suite's ~10^4 entries do not slow the user's cache (JAX scans every entry of a bounded
+# cache on each write); JTHERMO_NO_CACHE=1 switches it off. Set before the first compile: JAX
+# opens the cache once per process.
 from jthermo import runtime  # noqa: E402
 
-runtime.enable_cache()
+runtime.enable_cache(None if os.environ.get(runtime.ENV_DIR)
+                     else runtime.default_cache_dir().with_name("jax-tests"))
 
 
 @pytest.fixture
