@@ -46,3 +46,7 @@ def test_best_classical_is_the_cheapest_design_on_the_same_seeds(monkeypatch):
     assert set(rb["ms"]) == {"tuned", "start", "best_classical"}
     assert all(1.0 <= m < 2.0 for m in rb["ms"].values()) and all(rb["stable"].values())
     assert rb["gain_plus_20_cost"]["tuned"] == 0.5 and rb["gain_minus_20_cost"]["best_classical"] == 0.8
+    # no guard record from the (fake) tuning: the returned loop is judged against ms_max
+    msc = rep["ms_constraint"]
+    assert msc["ms_max"] == 2.0 and msc["satisfied"] is True
+    assert np.isclose(msc["chosen_ms"], rb["ms"]["tuned"])

@@ -21,7 +21,7 @@ from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
 from .ff_init import init_schedule_ff
-from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, plant_ensemble, tune
+from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, loop_ms, plant_ensemble, tune
 
 
 @eqx.filter_jit
@@ -184,6 +184,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
                 check_robustness: bool = True, ff_init: bool = True,
+                ms_max: float | None = 2.0,
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -200,13 +201,18 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     classical loops on `model` and their cost at ±20 % heater gain (`robustness`). With
     `ff_init`, a schedule feed-forward family on a `Printer` starts with its taps at the
     least-squares inverse of each event's effect (`ff_init.init_schedule_ff`), not at zero.
+    With `ms_max` (None: off), the guard returns only an iterate whose peak sensitivity on
+    `model` is at most `ms_max` (else the start design), for the families `peak_sensitivity`
+    covers; others are tuned unconstrained and reported with `computable: False`.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
     `best_classical_cost`, `improvement_vs_best_classical_percent`, `classical_costs`,
     `robustness` (`{"ms", "stable", "gain_plus_20_cost", "gain_minus_20_cost"}`), `scenarios`
     (per-scenario MSE and cost before/after, and of the lambda PI), `changed_powder` (the same
-    figures on the other powder, or None), `history`, `seconds`, and
+    figures on the other powder, or None), `ms_constraint` (`{"ms_max", "chosen_ms",
+    "satisfied", "computable", "rejected_for_ms"}`, None when `ms_max` is None), `history`,
+    `seconds`, and
     the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
     """
     t0 = time.perf_counter()
@@ -225,7 +231,13 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     plants = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
         ensemble else [pl]
     res = tune(start, pl, plants=plants, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
-               duration=duration, weights=weights, references=refs, progress=progress)
+               duration=duration, weights=weights, references=refs, progress=progress,
+               ms_max=ms_max, ms_model=model)
+    ms_c = (res.guard or {}).get("ms_constraint")
+    if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
+        ms = loop_ms(model, res.controller)
+        ms_c = {"ms_max": float(ms_max), "chosen_ms": ms, "computable": ms is not None,
+                "satisfied": None if ms is None else bool(ms <= ms_max), "rejected_for_ms": []}
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
     ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi}
@@ -244,7 +256,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                              **({} if best is None else {"best_classical": best})},
                             pl, model, seeds, rollouts=er, duration=duration, weights=weights)
     return {"controller": controller_family, **held,
-            "changed_powder": changed, "robustness": robust,
+            "changed_powder": changed, "robustness": robust, "ms_constraint": ms_c,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
             "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
             "ensemble": len(plants),

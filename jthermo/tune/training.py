@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from ..closedloop import KINDS, make_scenario
 from ..control._base import AbstractController
+from ..control.margins import peak_sensitivity
 from ..errors import ControlError
 from ..printer import Printer
 from .optimiser import TuneResult, minimise
@@ -122,11 +123,23 @@ def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float 
     return out
 
 
-def _guard(candidates, refs, start, batch, weights, margin, tau):
+def loop_ms(model, controller) -> float | None:
+    """Peak sensitivity $M_s$ of `controller` on the linear `model` (`inf` for an unstable
+    loop), or None where `peak_sensitivity` has no linear feedback form for it."""
+    try:
+        m = peak_sensitivity(model, controller)
+    except ControlError:
+        return None
+    return float(m["ms"]) if m["stable"] else float("inf")
+
+
+def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms_model=None):
     """Pick among `candidates` the one with the lowest robust objective on the validation
     `batch` that beats every reference on mse (by `margin`) in every item (plant × scenario)
     and does not raise the total cost above the start's; relax the margin to 0, then fall back
-    to `start`."""
+    to `start`. With `ms_max` and `ms_model`, a candidate must also keep its peak sensitivity
+    on `ms_model` at or below `ms_max` (`loop_ms`; unconstrained where it cannot be computed),
+    reported as `ms_constraint`."""
     _, best = _reference_terms(refs, batch, weights)
     start_vals = np.asarray(batch_terms(start, batch, weights))
     rows = []
@@ -137,18 +150,30 @@ def _guard(candidates, refs, start, batch, weights, margin, tau):
         rows.append({"iteration": int(it), "objective": obj,
                      "mse_ratio_worst": float(np.max(v[:, 1] / best[:, 1])) if ok else np.inf,
                      "cost_ratio": float(np.sum(v[:, 0]) / np.sum(start_vals[:, 0])) if ok
-                     else np.inf})
+                     else np.inf,
+                     "ms": loop_ms(ms_model, c) if ok and ms_max is not None
+                     and ms_model is not None else None})
+
+    def ms_ok(r):
+        return ms_max is None or r["ms"] is None or r["ms"] <= ms_max
+
     chosen, level = None, None
     for m in (margin, 0.0):
         ok = [i for i, r in enumerate(rows)
               if (r["mse_ratio_worst"] <= 1.0 - m if m > 0 else r["mse_ratio_worst"] < 1.0)
-              and r["cost_ratio"] <= 1.0]
+              and r["cost_ratio"] <= 1.0 and ms_ok(r)]
         if ok:
             chosen, level = min(ok, key=lambda i: rows[i]["objective"]), m
             break
     info = {"candidates": rows, "chosen": None if chosen is None else rows[chosen]["iteration"],
             "margin": level, "passed": chosen is not None,
             "reference_mse": best[:, 1].tolist(), "reference_cost": best[:, 0].tolist()}
+    if ms_max is not None and ms_model is not None:
+        ms = rows[chosen]["ms"] if chosen is not None else loop_ms(ms_model, start)
+        info["ms_constraint"] = {
+            "ms_max": float(ms_max), "chosen_ms": ms, "computable": ms is not None,
+            "satisfied": None if ms is None else bool(ms <= ms_max),
+            "rejected_for_ms": [r["iteration"] for r in rows if not ms_ok(r)]}
     return (start if chosen is None else candidates[chosen][2]), info
 
 
@@ -174,6 +199,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          duration: float = DURATION, n_batches: int = 1, normalise: bool = True,
          references: Sequence[AbstractController] = (), guard: bool = True,
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
+         ms_max: float | None = None, ms_model=None,
          params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
@@ -199,6 +225,10 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       guard's batch (a list of `(plant, kind, scenarios)`); default fresh draws from
       `seed + VALIDATION`, or the first training batch when `scenarios` are given. `tau`:
       softness of the maximum over the relative mse.
+    - `ms_max`, `ms_model`: the guard also rejects an iterate whose peak sensitivity $M_s$ on
+      the linear `ms_model` exceeds `ms_max` (or whose loop there is unstable); families with
+      no linear feedback form (`peak_sensitivity` raises) are not constrained. Reported in
+      `guard["ms_constraint"]` (`ms_max`, `chosen_ms`, `satisfied`, `rejected_for_ms`).
     - `params`: names of the controller fields to tune (e.g. `("q1", "q2", "qi", "qw", "b0",
       "tau_r")` for an LQG: its weights, not its design model or operating point); default
       every array leaf.
@@ -243,7 +273,8 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
                                        seed=int(seed) + VALIDATION,
                                        scenario_kw=scenario_kw)[0])
-    chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau)
+    chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau,
+                          ms_max=ms_max, ms_model=ms_model)
     info["seconds"] = time.perf_counter() - t0
     idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]
     tuned_cost = res.snapshots[idx[0]][1] if idx else res.start_cost
