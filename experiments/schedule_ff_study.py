@@ -89,6 +89,15 @@ def main(argv=None):
               f"{k} {v:.4f}" for k, v in sorted(r.get("classical_costs", {}).items(),
                                                 key=lambda kv: kv[1]))
               for fam, r in results.items()) + "\n")
+    msc = {fam: r["ms_constraint"] for fam, r in results.items() if r.get("ms_constraint")}
+    if msc:
+        # the guard's peak-sensitivity constraint (tune_report ms_max), where recorded
+        md += ("\nMs constraint (guard keeps only iterates with Ms ≤ ms_max on the design "
+               "model): " + "; ".join(
+                   f"{fam}: ms_max {m['ms_max']}, chosen Ms "
+                   f"{float('nan') if m['chosen_ms'] is None else m['chosen_ms']:.3f}, "
+                   f"satisfied {m['satisfied']}, iterations rejected for Ms "
+                   f"{m.get('rejected_for_ms', [])}" for fam, m in msc.items()) + "\n")
     out.with_suffix(".md").write_text(md)
     print(md)
 
