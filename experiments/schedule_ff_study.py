@@ -23,7 +23,6 @@ jax.config.update("jax_enable_x64", True)
 from jthermo.io import jsonable
 from jthermo.tune import tune_report
 
-HERE = Path(__file__).resolve().parent
 
 
 def main(argv=None):
@@ -42,7 +41,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--table-only", action="store_true",
                     help="only rewrite the Markdown table from the JSON at --out")
-    ap.add_argument("--out", default=str(HERE / "results" / "schedule_ff_study.json"))
+    ap.add_argument("--out", default="experiments/results/schedule_ff_study.json")
     args = ap.parse_args(argv)
     out = Path(args.out)
     results = json.loads(out.read_text()) if out.exists() else {}
