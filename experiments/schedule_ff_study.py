@@ -24,7 +24,6 @@ from jthermo.io import jsonable
 from jthermo.tune import tune_report
 
 
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--families", default="pi_ff,lqg_ff")
