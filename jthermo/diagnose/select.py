@@ -464,6 +464,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     }
     # arrays for the report (not JSON): dropped by `to_json`
     result["_arrays"] = {"yhat_baseline": yhat_v[0], "yhat_augmented": aug_yhat, "resid_est": R_e}
+    # the fitted single-mechanism models and what simulating them needs (`experiment.py`)
+    result["_models"] = {"theta": {"baseline": thb, **{m: thc[k] for k, m in enumerate(cands)}},
+                         "layout": lay, "level": level, "ts_free": ts_free, "t_ref": t_ref,
+                         "delay": best_delay, "measured_ambient": measured_var, "period": P,
+                         "zone_phase": per_ev.get("zone_phase"), "inputs_left_out": dropped}
     tick({"stage": "done"})
     return result
 
