@@ -9,6 +9,7 @@ from pathlib import Path
 from ..errors import ConfigError
 from .common import (
     add_common,
+    distinct_outputs,
     info,
     load_data,
     output_path,
@@ -27,16 +28,25 @@ def add_parsers(sub) -> None:
     sp.add_argument("--report", metavar="DIR", help="write a Markdown report with figures")
     sp.add_argument("--actuator", default="any", choices=("any", "resistive-pwm"),
                     help="declared actuator: findings that contradict it are flagged, not named")
+    sp.add_argument("--design-experiment", metavar="OUT.csv",
+                    help="write the input that best separates the rival explanations (data format)")
+    sp.add_argument("--design-duration", type=float, metavar="S",
+                    help="designed record's length in s (default: the estimation record's)")
+    sp.add_argument("--design-hold", type=float, default=10.0, metavar="S",
+                    help="designed input's minimum switching time in s (default 10)")
     add_common(sp, plot=False)
 
 
 def cmd_diagnose(args: argparse.Namespace) -> dict:
     js = output_path(args.json, "--json")
+    design = output_path(args.design_experiment, "--design-experiment")
+    distinct_outputs(js, design)
     if args.report is not None and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f"--report {args.report}: exists and is not a directory")
     est = load_data(args.data, "estimation data")
     val = load_data(args.validation, "validation data")
     same_layout(est, val)
+    sizes = _design_samples(args, float(est.ts)) if design is not None else None
     diag = require("jthermo.diagnose", "diagnosis")
     if not hasattr(diag, "diagnose"):
         raise ConfigError("diagnosis is not available in this jthermo build")
@@ -50,6 +60,8 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
         bar.close()
     result = dict(result)
     result.setdefault("seconds", time.perf_counter() - t0)
+    if design is not None:
+        result["experiment"] = _design(result, est, val, args, design, *sizes)
     if args.report is not None:
         written = diag.write_report(result, args.report, est, val)
         result["report"] = str(written) if written is not None else str(Path(args.report) / "report.md")
@@ -60,3 +72,25 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     names = [f.get("mechanism") for f in result.get("findings", [])]
     info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))
     return result
+
+
+def _design_samples(args, ts: float) -> tuple[int | None, int]:
+    """(duration, hold) of the designed record in samples, from the options in s."""
+    for what, v in (("--design-duration", args.design_duration), ("--design-hold", args.design_hold)):
+        if v is not None and not v > 0:
+            raise ConfigError(f"{what} must be positive, got {v:g}")
+    duration = None if args.design_duration is None else max(1, round(args.design_duration / ts))
+    return duration, max(1, round(args.design_hold / ts))
+
+
+def _design(result, est, val, args, path, duration, hold) -> dict:
+    """Design the separating experiment, write it as a record, return its JSON summary."""
+    from ..data import save_csv
+    from ..diagnose import experiment
+
+    d = experiment.design_experiment(result, est, val, duration=duration, hold=hold, seed=args.seed)
+    save_csv(d["record"], path)
+    js = experiment.to_json(d, path)
+    info(args, f"designed experiment ({js['why']}): {js['rivals'][0]} vs {js['rivals'][1]}, separation "
+               f"{js['separation_designed']:.3g} (PRBS {js['separation_prbs']:.3g}), wrote {path}")
+    return js

@@ -109,6 +109,14 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
         if result["findings"][0].get("rivals"):
             lines += ["Within the test's resolution of the top finding (rivals): "
                       + ", ".join(f"`{m}`" for m in result["findings"][0]["rivals"]) + ".", ""]
+    exp = result.get("experiment")
+    if exp:
+        lines += ["## Next experiment", "",
+                  (f"Designed to separate `{exp['rivals'][0]}` from `{exp['rivals'][1]}` ({exp['why']}): "
+                   f"{exp['duration_s']:g} s within inputs {exp['limits']['u_min']}–{exp['limits']['u_max']}, "
+                   f"expected separation {exp['separation_designed']:.3g} noise units against "
+                   f"{exp['separation_prbs']:.3g} for a PRBS of the same length"
+                   + (f"; written to `{exp['path']}`." if exp.get("path") else ".")), ""]
     for f in result.get("flagged", []):
         lines += [f"Flagged, not named: `{f['mechanism']}` improves the fit, but {f['reason']}.", ""]
     if not result["findings"]:

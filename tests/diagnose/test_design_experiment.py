@@ -1,0 +1,135 @@
+"""The designed experiment (`jthermo.diagnose.experiment`) and `jthermo diagnose --design-experiment`.
+
+Two hand-built one-zone models (lamp lag 4 s, dead time 3 s) stand in for the diagnosis' fitted
+rivals, so every test runs without a diagnosis fit.
+"""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jthermo import cli
+from jthermo.data import from_arrays, load_csv, save_csv
+from jthermo.diagnose import experiment as X
+from jthermo.diagnose import mechanisms as M
+from jthermo.errors import ConfigError
+
+pytestmark = pytest.mark.filterwarnings("ignore")
+
+T = 120
+TS = 145.0                          # °C surroundings
+A_RATE, B_GAIN = 1.0 / 60.0, 0.97   # 1/s, °C/s per unit input: about 29 K above TS at u = 0.5
+
+
+def _theta(lay, **mech):
+    th = M.initial_theta(lay, log_a=math.log(A_RATE), log_b=[math.log(B_GAIN)], x0=TS + 29.0)
+    for k, v in mech.items():
+        th[lay.sl(k)] = v
+    return th[None, :]
+
+
+def _result(rivals=("input_delay",), top="heater_lag"):
+    lay = M.make_layout(1, 1, M.n_drift_knots(T, 1.0))
+    models = {"theta": {"baseline": _theta(lay), "heater_lag": _theta(lay, log_tauh=math.log(4.0)),
+                        "input_delay": _theta(lay)},
+              "layout": lay, "level": TS, "ts_free": 0.0, "t_ref": TS + 29.0, "delay": 3.0,
+              "measured_ambient": False, "period": 0, "zone_phase": [0], "inputs_left_out": []}
+    return {"findings": [{"mechanism": top, "rivals": list(rivals)}], "candidates": [],
+            "_models": models, "_arrays": {"yhat_augmented": np.full((T, 1), TS + 29.0)}}
+
+
+def _records(seed=0):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.choice([0.3, 0.7], size=(T // 10, 1)), 10, axis=0)
+    y = TS + 29.0 + 0.05 * rng.standard_normal((T, 1))
+    return from_arrays(u, y, 1.0), from_arrays(u[::-1], y, 1.0)
+
+
+def test_separation_gradient_matches_central_differences():
+    res = _result()
+    hold = 5
+    ctx = X.pair_context(res["_models"], ("heater_lag", "input_delay"), T, 1.0, np.array([0.5]),
+                         np.array([TS + 29.0]))
+    Q = jnp.asarray(X.nuisance_basis(T, 1.0, drift=False))
+    lo, hi, sig = jnp.array([0.3]), jnp.array([0.7]), jnp.array([0.05])
+    f = lambda z: X.separation(X.squash(z, lo, hi, hold, T), ctx, Q, sig)
+    z = jnp.asarray(np.random.default_rng(3).normal(size=(T // hold, 1)))
+    g = np.asarray(jax.grad(f)(z))
+    eps = 1e-6
+    for idx in [(0, 0), (7, 0), (15, 0), (23, 0)]:
+        dz = jnp.zeros_like(z).at[idx].set(eps)
+        fd = (float(f(z + dz)) - float(f(z - dz))) / (2 * eps)
+        assert abs(g[idx] - fd) <= 1e-5 * max(1.0, np.max(np.abs(g)))
+    assert np.max(np.abs(g)) > 0
+
+
+def test_nuisance_projection_removes_constant_and_drift():
+    Q = X.nuisance_basis(900, 1.0, drift=True)
+    t = np.arange(900.0)
+    d = 2.0 + 0.01 * t                        # an offset and a ramp: a drift absorbs both
+    assert np.allclose(d - Q @ (Q.T @ d), 0.0, atol=1e-9)
+    Q0 = X.nuisance_basis(900, 1.0, drift=False)
+    assert np.allclose(Q0.T @ Q0, np.eye(Q0.shape[1]))
+    assert np.linalg.norm(d - Q0 @ (Q0.T @ d)) > 1.0
+
+
+def test_design_beats_its_prbs_within_limits_and_is_deterministic():
+    est, val = _records()
+    d1 = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    d2 = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    u = d1["u"]
+    assert u.shape == (T, 1) and np.array_equal(u, d2["u"])
+    assert np.all(u >= 0.3 - 1e-12) and np.all(u <= 0.7 + 1e-12)
+    assert np.all(u.reshape(-1, 5)[:, :1] == u.reshape(-1, 5))          # held over 5 samples
+    assert d1["separation_designed"] > d1["separation_prbs"] > 0
+    assert d1["rivals"] == ["heater_lag", "input_delay"]
+    js = X.to_json(d1, "x.csv")
+    assert js["separation_ratio"] > 1 and js["path"] == "x.csv" and json.dumps(js)
+
+
+def test_no_rival_designs_against_the_baseline_and_says_so():
+    assert X.rival_pair(_result(rivals=()))[1:] == ("baseline", "no rival: the top finding against the baseline")
+    nothing = {"findings": [], "candidates": [{"mechanism": "heater_lag", "val_reduction": 0.01},
+                                              {"mechanism": "input_delay", "val_reduction": 0.02}]}
+    assert X.rival_pair(nothing)[:2] == ("input_delay", "baseline")
+
+
+def test_bad_arguments_are_one_line_config_errors():
+    est, val = _records()
+    with pytest.raises(ConfigError, match="before `to_json`"):
+        X.design_experiment({"findings": []}, est, val)
+    with pytest.raises(ConfigError, match="hold must be a positive integer"):
+        X.design_experiment(_result(), est, val, hold=0)
+    with pytest.raises(ConfigError, match="u_max > u_min"):
+        X.design_experiment(_result(), est, val, u_min=0.5, u_max=0.5)
+
+
+def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypatch):
+    from jthermo import diagnose as diag
+
+    est, val = _records()
+    pe, pv = tmp_path / "est.csv", tmp_path / "val.csv"
+    save_csv(est, pe)
+    save_csv(val, pv)
+    monkeypatch.setattr(diag, "diagnose", lambda e, v, **kw: {
+        "verdict": "mismatch", "baseline": {"mean_fit_percent": 90.0}, **_result()})
+    out, js = tmp_path / "next.csv", tmp_path / "d.json"
+    rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
+                   "--design-hold", "5", "--json", str(js)])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    rec = load_csv(out)
+    assert rec.n_samples == T and rec.input_names == est.input_names and rec.output_names == est.output_names
+    exp = json.loads(js.read_text())["experiment"]
+    assert exp["rivals"] == ["heater_lag", "input_delay"] and exp["path"] == str(out)
+    assert exp["separation_designed"] >= exp["separation_prbs"]
+    rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--design-experiment" in err and len(err.strip().splitlines()) == 1
+    rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
+                   "--design-hold", "0"])
+    assert rc == 2 and "--design-hold" in capsys.readouterr().err
