@@ -36,12 +36,12 @@ def test_grid_and_random_trials():
     assert len({t["id"] for t in tr}) == 4
     assert sweep.trial_id({"b": 1, "a": 2}) == sweep.trial_id({"a": 2, "b": 1})
     rnd = sweep.parse_config(CFG.replace('method = "grid"', 'method = "random"\nsamples = 5\nseed = 3')
-                             .replace("nb = [1, 2]", "nb = {low = 1, high = 4}\nw = {low = 0.001, high = 1.0, log = true}"))
+                             .replace("nb = [1, 2]", "nb = {low = 1, high = 4}\nrtol = {low = 0.001, high = 1.0, log = true}"))
     a, b = sweep.trials(rnd), sweep.trials(rnd)
     assert a == b and 1 <= len(a) <= 5
     for t in a:
         assert 1 <= t["params"]["nb"] <= 4 and isinstance(t["params"]["nb"], int)
-        assert 0.001 <= t["params"]["w"] <= 1.0
+        assert 0.001 <= t["params"]["rtol"] <= 1.0
 
 
 @pytest.mark.parametrize("text, msg", [
@@ -94,11 +94,11 @@ def test_run_resume_and_torn_line(tmp_path):
 
 
 def test_failed_trial_recorded(tmp_path):
-    cfg = sweep.parse_config(CFG.replace("nb = [1, 2]", "nb = [0, 1]"))
+    cfg = sweep.parse_config(CFG.replace("nb = [1, 2]", "nb = [-1, 1]"))
     rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl")
     assert rep["n_failed"] == 2
     bad = [r for r in sweep.read_results(tmp_path / "r.jsonl") if r["status"] == "error"]
-    assert bad and "invalid orders" in bad[0]["error"]
+    assert bad and "order nb must be an integer >= 0" in bad[0]["error"]
     assert len(sweep.best_trials(sweep.read_results(tmp_path / "r.jsonl"), cfg)) == 2
 
 
@@ -174,3 +174,179 @@ def test_identify_kind_on_a_data_file(tmp_path):
     rep = sweep.run_sweep(cfg, tmp_path / "r2.jsonl")
     assert rep["n_failed"] == 1
     assert "needs all of the orders" in sweep.read_results(tmp_path / "r2.jsonl")[0]["error"]
+
+
+# ---------------------------------------------------------------- the API as scripts use it
+
+@pytest.mark.parametrize("text, msg", [
+    ('[sweep]\nname="x"\nkind="arx"\n[data]\nsample=300\n[space]\nna=[1]',
+     "unknown key `sample` in \\[data\\] for kind arx"),
+    ('[sweep]\nname="x"\nkind="identify"\n[data]\nvalidaton="v.csv"\n[space]\nna=[1]',
+     "unknown key `validaton` in \\[data\\] for kind identify"),
+    ('[sweep]\nname="x"\nkind="arx"\n[space]\nna=[1]\nfocus=["simulation"]',
+     "unknown parameter `focus` in \\[space\\] for kind arx"),
+    ('[sweep]\nname="x"\nkind="tune"\n[fixed]\nw_track=1.0\n[space]\nsteps=[1]',
+     "unknown parameter `w_track` in \\[fixed\\] for kind tune"),
+    ('[sweep]\nname="x"\nkind="tune"\n[data]\nmodle="m.jtm"\n[space]\nsteps=[1]',
+     "unknown key `modle` in \\[data\\]"),
+])
+def test_typos_in_names_are_errors(text, msg):
+    with pytest.raises(ConfigError, match=msg):
+        sweep.parse_config(text)
+
+
+def test_known_names_pass():
+    cfg = sweep.parse_config('[sweep]\nname="x"\nkind="identify"\n[data]\nfamily="ss"\n'
+                             'n_starts=2\n[fixed]\nfocus="simulation"\n[space]\nn=[1,2]')
+    assert cfg["data"] == {"family": "ss", "n_starts": 2}
+    cfg = sweep.parse_config('[sweep]\nname="x"\nkind="tune"\n[data]\nmodel="m.jtm"\n'
+                             'setpoint=[60.0]\n[space]\nw_effort=[0.1, 1.0]\ncontroller=["pi"]')
+    assert sweep.count_trials(cfg) == 2
+
+
+def test_arx_kind_is_fit_and_compare(tmp_path):
+    """The `arx` score is exactly `compare(fit(est, "arx", orders).model, val)` on the halves."""
+    from jthermo.data import split
+    from jthermo.identify import fit
+    from jthermo.sweep.tasks import simulated_bed
+    from jthermo.validate import compare
+
+    cfg = sweep.parse_config(CFG)
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl")
+    assert rep["n_failed"] == 0
+    rows = {tuple(r["params"][n] for n in ("na", "nb", "nk")): r["metrics"]
+            for r in sweep.read_results(tmp_path / "r.jsonl")}
+    est, val = split(simulated_bed(cfg["data"]), 0.5)
+    for orders in [(1, 1, 1), (2, 2, 1)]:
+        direct = compare(fit(est, "arx", orders).model, val)["mean_fit_percent"]
+        assert rows[orders]["mean_fit_percent"] == pytest.approx(direct, abs=1e-9)
+    assert rows[(2, 2, 1)]["mean_fit_percent"] > max(80.0, rows[(1, 1, 1)]["mean_fit_percent"])
+
+
+def test_fit_options_pass_through(tmp_path):
+    base = '[sweep]\nname="o"\nkind="identify"\n[data]\nzones=1\nduration=300\n'
+    cfg = sweep.parse_config(base + '[fixed]\nfamily="arx"\noffset="mean"\n[space]\nna=[1]\nnb=[1]\nnk=[1]')
+    sweep.run_sweep(cfg, tmp_path / "a.jsonl")
+    (rec,) = sweep.read_results(tmp_path / "a.jsonl")
+    assert rec["status"] == "ok" and rec["metrics"]["options"] == {"offset": "mean"}
+    # an option of another family reaches `fit`, which refuses it for this one
+    cfg = sweep.parse_config(base + '[fixed]\nfamily="arx"\nfocus="simulation"\n[space]\nna=[1]\nnb=[1]\nnk=[1]')
+    sweep.run_sweep(cfg, tmp_path / "b.jsonl")
+    (rec,) = sweep.read_results(tmp_path / "b.jsonl")
+    assert rec["status"] == "error" and "unknown option `focus` for family arx" in rec["error"]
+
+
+def test_in_process_sweep_leaves_jax_config_alone(tmp_path):
+    """Trials run in float64 in a scoped context: same scores whatever the caller's setting,
+    and the caller's setting is unchanged afterwards."""
+    import jax
+
+    before = jax.config.jax_enable_x64
+    cfg = sweep.parse_config(CFG)
+    try:
+        for flag in (False, True):
+            jax.config.update("jax_enable_x64", flag)
+            sweep.run_sweep(cfg, tmp_path / f"{flag}.jsonl")
+            assert jax.config.jax_enable_x64 is flag
+    finally:
+        jax.config.update("jax_enable_x64", before)
+    a, b = ({r["id"]: r["metrics"] for r in sweep.read_results(tmp_path / f"{f}.jsonl")}
+            for f in (False, True))
+    assert a == b and len(a) == 4
+
+
+def test_results_as_dataframe(tmp_path):
+    cfg = sweep.parse_config(CFG.replace("nb = [1, 2]", "nb = [-1, 1, 2]"))
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl")
+    df = rep.to_dataframe()
+    assert len(df) == 6 and {"id", "status", "na", "nb", "nk", "mean_fit_percent",
+                             "fit_percent_1", "seconds", "error"} <= set(df.columns)
+    ok = df[df.status == "ok"]
+    assert list(ok.mean_fit_percent) == sorted(ok.mean_fit_percent, reverse=True)
+    assert list(df.status[-2:]) == ["error", "error"]         # failures last
+    assert df.iloc[0]["id"] == rep["best"][0]["id"]
+    assert len(sweep.results_frame(sweep.read_results(tmp_path / "r.jsonl"))) == 6
+    assert json.loads(json.dumps(rep))["n_total"] == 6         # still a plain JSON report
+
+
+def test_history_frame():
+    import numpy as np
+
+    from jthermo.tune import TuneResult
+
+    res = TuneResult(controller=None, history=np.array([3.0, 2.0, 1.5]), start_cost=3.0,
+                     tuned_cost=1.5)
+    df = sweep.history_frame(res)
+    assert list(df.columns) == ["iteration", "cost"] and list(df.cost) == [3.0, 2.0, 1.5]
+    assert list(sweep.history_frame({"history": [2.0, None]}).iteration) == [0, 1]
+    with pytest.raises(ConfigError, match="carries no tuning history"):
+        sweep.history_frame({"tuned_cost": 1.0})
+
+
+def _fitted_model_file(tmp_path):
+    """A one-heater record at Ts = 0.5 s (25 °C at rest, gain 80 °C, 3-sample delay) fitted
+    by `jthermo fit --out`, which stores the recording's envelope with the model."""
+    import numpy as np
+
+    from jthermo import cli
+
+    rng = np.random.default_rng(0)
+    T, ts = 800, 0.5
+    u = np.repeat(rng.uniform(0, 1, T // 80), 80)
+    y = np.full(T, 25.0)
+    for k in range(3, T):
+        y[k] = 25.0 + 0.975 * (y[k - 1] - 25.0) + 0.025 * 80.0 * u[k - 3]
+    y += 0.05 * rng.standard_normal(T)
+    np.savetxt(tmp_path / "rec.csv", np.column_stack([ts * np.arange(T), u, y]), delimiter=",",
+               header="t,u_h,y_T", comments="")
+    model = tmp_path / "m.jtm"
+    assert cli.main(["fit", str(tmp_path / "rec.csv"), "--model", "arx", "--orders", "1,1,3",
+                     "--out", str(model), "--quiet"]) == 0
+    return model
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_tune_kind_routes_a_fitted_model(tmp_path, monkeypatch):
+    """Which tuning a tune trial runs, with what: the user's model (design model, plant and
+    its envelope) goes to `tune_own_plant`, the printer to `tune_report`."""
+    from jthermo import io, tune
+
+    model = _fitted_model_file(tmp_path)
+    calls = []
+    monkeypatch.setattr(tune, "tune_own_plant", lambda family, m, **kw: calls.append(
+        ("own", family, m, kw)) or {"tuned_cost": 1.0, "history": [2.0, 1.0]})
+    monkeypatch.setattr(tune, "tune_report", lambda family, **kw: calls.append(
+        ("printer", family, None, kw)) or {"tuned_cost": 2.0})
+    cfg = sweep.parse_config(f'[sweep]\nname="t"\nkind="tune"\n[data]\nmodel="{model}"\n'
+                             'setpoint=[60.0]\nrollouts=1\n[space]\nsteps=[2]\nw_effort=[0.5]')
+    assert sweep.run_sweep(cfg, tmp_path / "a.jsonl")["n_failed"] == 0
+    kind, family, m, kw = calls[-1]
+    assert (kind, family, kw["setpoint"], kw["steps"], kw["rollouts"]) == ("own", "pi_lambda", [60.0], 2, 1)
+    assert kw["weights"] == {"effort": 0.5} and kw["plant"] is m and kw["envelope"].ts == 0.5
+    assert type(m) is type(io.load_model(model))
+    cfg = sweep.parse_config('[sweep]\nname="p"\nkind="tune"\n[space]\ncontroller=["lqg"]')
+    assert sweep.run_sweep(cfg, tmp_path / "b.jsonl")["n_failed"] == 0
+    assert calls[-1][:2] == ("printer", "lqg") and calls[-1][3]["model"] is None
+    cfg = sweep.parse_config('[sweep]\nname="q"\nkind="tune"\n[data]\nsetpoint=60.0\n'
+                             '[space]\ncontroller=["pi"]')
+    sweep.run_sweep(cfg, tmp_path / "c.jsonl")
+    assert "`setpoint` is for a fitted plant" in sweep.read_results(tmp_path / "c.jsonl")[0]["error"]
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore")
+def test_tune_kind_on_a_fitted_model(tmp_path):
+    """`model = "fit.jtm"`: the trial tunes the user's model at its own sample time and set
+    point (not the printer's 1 s and window). 100 s under load 12 (24 s CPU): slow."""
+    model = _fitted_model_file(tmp_path)
+    ts = 0.5
+    cfg = sweep.parse_config(f'[sweep]\nname="t"\nkind="tune"\n[data]\nmodel="{model}"\n'
+                             'setpoint=[60.0]\nrollouts=1\nduration=150.0\nclassical=["pi_lambda"]\n'
+                             '[space]\nsteps=[2]\ncontroller=["pi"]')
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl")
+    (rec,) = sweep.read_results(tmp_path / "r.jsonl")
+    assert rep["n_failed"] == 0, rec.get("error")
+    assert rec["metrics"]["setpoints"] == [60.0] and rec["metrics"]["ts"] == ts
+    assert rec["metrics"]["best_classical"] == "pi_lambda"
+    assert len(sweep.history_frame(rec["metrics"])) == len(rec["metrics"]["history"]) >= 2
+    assert rep.to_dataframe().loc[0, "tuned_cost"] == rec["metrics"]["tuned_cost"]

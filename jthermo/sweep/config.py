@@ -16,6 +16,24 @@ from ..errors import ConfigError
 
 KINDS = ("arx", "identify", "tune")
 
+#: `[data]` keys each kind reads: where the data (or the plant) comes from; anything else is a
+#: typo and a `ConfigError`. The trial settings of `SETTINGS` may be given here too (the same
+#: for every trial, not part of the trial ids).
+DATA_KEYS = {
+    "arx": ("data", "validation", "zones", "samples", "noise", "data_seed"),
+    "identify": ("data", "validation", "zones", "effects", "duration", "data_seed"),
+    "tune": ("plant", "model", "validation_plant", "zones", "powder", "plant_seed",
+             "classical", "references"),
+}
+#: trial settings each kind reads from the parameters ([space], [fixed]) or from [data]; the
+#: identification kinds also take every order name and every option of `identify.fit`, the
+#: tuning kind a cost weight `w_<term>` per term of `closedloop.DEFAULT_WEIGHTS`
+SETTINGS = {
+    "arx": ("seed", "n_starts"),
+    "identify": ("family", "seed", "n_starts", "criterion"),
+    "tune": ("controller", "rollouts", "steps", "seed", "lr", "duration", "setpoint"),
+}
+
 DEFAULT_CONFIG = """
 # The embedded default: ARX orders on a simulated two-zone bed, then read the best ones.
 [sweep]
@@ -78,11 +96,11 @@ def check_config(raw: dict, source: str = "config") -> dict:
         raise ConfigError(f"{source}: missing [sweep] table")
     unknown = set(raw) - {"sweep", "data", "space", "fixed"}
     if unknown:
-        raise ConfigError(f"{source}: unknown table [{sorted(unknown)[0]}] (expected sweep, data, space, fixed)")
+        raise ConfigError(f"{source}: unknown table [{min(unknown)}] (expected sweep, data, space, fixed)")
     cfg = {**_DEFAULTS, **sweep}
     bad = set(cfg) - {"name", "kind", *_DEFAULTS}
     if bad:
-        raise ConfigError(f"{source}: unknown key `{sorted(bad)[0]}` in [sweep]")
+        raise ConfigError(f"{source}: unknown key `{min(bad)}` in [sweep]")
     if not isinstance(cfg.get("name"), str) or not cfg["name"] or "/" in cfg["name"]:
         raise ConfigError(f"{source}: [sweep] needs a plain `name`")
     if cfg.get("kind") not in KINDS:
@@ -118,10 +136,47 @@ def check_config(raw: dict, source: str = "config") -> dict:
     cfg["data"] = dict(raw.get("data", {}))
     cfg["fixed"] = dict(raw.get("fixed", {}))
     cfg["space"] = space
+    _check_names(cfg, source)
     n = count_trials(cfg)
     if n > 100000:
         raise ConfigError(f"{source}: the grid has {n} trials (more than 100000)")
     return cfg
+
+
+def trial_settings(kind: str) -> frozenset[str]:
+    """The names a trial of `kind` reads from its parameters (see `SETTINGS`)."""
+    names = set(SETTINGS[kind])
+    if kind in ("arx", "identify"):
+        import inspect
+
+        from ..identify.result import FITTERS, ORDER_NAMES
+
+        names |= {n for orders in ORDER_NAMES.values() for n in orders}
+        fitters = [FITTERS["arx"]] if kind == "arx" else FITTERS.values()
+        names |= {n for f in fitters for n in inspect.signature(f.options).parameters}
+        names -= {"data", "y", "u", "ts", "progress"}
+        if kind == "arx":
+            names -= {"nc", "nd", "nf", "n"}
+    else:
+        from ..closedloop import DEFAULT_WEIGHTS
+
+        names |= {f"w_{t}" for t in DEFAULT_WEIGHTS}
+    return frozenset(names)
+
+
+def _check_names(cfg: dict, source: str) -> None:
+    """Every [data] key and parameter name is one the kind reads (a typo is an error)."""
+    kind = cfg["kind"]
+    known = trial_settings(kind)
+    for key in cfg["data"]:
+        if key not in DATA_KEYS[kind] and key not in known:
+            raise ConfigError(f"{source}: unknown key `{key}` in [data] for kind {kind} "
+                              f"(known: {', '.join(sorted(DATA_KEYS[kind]))}, or a trial setting)")
+    for table in ("fixed", "space"):
+        for key in cfg[table]:
+            if key not in known:
+                raise ConfigError(f"{source}: unknown parameter `{key}` in [{table}] for kind "
+                                  f"{kind} (known: {', '.join(sorted(known))})")
 
 
 def count_trials(cfg: dict) -> int:

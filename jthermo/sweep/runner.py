@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .config import default_config, trials
+from .frames import results_frame
 from .tasks import clean_json, run_trial
 
 # ---------------------------------------------------------------- results file
@@ -94,6 +95,18 @@ def format_summary(best: list[dict], cfg: dict, total: int | None = None) -> str
 # ---------------------------------------------------------------- execution
 
 
+class SweepResult(dict):
+    """The report of `run_sweep` (a plain dict, JSON-ready) that also opens its results file
+    as a DataFrame: `to_dataframe()`, one row per trial, best first (`frames.results_frame`)."""
+
+    def __init__(self, report: dict, cfg: dict):
+        super().__init__(report)
+        self.cfg = cfg
+
+    def to_dataframe(self):
+        return results_frame(read_results(self["results"]), self.cfg)
+
+
 def _probe(address: str, timeout: float = 5.0) -> None:
     """Fail fast (instead of Ray's long retry loop) when nothing listens at `host:port`."""
     import socket
@@ -153,7 +166,8 @@ def run_sweep(cfg: dict, results: str | os.PathLike, *, ray_address: str | None 
     - `workers`: local worker processes (None or 1: in this process).
     - `progress`: a `(i, total, info)` callable.
 
-    **Returns:** `{"name", "results", "n_total", "n_skipped", "n_run", "n_failed", "best"}`.
+    **Returns:** a `SweepResult`: the dict `{"name", "kind", "results", "n_total", "n_skipped",
+    "n_run", "n_failed", "best"}` with `to_dataframe()`.
     """
     cfg = copy.deepcopy(cfg)
     path = Path(results)
@@ -190,6 +204,7 @@ def run_sweep(cfg: dict, results: str | os.PathLike, *, ray_address: str | None 
                     f.cancel()
                 raise
     rows = read_results(path)
-    return {"name": cfg["name"], "kind": kind, "results": str(path), "n_total": len(all_trials),
-            "n_skipped": len(all_trials) - len(todo), "n_run": counts["run"],
-            "n_failed": counts["failed"], "best": best_trials(rows, cfg, top=5)}
+    return SweepResult({"name": cfg["name"], "kind": kind, "results": str(path),
+                        "n_total": len(all_trials), "n_skipped": len(all_trials) - len(todo),
+                        "n_run": counts["run"], "n_failed": counts["failed"],
+                        "best": best_trials(rows, cfg, top=5)}, cfg)
