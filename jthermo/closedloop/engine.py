@@ -18,6 +18,7 @@ from ..control._base import AbstractController
 from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
+from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
     WINDOW_C,
@@ -26,7 +27,14 @@ from .scenarios import (
     Trajectory,
     make_scenario,
 )
-from .scoring import cost, cost_weights, edge_index, is_static_zero, metrics
+from .scoring import (
+    RunningMetrics,
+    cost,
+    cost_weights,
+    edge_index,
+    is_static_zero,
+    window_penalty,
+)
 
 # ----------------------------------------------------------------------------- plant adapters
 
@@ -127,14 +135,14 @@ def initial_state(plant, scenario: Scenario):
 # ----------------------------------------------------------------------------- simulation
 
 
-def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None) -> Trajectory:
-    """One closed-loop run (a single `lax.scan`); `x0` defaults to `initial_state`.
-
-    The controller sees $y_k = g(x_k) + v_k$ at every sample Ts; its input is saturated to
-    [0, 1] before it reaches the plant. Pure: jit, vmap and grad go through.
-    """
+def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, observe, acc0,
+                 unroll: int = 1):
+    """The scanned loop shared by `simulate`, `simulate_cost` and `simulate_metrics`: at each
+    sample k, `acc, out = observe(acc, k, y, u, temps, r)` sees the measured output, the
+    saturated input, the true temperatures and the set point. Returns `(acc, outs)`."""
     if scenario.r.ndim != 2:
         raise ConfigError("simulate: a batched scenario needs `rollouts`, not `simulate`")
+    check_loop("simulate", plant, controller, scenario)
     p = _prepare(plant)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
@@ -142,17 +150,61 @@ def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None)
     c0 = controller.init(y_first, scenario.r[0])
 
     def body(carry, inp):
-        x, c = carry
-        r, d, v, s = inp
+        x, c, acc = carry
+        k, r, d, v, s = inp
         y_clean, temps = p.measure(x, d)
         y = y_clean + v
         u, c = controller.step_schedule(c, y, r, s)
         u = jnp.clip(u, 0.0, 1.0)
-        return (p.step(x, u, d), c), (y, u, temps)
+        acc, out = observe(acc, k, y, u, temps, r)
+        return (p.step(x, u, d), c, acc), out
 
-    _, (ys, us, temps) = jax.lax.scan(body, (x0, c0),
-                                      (scenario.r, scenario.d, scenario.v, scenario.s))
+    ks = jnp.arange(scenario.r.shape[0])
+    (_, _, acc), outs = jax.lax.scan(body, (x0, c0, acc0),
+                                     (ks, scenario.r, scenario.d, scenario.v, scenario.s),
+                                     unroll=unroll)
+    return acc, outs
+
+
+def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None) -> Trajectory:
+    """One closed-loop run (a single `lax.scan`); `x0` defaults to `initial_state`.
+
+    The controller sees $y_k = g(x_k) + v_k$ at every sample Ts; its input is saturated to
+    [0, 1] before it reaches the plant. Pure: jit, vmap and grad go through.
+    """
+    _, (ys, us, temps) = _closed_loop(plant, controller, scenario, x0,
+                                      lambda acc, k, y, u, temps, r: (acc, (y, u, temps)), ())
     return Trajectory(y=ys, u=us, r=scenario.r, temperature=temps)
+
+
+def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
+                     weights: Mapping[str, float] | None = None, x0=None, *,
+                     smoothing: float = 0.1) -> dict[str, Array]:
+    """`metrics(simulate(...))` of one run (per-rollout values) and its `cost` (key `"cost"`),
+    accumulated inside the scan (`RunningMetrics`): no `(T, n)` trajectory is stored, memory
+    independent of the horizon. Equal to the dense figures to rounding."""
+    scorer = RunningMetrics.of(scenario, smoothing=smoothing)
+    acc, _ = _closed_loop(plant, controller, scenario, x0,
+                          lambda acc, k, y, u, temps, r: (scorer.update(acc, k, y, u, temps, r), None),
+                          scorer.init(_n_inputs(plant)))
+    return scorer.finish(acc, weights)
+
+
+def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
+                    weights: Mapping[str, float] | None = None, x0s=None, *,
+                    plant_axis: int | None = None, smoothing: float = 0.1) -> dict[str, Array]:
+    """`simulate_metrics` over a batch of scenarios: each figure `(B,)` (the lean counterpart of
+    `metrics(rollouts(...), per_rollout=True)` plus the per-rollout `cost`)."""
+    if scenarios.r.ndim != 3:
+        raise ConfigError("rollout_metrics: scenarios need a leading rollout axis "
+                          "(make_scenario(..., n_rollouts=B))")
+
+    def one(pl, sc, x0=None):
+        return simulate_metrics(pl, controller, sc, weights, x0, smoothing=smoothing)
+
+    if x0s is None:
+        return jax.vmap(one, in_axes=(plant_axis, 0))(plant, scenarios)
+    return jax.vmap(one, in_axes=(plant_axis, 0, 0))(plant, scenarios, x0s)
 
 
 def rollouts(plant, controller: AbstractController, scenarios: Scenario, x0s=None, *,
@@ -183,37 +235,24 @@ def simulate_cost(plant, controller: AbstractController, scenario: Scenario,
                              unroll=2 if unroll is None else unroll)
     unroll = 1 if unroll is None else unroll
     w = cost_weights(weights)
-    p = _prepare(plant)
-    x0 = initial_state(plant, scenario) if x0 is None else x0
-    d0 = jax.tree.map(lambda a: a[0], scenario.d)
-    y_first = p.measure(x0, d0)[0] + scenario.v[0]
-    c0 = controller.init(y_first, scenario.r[0])
     idx = edge_index(scenario.edges)
-    eps = 0.1 * smoothing
     nu = _n_inputs(plant)
     zero = jnp.zeros((), scenario.r.dtype)
 
-    def body(carry, inp):
-        x, c, u_prev, first, acc = carry
-        r, d, v, s = inp
-        y_clean, temps = p.measure(x, d)
-        u, c = controller.step_schedule(c, y_clean + v, r, s)
-        u = jnp.clip(u, 0.0, 1.0)
+    def observe(carry, k, y, u, temps, r):
+        u_prev, acc = carry
         e = temps - r
         track = jnp.mean(e ** 2)
         # terms with a weight of (Python) zero are not computed at all
         unif = zero if (idx is None or is_static_zero(w["uniformity"])) else \
             jnp.mean((temps[idx[0]] - temps[idx[1]]) ** 2)
-        du = zero if is_static_zero(w["effort"]) else jnp.where(first, 0.0, jnp.mean((u - u_prev) ** 2))
+        du = zero if is_static_zero(w["effort"]) else jnp.where(k == 0, 0.0, jnp.mean((u - u_prev) ** 2))
         win = zero if is_static_zero(w["window"]) else jnp.mean(
-            jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - scenario.window) / smoothing))
-        acc = acc + jnp.stack([track, unif, du, win])
-        return (p.step(x, u, d), c, u, jnp.zeros((), bool), acc), None
+            window_penalty(e, scenario.window, smoothing))
+        return (u, acc + jnp.stack([track, unif, du, win])), None
 
-    init = (x0, c0, jnp.zeros((nu,), scenario.r.dtype), jnp.ones((), bool),
-            jnp.zeros((4,), scenario.r.dtype))
-    (_, _, _, _, acc), _ = jax.lax.scan(body, init, (scenario.r, scenario.d, scenario.v,
-                                                     scenario.s), unroll=unroll)
+    init = (jnp.zeros((nu,), scenario.r.dtype), jnp.zeros((4,), scenario.r.dtype))
+    (_, acc), _ = _closed_loop(plant, controller, scenario, x0, observe, init, unroll=unroll)
     T = scenario.r.shape[0]
     J = w["tracking"] * acc[0] / T + w["window"] * acc[3] / T
     if idx is not None:
@@ -281,21 +320,28 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
     sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)), n_rollouts=int(rollouts),
                        **dict(scenario_kw or {}))
-    traj, J = _rollouts_and_cost(plant, ctrl, sc)
-    m = metrics(traj, sc)
+    vals, r0 = jax.device_get(_run_metrics(plant, ctrl, sc))   # one transfer to the host
+    J = vals.pop("cost")
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
             else controller, "zones": int(getattr(plant, "zones", ny)), "rollouts": int(rollouts),
-            "duration": float(sc.n_samples * ts), "seed": int(seed), "metrics": m,
-            "setpoints": np.asarray(sc.r[0, 0]).tolist(), "ts": float(ts),
+            "duration": float(sc.n_samples * ts), "seed": int(seed),
+            "metrics": {k: float(v) for k, v in vals.items()},
+            "setpoints": np.asarray(r0).tolist(), "ts": float(ts),
             "cost": float(J), "seconds": time.perf_counter() - t0}
+
+
+@eqx.filter_jit
+def _run_metrics(plant, controller, scenarios):
+    """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost) and
+    the first set point: one compiled call, no `(B, T, n)` output."""
+    vals = rollout_metrics(plant, controller, scenarios)
+    return {k: jnp.mean(v) for k, v in vals.items()}, scenarios.r[0, 0]
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
     traj = rollouts(plant, controller, scenarios)
     return traj, cost(traj, scenarios, weights)
 
-
-_rollouts_and_cost = eqx.filter_jit(rollouts_and_cost)
 
 
 # ----------------------------------------------------------------------------- compact scenarios
@@ -409,7 +455,6 @@ def _compact_cost(plant, controller, sc: CompactScenario, weights, x0, *, smooth
     y_first = measure(x0) + sc._noise(0)
     c0 = controller.init(y_first, jnp.where(0 >= sc.t_step, sc.r1, sc.r0))
     idx = edge_index(sc.edges)
-    eps = 0.1 * smoothing
     zero = jnp.zeros((), dt)
     use_unif = not (idx is None or is_static_zero(w_["uniformity"]))
     use_du = not is_static_zero(w_["effort"])
@@ -426,8 +471,7 @@ def _compact_cost(plant, controller, sc: CompactScenario, weights, x0, *, smooth
         track = jnp.mean(e ** 2)
         unif = jnp.mean((temps[idx[0]] - temps[idx[1]]) ** 2) if use_unif else zero
         du = jnp.where(k == 0, 0.0, jnp.mean((u - u_prev) ** 2)) if use_du else zero
-        win = jnp.mean(jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - sc.window) / smoothing)) \
-            if use_win else zero
+        win = jnp.mean(window_penalty(e, sc.window, smoothing)) if use_win else zero
         acc = acc + jnp.stack([track, unif, du, win])
         return (step(x, u, k), c, u if use_du else u_prev, acc), None
 

@@ -13,7 +13,7 @@ from jaxtyping import Array, Float
 
 from ..control._base import U_MAX, U_MIN
 from ..errors import ConfigError
-from .scenarios import Scenario, Trajectory
+from .scenarios import WINDOW_C, Scenario, Trajectory
 
 # ----------------------------------------------------------------------------- metrics and cost
 
@@ -36,7 +36,7 @@ def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
     last_out = jnp.max(jnp.where(outside, k, -1))
     first_in = jnp.min(jnp.where(~outside, k, n))
     r_end = traj.r[-1]
-    sgn = jnp.where(jnp.abs(r_end - scenario.y0) > 1e-9, jnp.sign(r_end - scenario.y0), 1.0)
+    sgn = step_sign(r_end, scenario.y0)
     idx = edge_index(scenario.edges)
     if idx is None:
         neigh = jnp.zeros((), T.dtype)
@@ -53,9 +53,24 @@ def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
         "time_to_ready_s": first_in * ts,
         "effort": jnp.mean(traj.u),
         "input_variation": jnp.mean(jnp.abs(jnp.diff(traj.u, axis=0))),
-        "saturated_fraction": jnp.mean((traj.u <= U_MIN + SATURATED)
-                                       | (traj.u >= U_MAX - SATURATED)),
+        "saturated_fraction": jnp.mean(saturated(traj.u).astype(traj.u.dtype)),
     }
+
+
+def step_sign(r_end, y0):
+    """Direction of the set-point step per output: sign(r_end - y0), +1 where there is none."""
+    return jnp.where(jnp.abs(r_end - y0) > 1e-9, jnp.sign(r_end - y0), 1.0)
+
+
+def saturated(u):
+    """Inputs within `SATURATED` of a limit (boolean, elementwise)."""
+    return (u <= U_MIN + SATURATED) | (u >= U_MAX - SATURATED)
+
+
+def window_penalty(e, window: float, smoothing: float):
+    """Smooth indicator of $|e|$ > `window`: $\\sigma((\\sqrt{e^2 + (s/10)^2} - w)/s)$,
+    elementwise, $s$ = `smoothing` (°C)."""
+    return jax.nn.sigmoid((jnp.sqrt(e ** 2 + (0.1 * smoothing) ** 2) - window) / smoothing)
 
 
 METRICS = ("mse", "mse_true", "max_abs_error_C", "max_neighbour_diff_C", "time_outside_window_s",
@@ -91,6 +106,89 @@ def _metrics_jit(traj, scenario):
     return _metrics_one(traj, scenario)
 
 
+class RunningMetrics(eqx.Module):
+    """`metrics` and `cost` of one rollout computed on the fly, one sample at a time inside the
+    scan, so no `(T, n)` trajectory is stored: running sums (squared errors, inputs, |Δu|,
+    Δu², the smooth window term), running extremes (|e|, neighbour difference, overshoot) and
+    the running indices of the last sample outside the window and the first inside.
+
+    `init` gives the carry, `update` adds sample k, `finish` gives the figures; they equal
+    `metrics(simulate(...))` and `cost(...)` of the same run to rounding
+    (`tests/closedloop/test_lean_metrics.py`)."""
+
+    r_end: Float[Array, " ny"]        # final set point, °C
+    sign: Float[Array, " ny"]         # direction of the step (+1 without one)
+    n_samples: int = eqx.field(static=True)
+    window: float = eqx.field(static=True, default=WINDOW_C)
+    edges: tuple = eqx.field(static=True, default=())
+    ts: float = eqx.field(static=True, default=1.0)
+    smoothing: float = eqx.field(static=True, default=0.1)
+
+    @classmethod
+    def of(cls, scenario: Scenario, *, smoothing: float = 0.1) -> RunningMetrics:
+        """The scorer of one (unbatched) dense `scenario`."""
+        r_end = scenario.r[-1]
+        return cls(r_end=r_end, sign=step_sign(r_end, scenario.y0), n_samples=scenario.n_samples,
+                   window=scenario.window, edges=scenario.edges, ts=scenario.ts,
+                   smoothing=smoothing)
+
+    def init(self, nu: int) -> dict[str, Array]:
+        dt = self.r_end.dtype
+        z = jnp.zeros((), dt)
+        return {"sq_meas": z, "sq_true": z, "max_abs": z, "max_neigh": z, "overshoot": z - jnp.inf,
+                "n_out": z, "last_out": jnp.asarray(-1), "first_in": jnp.asarray(self.n_samples),
+                "u_sum": z, "du_abs": z, "n_sat": z, "unif": z, "du_sq": z, "win": z,
+                "u_prev": jnp.zeros((nu,), dt)}
+
+    def update(self, acc: dict, k, y, u, temps, r) -> dict[str, Array]:
+        """`acc` with sample `k` (measured `y`, input `u`, true `temps`, set point `r`) added."""
+        e = temps - r
+        out = jnp.any(jnp.abs(e) > self.window)
+        first = k == 0
+        du = u - acc["u_prev"]
+        idx = edge_index(self.edges)
+        if idx is None:
+            neigh = unif = jnp.zeros((), e.dtype)
+        else:
+            diff = temps[idx[0]] - temps[idx[1]]
+            neigh, unif = jnp.max(jnp.abs(diff)), jnp.sum(diff ** 2)
+        return {"sq_meas": acc["sq_meas"] + jnp.sum((y - r) ** 2),
+                "sq_true": acc["sq_true"] + jnp.sum(e ** 2),
+                "max_abs": jnp.maximum(acc["max_abs"], jnp.max(jnp.abs(e))),
+                "max_neigh": jnp.maximum(acc["max_neigh"], neigh),
+                "overshoot": jnp.maximum(acc["overshoot"], jnp.max(self.sign * (temps - self.r_end))),
+                "n_out": acc["n_out"] + out,
+                "last_out": jnp.where(out, k, acc["last_out"]),
+                "first_in": jnp.where(out, acc["first_in"], jnp.minimum(acc["first_in"], k)),
+                "u_sum": acc["u_sum"] + jnp.sum(u),
+                "du_abs": acc["du_abs"] + jnp.where(first, 0.0, jnp.sum(jnp.abs(du))),
+                "n_sat": acc["n_sat"] + jnp.sum(saturated(u)),
+                "unif": acc["unif"] + unif,
+                "du_sq": acc["du_sq"] + jnp.where(first, 0.0, jnp.sum(du ** 2)),
+                "win": acc["win"] + jnp.sum(window_penalty(e, self.window, self.smoothing)),
+                "u_prev": u}
+
+    def finish(self, acc: dict, weights: Mapping[str, float] | None = None) -> dict[str, Array]:
+        """The `METRICS` of the run and its `cost` (key `"cost"`) from the final carry."""
+        w = cost_weights(weights)
+        T, ts = self.n_samples, self.ts
+        ny, nu = self.r_end.shape[0], acc["u_prev"].shape[0]
+        mse_true = acc["sq_true"] / (T * ny)
+        J = w["tracking"] * mse_true + w["effort"] * acc["du_sq"] / ((T - 1) * nu) \
+            + w["window"] * acc["win"] / (T * ny)
+        if self.edges:
+            J = J + w["uniformity"] * acc["unif"] / (T * len(self.edges))
+        return {"mse": acc["sq_meas"] / (T * ny), "mse_true": mse_true,
+                "max_abs_error_C": acc["max_abs"], "max_neighbour_diff_C": acc["max_neigh"],
+                "time_outside_window_s": acc["n_out"] * ts,
+                "overshoot_C": jnp.maximum(acc["overshoot"], 0.0),
+                "settling_time_s": (acc["last_out"] + 1) * ts,
+                "time_to_ready_s": acc["first_in"] * ts,
+                "effort": acc["u_sum"] / (T * nu),
+                "input_variation": acc["du_abs"] / ((T - 1) * nu),
+                "saturated_fraction": acc["n_sat"] / (T * nu), "cost": J}
+
+
 DEFAULT_WEIGHTS = {"tracking": 1.0, "uniformity": 1.0, "effort": 1.0, "window": 1.0}
 
 
@@ -116,8 +214,7 @@ def cost(traj: Trajectory, scenario: Scenario, weights: Mapping[str, float] | No
         J = J + w["uniformity"] * jnp.mean((T[:, idx[0]] - T[:, idx[1]]) ** 2)
     du = jnp.diff(u, axis=0)
     J = J + w["effort"] * jnp.mean(du ** 2)
-    a = jnp.sqrt(e ** 2 + (0.1 * smoothing) ** 2)
-    J = J + w["window"] * jnp.mean(jax.nn.sigmoid((a - scenario.window) / smoothing))
+    J = J + w["window"] * jnp.mean(window_penalty(e, scenario.window, smoothing))
     return J
 
 
