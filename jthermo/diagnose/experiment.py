@@ -57,17 +57,21 @@ def rival_pair(result: dict) -> tuple[str, str, str]:
     """(A, B, why) of the two explanations the design must separate.
 
     The top finding and its first rival; with no rival, the top finding against the baseline;
-    with no finding, the candidate that improved the validation fit most against the baseline."""
+    with no finding, the two candidates that reduced the validation error most (or the best one
+    against the baseline when only one reduced it)."""
     fs = result.get("findings") or []
     if fs and fs[0].get("rivals"):
         return fs[0]["mechanism"], fs[0]["rivals"][0], "the top finding and its rival"
     if fs:
         return fs[0]["mechanism"], "baseline", "no rival: the top finding against the baseline"
-    cands = [c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))]
+    cands = sorted((c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))),
+                   key=lambda c: -c["val_reduction"])
     if not cands:
         raise ConfigError("design_experiment: the diagnosis has no candidate to separate from the baseline")
-    best = max(cands, key=lambda c: c["val_reduction"])["mechanism"]
-    return best, "baseline", "no finding: the best candidate against the baseline"
+    if len(cands) > 1 and cands[1]["val_reduction"] > 0:
+        return (cands[0]["mechanism"], cands[1]["mechanism"],
+                "no finding: the two candidates that reduced the validation error most")
+    return cands[0]["mechanism"], "baseline", "no finding: the best candidate against the baseline"
 
 
 def nuisance_basis(T: int, ts: float, drift: bool) -> np.ndarray:

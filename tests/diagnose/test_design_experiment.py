@@ -56,9 +56,9 @@ def test_separation_gradient_matches_central_differences():
                          np.array([TS + 29.0]))
     Q = jnp.asarray(X.nuisance_basis(T, 1.0, drift=False))
     lo, hi, sig = jnp.array([0.3]), jnp.array([0.7]), jnp.array([0.05])
-    f = lambda z: X.separation(X.squash(z, lo, hi, hold, T), ctx, Q, sig)
+    f = jax.jit(lambda z: X.separation(X.squash(z, lo, hi, hold, T), ctx, Q, sig))
     z = jnp.asarray(np.random.default_rng(3).normal(size=(T // hold, 1)))
-    g = np.asarray(jax.grad(f)(z))
+    g = np.asarray(jax.jit(jax.grad(f))(z))
     eps = 1e-6
     for idx in [(0, 0), (7, 0), (15, 0), (23, 0)]:
         dz = jnp.zeros_like(z).at[idx].set(eps)
@@ -95,6 +95,8 @@ def test_no_rival_designs_against_the_baseline_and_says_so():
     assert X.rival_pair(_result(rivals=()))[1:] == ("baseline", "no rival: the top finding against the baseline")
     nothing = {"findings": [], "candidates": [{"mechanism": "heater_lag", "val_reduction": 0.01},
                                               {"mechanism": "input_delay", "val_reduction": 0.02}]}
+    assert X.rival_pair(nothing)[:2] == ("input_delay", "heater_lag")
+    nothing["candidates"][0]["val_reduction"] = -0.01
     assert X.rival_pair(nothing)[:2] == ("input_delay", "baseline")
 
 
