@@ -21,6 +21,7 @@ from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
 from .ff_init import init_schedule_ff
+from .terms import batch_terms, group_batch
 from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, loop_ms, plant_ensemble, tune
 
 
@@ -123,30 +124,51 @@ def classical_designs(model, families: Sequence[str] = CLASSICAL) -> dict:
     return out
 
 
-def _held_out_comparison(ctrls, plant, seeds, rollouts, duration, weights,
-                         classical=None) -> dict:
-    """Start, tuned and lambda-PI controllers (`ctrls`) and the `classical` designs
-    (`{family: controller}`) on held-out `seeds` of `plant`: their mean costs,
-    `improvement_percent` = 100·(1 − tuned/lambda_pi), the best classical design and
-    `improvement_vs_best_classical_percent` = 100·(1 − tuned/best classical), per-scenario
-    MSE/cost. Each distinct controller is simulated once."""
-    classical = classical or {}
+def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration: float,
+                   weights=None) -> dict:
+    """Mean cost and measured MSE of each controller of `ctrls` (`{name: controller}`) on each
+    plant of `plants` (`{label: plant}`) in the three scenarios, over `rollouts` realisations
+    per seed of `seeds`, on the lean path (`batch_terms`: cost and mse accumulated in the scan,
+    equal to `evaluate`'s `closedloop.cost` and `metrics` mse at weights without overshoot).
+    Every plant, scenario and seed is one batch, simulated in one compiled program per
+    controller structure; each distinct controller is simulated once.
+
+    **Returns:** `{name: {label: {"cost": mean over scenarios, "scenarios": {kind: {"cost",
+    "mse"}}}}}`.
+    """
+    items = [(lab, k, s) for lab in plants for k in SCENARIOS for s in seeds]
+    batch = group_batch([(plants[lab], k, make_scenario(k, plants[lab], duration,
+                                                         jax.random.key(int(s)),
+                                                         n_rollouts=int(rollouts)))
+                         for lab, k, s in items])
     done: dict[int, dict] = {}
+    for c in ctrls.values():
+        if id(c) in done:
+            continue
+        v = np.asarray(batch_terms(c, batch, weights))
+        per = {lab: {k: {q: float(np.mean([v[i, j] for i, (l2, k2, _) in enumerate(items)
+                                            if l2 == lab and k2 == k]))
+                         for j, q in enumerate(("cost", "mse"))} for k in SCENARIOS}
+               for lab in plants}
+        done[id(c)] = {lab: {"cost": float(np.mean([d["cost"] for d in sc.values()])),
+                             "scenarios": sc} for lab, sc in per.items()}
+    return {name: done[id(c)] for name, c in ctrls.items()}
 
-    def ev(c):
-        if id(c) not in done:
-            done[id(c)] = evaluate(c, plant, SCENARIOS, seeds, rollouts=rollouts,
-                                   duration=duration, weights=weights)
-        return done[id(c)]
 
-    res = {name: ev(c) for name, c in ctrls.items()}
+def _held_out_comparison(res: dict, label: str, classical: Sequence[str] = ()) -> dict:
+    """From `held_out_terms` results `res` (with `start`, `tuned`, `lambda_pi` and the
+    `classical` design names), on plant `label`: the mean costs, `improvement_percent` =
+    100·(1 − tuned/lambda_pi), the best classical design and
+    `improvement_vs_best_classical_percent` = 100·(1 − tuned/best classical), per-scenario
+    MSE/cost."""
+    r = {name: v[label] for name, v in res.items()}
     suffix = {"start": "before", "tuned": "after", "lambda_pi": "lambda_pi"}
-    scen = {k: {f"{q}_{suffix[name]}": res[name]["scenarios"][k][q]
-                for q in ("mse", "cost") for name in ctrls} for k in SCENARIOS}
-    tuned, lam_c = res["tuned"]["cost"], res["lambda_pi"]["cost"]
-    out = {"start_cost": res["start"]["cost"], "tuned_cost": tuned, "lambda_pi_cost": lam_c,
+    scen = {k: {f"{q}_{suffix[name]}": r[name]["scenarios"][k][q]
+                for q in ("mse", "cost") for name in suffix} for k in SCENARIOS}
+    tuned, lam_c = r["tuned"]["cost"], r["lambda_pi"]["cost"]
+    out = {"start_cost": r["start"]["cost"], "tuned_cost": tuned, "lambda_pi_cost": lam_c,
            "improvement_percent": 100.0 * (1.0 - tuned / lam_c), "scenarios": scen}
-    costs = {f: ev(c)["cost"] for f, c in classical.items()}
+    costs = {f: r[f]["cost"] for f in classical}
     finite = {f: v for f, v in costs.items() if np.isfinite(v)}
     if finite:
         best = min(finite, key=finite.get)
@@ -156,12 +178,20 @@ def _held_out_comparison(ctrls, plant, seeds, rollouts, duration, weights,
     return out
 
 
+def _gain_plants(plant, gain_change: float) -> dict:
+    """`{label: plant}` with every heater gain of the `Printer` scaled by 1 ± `gain_change`."""
+    return {f"gain_{label}_{round(100 * gain_change)}_cost":
+            eqx.tree_at(lambda q: q.gain, plant, plant.gain * (1.0 + sign * gain_change))
+            for sign, label in ((1.0, "plus"), (-1.0, "minus"))}
+
+
 def robustness(ctrls: dict, plant, model, seeds, *, rollouts: int, duration: float,
-               weights=None, gain_change: float = 0.2) -> dict:
+               weights=None, gain_change: float = 0.2, terms: dict | None = None) -> dict:
     """The loops of `ctrls` (`{name: controller}`) judged beyond their tuning: peak sensitivity
     $M_s$ on the linear `model` (`control.margins.peak_sensitivity`; None for a controller
     with no linear feedback form) and, for a `Printer`, the held-out cost with every heater gain
-    scaled by 1 ± `gain_change`."""
+    scaled by 1 ± `gain_change`. `terms`: `held_out_terms` results that already hold the
+    gain-changed plants (`_gain_plants` labels), else they are simulated here."""
     out: dict = {"ms": {}, "stable": {}}
     for name, c in ctrls.items():
         try:
@@ -170,11 +200,12 @@ def robustness(ctrls: dict, plant, model, seeds, *, rollouts: int, duration: flo
             m = {"ms": None, "stable": None}
         out["ms"][name], out["stable"][name] = m["ms"], m["stable"]
     if isinstance(plant, Printer):
-        for sign, label in ((1.0, "plus"), (-1.0, "minus")):
-            p = eqx.tree_at(lambda q: q.gain, plant, plant.gain * (1.0 + sign * gain_change))
-            out[f"gain_{label}_{round(100 * gain_change)}_cost"] = {
-                name: evaluate(c, p, SCENARIOS, seeds, rollouts=rollouts, duration=duration,
-                               weights=weights)["cost"] for name, c in ctrls.items()}
+        gp = _gain_plants(plant, gain_change)
+        if terms is None or any(lab not in terms[n] for n in ctrls for lab in gp):
+            terms = held_out_terms(ctrls, gp, seeds, rollouts=rollouts, duration=duration,
+                                   weights=weights)
+        for lab in gp:
+            out[lab] = {name: terms[name][lab]["cost"] for name in ctrls}
     return out
 
 
@@ -240,21 +271,28 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 "satisfied": None if ms is None else bool(ms <= ms_max), "rejected_for_ms": []}
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
-    ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi}
     classical = {**classical_designs(model), "pi_lambda": lam_pi}
-    held = _held_out_comparison(ctrls, pl, seeds, er, duration, weights, classical)
-    changed = None
+    ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi, **classical}
+    plants = {"plant": pl}
     if isinstance(plant, str) and changed_powder:
         # the same controllers on the printer with the other powder, never seen in tuning
-        other = _plant_from("printer", zones=zones, powder=changed_powder, plant_seed=plant_seed)
-        changed = {"powder": changed_powder,
-                   **_held_out_comparison(ctrls, other, seeds, er, duration, weights, classical)}
+        plants["changed"] = _plant_from("printer", zones=zones, powder=changed_powder,
+                                        plant_seed=plant_seed)
+    if check_robustness and isinstance(pl, Printer):
+        plants.update(_gain_plants(pl, 0.2))
+    # every controller on every plant, scenario and seed: one program per controller structure
+    terms = held_out_terms(ctrls, plants, seeds, rollouts=er, duration=duration, weights=weights)
+    held = _held_out_comparison(terms, "plant", classical)
+    changed = None if "changed" not in plants else {
+        "powder": changed_powder, **_held_out_comparison(terms, "changed", classical)}
     robust = None
     if check_robustness:
-        best = classical.get(held.get("best_classical"))
-        robust = robustness({"tuned": res.controller, "start": start,
-                             **({} if best is None else {"best_classical": best})},
-                            pl, model, seeds, rollouts=er, duration=duration, weights=weights)
+        best = held.get("best_classical")
+        names = ["tuned", "start"] + ([] if best is None else [best])
+        robust = robustness({("best_classical" if n == best else n): ctrls[n] for n in names},
+                            pl, model, seeds, rollouts=er, duration=duration, weights=weights,
+                            terms={("best_classical" if n == best else n): terms[n]
+                                   for n in names})
     return {"controller": controller_family, **held,
             "changed_powder": changed, "robustness": robust, "ms_constraint": ms_c,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
