@@ -430,14 +430,17 @@ class DiscretePrinter(eqx.Module):
         if self.m == 1 and not pr.nonlinear:
             z = E @ x.z + P1 @ b
         else:
-            h = pr.ts / self.m
+            h, n = pr.ts / self.m, pr.zones
+            # the nonlinear terms act on the zone rows only and `b` is constant over the
+            # sample: P1 b once, then zone columns (a third fewer multiply-adds per sub-step)
+            P1b, P1n, P2n = P1 @ b, P1[:, :n], P2[:, :n]
 
             def sub(z, j):
                 t = since + j * h
-                n0 = b + pr._nonlinear(z, t, d.ambient)
-                a = E @ z + P1 @ n0
-                n1 = b + pr._nonlinear(a, t + h, d.ambient)
-                return a + P2 @ (n1 - n0), None
+                f0 = pr._nonlinear(z, t, d.ambient)[:n]
+                a = E @ z + P1b + P1n @ f0
+                f1 = pr._nonlinear(a, t + h, d.ambient)[:n]
+                return a + P2n @ (f1 - f0), None
 
             z, _ = jax.lax.scan(sub, x.z, jnp.arange(self.m, dtype=x.z.dtype))
         return PrinterState(z=z, buffer=buffer, since=since + pr.ts)
