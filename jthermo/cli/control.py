@@ -165,6 +165,16 @@ def _one_trajectory(cl, kind, controller, plant, duration, seed, scenario_kw=Non
             "r": np.asarray(tr.r)}
 
 
+def _printer_model(printer):
+    """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches ~100
+    small ones, each traced, lowered and looked up in the cache on every run
+    (`benchmarks/results/simulate_profile.md`)."""
+    import equinox as eqx
+
+    tune = require("jthermo.tune", "the printer's design model")
+    return eqx.filter_jit(tune.printer_model)(printer)
+
+
 # ---------------------------------------------------------------- commands
 
 
@@ -207,8 +217,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
             input_file(args.model, "--model")
             model = io.load_model(args.model)
         else:
-            model = plant if own else require(
-                "jthermo.tune", "the printer's design model").printer_model(plant)
+            model = plant if own else _printer_model(plant)
         controller = design(controller, model, **({"setpoint": r} if own else {}))
     kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
                               "seed": args.seed, "scenario_kw": scenario_kw}
