@@ -64,8 +64,15 @@ def test_envelope_comes_from_the_recording(fitted):
 def test_scenarios_run_at_the_models_own_sample_time(fitted):
     model, env = fitted
     sc = model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=70.0)
-    assert sc.ts == TS and sc.r.shape == (120, 1) and float(sc.r[0, 0]) == 70.0
-    assert float(sc.y0[0]) == pytest.approx(70.0 - 0.2 * (env.y_max[0] - env.y_min[0]))
+    assert sc.ts == TS and sc.r.shape == (120, 1) and float(sc.y0[0]) == 70.0
+    # set-point changes around the operating point: +10 % of the range at 10 %, -10 % at 55 %
+    delta = 0.1 * (env.y_max[0] - env.y_min[0])
+    r = np.asarray(sc.r[:, 0])
+    assert np.allclose(r[:12], 70.0) and np.allclose(r[12:66], 70.0 + delta)
+    assert np.allclose(r[66:], 70.0 - delta)
+    near_top = model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=100.0)
+    top = REST + K * (1.0 - 0.0)                                  # what full power holds
+    assert float(np.max(near_top.r)) < 100.0 + 0.8 * (top - 100.0) + 1.0
     ld = make_scenario("load", model, 60.0, 1, n_rollouts=2, envelope=env, setpoint=70.0)
     assert ld.r.shape == (2, 120, 1) and float(np.min(ld.d.dy)) < -0.5   # a heat sink
     with pytest.raises(ConfigError, match="beyond reach"):
@@ -92,9 +99,15 @@ def test_fit_design_tune_simulate_end_to_end(fitted):
     assert rep["validation"]["verdict"] == "settled"
     # what the tuning did is reported: whether the gains moved, and the heaters' floor
     assert isinstance(rep["moved"], bool) and "passed" in rep["guard"]
-    assert 0.0 < rep["tracking_floor_mse"] <= rep["scenarios"]["tuned"]["tracking"]["mse"]
-    assert 0.0 < rep["validation"]["tracking_floor_mse"] <= min(
-        v["tracking"]["mse"] for v in rep["validation"]["scenarios"].values())
+    assert 0.0 < rep["startup_floor_mse"] <= rep["scenarios"]["tuned"]["preheat"]["mse"]
+    assert 0.0 < rep["validation"]["startup_floor_mse"] <= min(
+        v["preheat"]["mse"] for v in rep["validation"]["scenarios"].values())
+    assert rep["validation"]["startup_overshoot_C"] >= 0.0
+    # the cost terms carry their weights' names; normalised, each weighs in at the start
+    terms = rep["scenarios"]["start"]["tracking"]["terms"]
+    assert set(terms) == {"tracking", "uniformity", "effort", "window", "overshoot"}
+    assert rep["normalised_weights"]["effort"] == pytest.approx(
+        rep["weights"]["effort"] / rep["term_scales"]["effort"])
     out = run("tracking", rep["tuned"], other, rollouts=2, duration=200.0,
               scenario_kw={"envelope": env, "setpoint": 65.0})
     assert out["setpoints"] == [65.0] and out["ts"] == TS
@@ -145,7 +158,7 @@ def test_tuning_moves_a_detuned_pid(fitted):
                guard=False, normalise=False, scenario_kw=kw)
     assert res.tuned_cost < 0.9 * res.start_cost
     assert float(res.controller.kp[0]) > 1.2 * float(slow.kp[0])
-    sc = model_scenario("tracking", model, 150.0, 0, **kw)
+    sc = model_scenario("preheat", model, 150.0, 0, **kw)
     floor = tracking_floor(model, env, 65.0, 150.0, 0)
     for c in (zn, slow, res.controller):
         e = np.asarray(simulate(model, c, sc).y) - np.asarray(sc.r)

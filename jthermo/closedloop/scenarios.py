@@ -33,7 +33,9 @@ DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "prehe
 REALISTIC_EFFECTS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
                      "recoat_cooling", "laser_exposure", "ambient_variation", "sensor_noise")
 STEP_C = 4.0          # the thesis' reference step, °C on all channels
-STEP_SHARE = 0.2      # a fitted model's tracking step: this share of each output's recorded range
+STEP_SHARE = 0.2      # a fitted model's ensemble spread: this share of each output's recorded range
+CHANGE_SHARE = 0.1    # its tracking set-point changes: ± this share of the recorded range
+CHANGE_ROOM = 0.8     # ... and at most this share of the way to what the input limits can hold
 LOAD_SHARE = 0.25     # its load step: this share of each input's recorded std (input-referred)
 WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
 PREVIEW_S = 15.0      # how far ahead the build job announces its events to the controller, s
@@ -277,13 +279,17 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     `Envelope.from_model`), never from the virtual printer.
 
     **Arguments:**
-    - `kind`: `"tracking"` (a step of `step_c` °C per output, default `STEP_SHARE` of the
-      recorded range, up to the set point, from the equilibrium below it), `"load"` (at the set
-      point, an input-referred heat sink of `load` per input — default `LOAD_SHARE` of the
-      recorded input std, at most half the distance to the input limits — switched on at
-      20–30 % and off at 60–70 % of the run), `"preheat"` (start-up: from the model's
-      equilibrium with the heaters off to the set point), `"ensemble"` (random set point within
-      ±step/4, start within one step below it, and a load of random sign; per rollout).
+    - `kind`: `"tracking"` (set-point changes around the operating point: settled at the set
+      point $r$, it moves to $r + \\delta$ at 10 % of the run and to $r - \\delta$ at 55 %;
+      $\\delta$ = `step_c` °C per output, default `CHANGE_SHARE` of the recorded range, at most
+      `CHANGE_ROOM` of the way to the output the inputs hold at their limits, so that the step
+      is inside what the heaters can do), `"load"` (at the set point, an input-referred heat
+      sink of `load` per input — default `LOAD_SHARE` of the recorded input std, at most half
+      the distance to the input limits — switched on at 20–30 % and off at 60–70 % of the
+      run), `"preheat"` (the start-up step: from the model's equilibrium with the heaters off
+      to the set point; power-limited, reported on its own), `"ensemble"` (random set point
+      within ±`STEP_SHARE`·range/4, start within `STEP_SHARE`·range below it, and a load of
+      random sign; per rollout).
     - `duration`: s, default `model_duration(model)`; `key`: PRNG key or seed.
     - `setpoint`: °C, scalar or per output; default `envelope.default_setpoint`. A set point
       the inputs cannot hold is a `ConfigError` saying what they can reach.
@@ -309,8 +315,11 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     w = env.signals(model)
     lo, hi = np.asarray(env.u_min), np.asarray(env.u_max)
     y_off = steady_output(model, lo, w)
-    step = STEP_SHARE * env.span if step_c is None else np.broadcast_to(
-        np.abs(np.asarray(step_c, np.float64)), r.shape)
+    step = STEP_SHARE * env.span
+    y_top = steady_output(model, hi, w)
+    change = np.minimum(CHANGE_SHARE * env.span, CHANGE_ROOM * np.minimum(y_top - r, r - y_off))
+    if step_c is not None:
+        step = change = np.broadcast_to(np.abs(np.asarray(step_c, np.float64)), r.shape)
     u_star = equilibrium_input(model, r, w)
     size = LOAD_SHARE * np.asarray(env.u_std) if load is None else np.broadcast_to(
         np.asarray(load, np.float64), u_star.shape)
@@ -318,6 +327,7 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     dt = jnp.asarray(model.to_statespace().A).dtype
     S = jnp.asarray(model.step_response(T), dt)                      # (T, ny, nu)
     consts = {k: jnp.asarray(v, dt) for k, v in (("r", r), ("step", step), ("y_off", y_off),
+                                                 ("change", np.maximum(change, 0.0)),
                                                  ("size", size), ("w", w),
                                                  ("noise", env.noise_std))}
     key = _as_key(key)
@@ -339,7 +349,10 @@ def _build_model_scenario(kind, S, c, T, keys, batched):
         r, zero = c["r"], jnp.zeros_like(c["r"])
         sign = -1.0
         if kind == "tracking":
-            y0 = jnp.maximum(r - c["step"], c["y_off"])
+            y0 = r
+            k = jnp.arange(T)[:, None]
+            up, down = int(0.1 * T), int(0.55 * T)
+            path = r + c["change"] * (jnp.where(k >= up, 1.0, 0.0) - jnp.where(k >= down, 2.0, 0.0))
         elif kind == "preheat":
             y0 = c["y_off"]
         elif kind == "ensemble":
@@ -356,6 +369,8 @@ def _build_model_scenario(kind, S, c, T, keys, batched):
         else:
             dy = jnp.broadcast_to(zero, (T, r.shape[0]))
         v = c["noise"] * jax.random.normal(k_v, (T, r.shape[0]), r.dtype)
+        if kind == "tracking":
+            return path, dy, v, y0
         return jnp.broadcast_to(r, (T, r.shape[0])), dy, v, y0
 
     return jax.vmap(one)(keys) if batched else one(keys)

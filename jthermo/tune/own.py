@@ -1,8 +1,12 @@
 """Tuning a user's own plant: a controller designed from a fitted model and tuned on the
-model's own scenarios (`closedloop.model_scenario`: its recording's sample time, set points,
-loads and noise), judged on held-out seeds, on an optional validation plant (a model fitted
-to another record), against every classical design from the same fit; a tuned loop that
-does not settle or sits at its input limits is a failure, never an improvement."""
+model's own scenarios (`closedloop.model_scenario`: its recording's sample time, set-point
+changes around the operating point, input-referred loads, noise) with a cost whose terms are
+normalised by the starting controller's values (`OWN_WEIGHTS`, `terms.normalised_weights`),
+judged on held-out seeds, on an optional validation plant (a model fitted to another record),
+against every classical design from the same fit. The start-up step (heaters off to the set
+point: power-limited) is reported on its own with its overshoot and its full-power floor. A
+tuned loop that does not settle or sits at its input limits is a failure, never an
+improvement."""
 
 from __future__ import annotations
 
@@ -13,22 +17,32 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ..closedloop import model_duration, model_scenario, simulate
+from ..closedloop import metrics, model_duration, model_scenario
+from ..closedloop import rollouts as run_rollouts
 from ..control.design import design
-from ..control.relay import DiagonalPID
 from ..errors import ConfigError, ControlError
 from ..models._base import AbstractModel
-from ..models.envelope import Envelope, check_reachable
-from .report import CLASSICAL, evaluate
-from .training import HELD_OUT, tune
+from ..models.envelope import Envelope, check_reachable, equilibrium_input
+from .report import CLASSICAL
+from .terms import TERMS, batch_parts, normalised_weights
+from .training import HELD_OUT, make_batches, tune
 
-#: the scenarios an own plant is tuned and judged on
-OWN_SCENARIOS = ("tracking", "load", "preheat")
+#: the scenarios an own plant is tuned and judged on: set-point changes and loads around the
+#: operating point, where the heaters' power is not the limit
+OWN_SCENARIOS = ("tracking", "load")
+#: the start-up step (heaters off to the set point), judged and reported on its own: at full
+#: power until near the set point whatever the controller, so its MSE says little of the tuning
+STARTUP = "preheat"
+#: default cost weights of own-plant tuning, each relative to its term's value for the
+#: starting controller (`normalised_weights`); overshoot is measured in units of the tracking
+#: term (both °C²), so its weight says how much an overshoot counts against tracking error
+OWN_WEIGHTS = {"tracking": 1.0, "uniformity": 0.0, "effort": 0.1, "window": 0.1,
+               "overshoot": 10.0}
 #: a loop at an input limit longer than this share of a scenario has failed
 MAX_SATURATED = 0.9
 #: the quantities reported per scenario and controller
 REPORTED = ("mse", "overshoot_C", "settling_time_s", "time_to_ready_s", "saturated_fraction",
-            "effort", "cost")
+            "input_variation")
 
 
 def _same_plant_shape(model: AbstractModel, other: AbstractModel, what: str) -> None:
@@ -57,7 +71,8 @@ def judge(scenarios: dict, duration: float, who: str = "tuned") -> str | None:
     window before the run ends) and is not at an input limit most of the time; else one line
     saying what is wrong. `scenarios`: `{kind: metrics}`."""
     for kind, m in scenarios.items():
-        if not all(np.isfinite(v) for v in m.values()):
+        values = [x for v in m.values() for x in (v.values() if isinstance(v, dict) else (v,))]
+        if not all(np.isfinite(v) for v in values):
             return f"the {who} loop gives non-finite figures in `{kind}`"
         if m["saturated_fraction"] > MAX_SATURATED:
             return (f"the {who} loop sits at an input limit {100 * m['saturated_fraction']:.0f} % "
@@ -68,35 +83,108 @@ def judge(scenarios: dict, duration: float, who: str = "tuned") -> str | None:
     return None
 
 
-def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0
-                   ) -> float | None:
-    """Lower bound of the tracking step's MSE (°C²) on `plant` for any controller within the
-    input limits: every heater at full power from the start, the error counted only until
-    each output first reaches its set point and taken as zero afterwards. Valid for a plant
-    whose heaters only heat (non-negative step responses, as a heater's fit has); a step that
-    full power does not complete within the run counts in full. None for a non-square plant.
-    No tuning can bring the tracking MSE below this: an acceptance asking for less is out of
-    reach of the heaters, not of the tuner."""
+def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0,
+                   kind: str = STARTUP) -> float | None:
+    """Full-power floor of a scenario's MSE (°C²) on `plant` (`kind`: `STARTUP`, default, or
+    the set-point changes of `tracking`): after each set-point change from level $a$ to $b$,
+    every input at its limit towards $b$ (`u_max` up, `u_min` down) from the equilibrium at
+    $a$, $y_k = a + S_k (u_{lim} - u_a)$ with the step response $S$, the error counted only
+    until each output first reaches $b$ and taken as zero afterwards.
+
+    For the start-up (from rest) this is a lower bound for any controller within the input
+    limits on a plant whose heaters only heat (non-negative step responses, as a heater's fit
+    has); for a sequence of changes it is an estimate that assumes each change starts from
+    steady state. A step that full power does not complete within the run counts in full.
+    None for a non-square plant. No tuning brings the MSE much below it: an acceptance
+    asking for less is out of reach of the heaters, not of the tuner."""
     if int(plant.n_inputs) != int(plant.n_outputs):
         return None
-    sc = model_scenario("tracking", plant, duration, seed, envelope=envelope, setpoint=setpoint)
-    n = int(plant.n_outputs)
-    full = DiagonalPID(np.zeros(n), np.full(n, 1e12), np.zeros(n),
-                       np.asarray(envelope.u_max, np.float64)[:n], ts=float(plant.ts))
-    tr = simulate(plant, full, sc)
-    e = np.asarray(tr.y) - np.asarray(tr.r)
-    before = np.cumsum(e >= 0.0, axis=0) == 0         # not yet at the set point
-    return float(np.sum(np.where(before, e, 0.0) ** 2) / e.size)
+    sc = model_scenario(kind, plant, duration, seed, envelope=envelope, setpoint=setpoint)
+    ref = np.asarray(sc.r, np.float64)
+    T = ref.shape[0]
+    S = np.asarray(plant.step_response(T), np.float64)             # (T, ny, nu)
+    w = envelope.signals(plant)
+    levels = [np.asarray(sc.y0, np.float64)]
+    starts = [0]
+    for k in range(T):
+        if np.any(np.abs(ref[k] - levels[-1]) > 1e-9):
+            levels.append(ref[k])
+            starts.append(k)
+    total = 0.0
+    for i in range(1, len(levels)):
+        a, b = levels[i - 1], levels[i]
+        n = (starts[i + 1] if i + 1 < len(starts) else T) - starts[i]
+        up = float(np.mean(b - a)) > 0
+        u_lim = np.asarray(envelope.u_max if up else envelope.u_min, np.float64)
+        e = a + S[:n] @ (u_lim - equilibrium_input(plant, a, w)) - b
+        before = np.cumsum((e if up else -e) >= 0.0, axis=0) == 0   # not yet at b
+        total += float(np.sum(np.where(before, e, 0.0) ** 2))
+    return total / ref.size
 
 
-def _evaluate_all(ctrls, plant, seeds, rollouts, duration, weights, kw) -> dict:
+def term_scales(controller, plant, *, rollouts: int, duration: float, seed: int, kw,
+                kinds: Sequence[str] = OWN_SCENARIOS) -> dict[str, float]:
+    """Each cost term's value (`terms.TERMS`) for `controller` on `plant`, averaged over the
+    training scenarios of `kinds` (seed `seed`); `overshoot` gets the tracking term's scale
+    (both °C²), so that its weight compares an overshoot with tracking error."""
+    batch = make_batches([plant], kinds, rollouts=rollouts, duration=duration, seed=seed,
+                         scenario_kw=kw)[0]
+    parts = np.mean(np.asarray(batch_parts(controller, batch)), axis=0)
+    scales = {k: float(parts[i]) for i, k in enumerate(TERMS)}
+    scales["overshoot"] = scales["tracking"]
+    return scales
+
+
+def _held_out(ctrls, plant, seed, rollouts, duration, weights, kw) -> dict:
+    """Per controller and scenario (`OWN_SCENARIOS` and `STARTUP`): the metrics `REPORTED`,
+    the raw cost terms under their weights' names (`terms`), and the normalised `cost`; the
+    controller's `cost` is the mean over `OWN_SCENARIOS`."""
+    kinds = (*OWN_SCENARIOS, STARTUP)
+    scs = {k: model_scenario(k, plant, duration, jax.random.key(int(seed)),
+                             n_rollouts=int(rollouts), **kw) for k in kinds}
     out = {}
     for name, c in ctrls.items():
-        ev = evaluate(c, plant, OWN_SCENARIOS, seeds, rollouts=rollouts, duration=duration,
-                      weights=weights, scenario_kw=kw)
-        out[name] = {k: {q: v[q] for q in REPORTED} for k, v in ev["scenarios"].items()}
-        out[name]["cost"] = ev["cost"]
+        parts = np.asarray(batch_parts(c, [(plant, k, scs[k]) for k in kinds]))
+        row = {}
+        for i, k in enumerate(kinds):
+            m = metrics(run_rollouts(plant, c, scs[k]), scs[k])
+            terms = {t: float(parts[i, j]) for j, t in enumerate(TERMS)}
+            row[k] = {**{q: m[q] for q in REPORTED}, "terms": terms,
+                      "cost": float(sum(weights[t] * v for t, v in terms.items()))}
+        row["cost"] = float(np.mean([row[k]["cost"] for k in OWN_SCENARIOS]))
+        out[name] = row
     return out
+
+
+def _best(designs, table, key) -> str | None:
+    return min(designs, key=key) if designs else None
+
+
+def _tracking(table, name) -> float:
+    return table[name]["tracking"]["mse"]
+
+
+def _verdicts(table, duration) -> str | None:
+    return judge({k: table["tuned"][k] for k in (*OWN_SCENARIOS, STARTUP)}, duration)
+
+
+def _comparison(table, designs, duration) -> dict:
+    """Best classical design by normalised cost and by tracking MSE, and the tuned
+    controller's improvement on each (percent, positive: below the design)."""
+    best = _best(designs, table, lambda f: table[f]["cost"])
+    best_t = _best(designs, table, lambda f: _tracking(table, f))
+    tuned = table["tuned"]
+    return {
+        "best_classical": best,
+        "best_classical_cost": table[best]["cost"] if best else None,
+        "improvement_vs_best_classical_percent":
+            100.0 * (1.0 - tuned["cost"] / table[best]["cost"]) if best else None,
+        "best_classical_tracking": best_t,
+        "tracking_improvement_vs_best_classical_percent":
+            100.0 * (1.0 - _tracking(table, "tuned") / _tracking(table, best_t)) if best_t
+            else None,
+        "startup_overshoot_C": tuned[STARTUP]["overshoot_C"],
+        "verdict": _verdicts(table, duration) or "settled"}
 
 
 def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
@@ -108,20 +196,33 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
                    progress: Callable[[int, float], None] | None = None) -> dict:
     """Design `controller_family` from the fitted `model` at the set point's equilibrium, tune
     it on `plant` (default the model) over the own-plant scenarios (`OWN_SCENARIOS`, built from
-    `envelope`, default `Envelope.from_model`), and judge it on held-out seeds.
+    `envelope`, default `Envelope.from_model`), and judge it on held-out seeds, the start-up
+    step (`STARTUP`) included.
+
+    The cost is $J = \\sum_i (w_i / s_i)\\,\\text{term}_i$ over `terms.TERMS`, with $s_i$ each
+    term's value for the starting design on the training scenarios (`term_scales`): at the
+    start every term contributes its weight, so each weight moves the result.
 
     **Arguments:**
     - `setpoint`: °C, scalar or per output (default `envelope.default_setpoint(model)`); one
       the heaters cannot hold is a `ConfigError` saying what they can reach.
     - `validation_plant`: a second model (e.g. fitted to another record) on which the tuned
       and classical controllers are judged as well, never tuned on.
-    - `classical`: the families `best_classical` is taken over (by held-out cost).
+    - `weights`: `{term: weight}` over `OWN_WEIGHTS` (tracking, uniformity, effort = mean
+      squared input change, window, overshoot), before normalisation.
+    - `classical`: the families `best_classical` is taken over (by held-out cost;
+      `best_classical_tracking` by the tracking scenario's MSE).
 
-    **Returns:** a JSON-ready dict (`setpoints`, `ts`, `duration`, `scenarios` per controller
-    and scenario — mse, overshoot, settling, saturated fraction — `improvement_percent` against
-    the lambda PI, `best_classical`, `improvement_vs_best_classical_percent`, `validation`)
-    and the tuned controller under `"tuned"`. Raises `ControlError` when the tuned loop does
-    not settle or sits at its input limits (`judge`): such a result is never an improvement.
+    **Returns:** a JSON-ready dict (`setpoints`, `ts`, `duration`, `weights`, `term_scales`,
+    `scenarios` per controller and scenario — the metrics `REPORTED`, the raw cost `terms`
+    under their weights' names, the normalised cost — `improvement_percent` against the lambda
+    PI, `best_classical`, `improvement_vs_best_classical_percent`,
+    `tracking_improvement_vs_best_classical_percent`, `startup_overshoot_C`,
+    `startup_floor_mse` and `tracking_floor_mse` (`tracking_floor`), `validation` with the
+    same comparison on the validation plant) and
+    the tuned controller under `"tuned"`. Raises `ControlError` when the tuned loop does not
+    settle or sits at its input limits (`judge`), start-up included: such a result is never
+    an improvement.
     """
     t0 = time.perf_counter()
     if not isinstance(model, AbstractModel):
@@ -142,32 +243,32 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     kw = {"envelope": env, "setpoint": r}
     start = design(controller_family, model, setpoint=r)
     designs = classical_at(model, r, classical)
-    lam = designs.get("pi_lambda") or design("pi_lambda", model, setpoint=r)
     refs = [designs.get(f) or design(f, model, setpoint=r)
             for f in references if f != controller_family]
+    scales = term_scales(start, plant, rollouts=rollouts, duration=duration, seed=seed, kw=kw)
+    w = normalised_weights({**OWN_WEIGHTS, **dict(weights or {})}, scales)
     res = tune(start, plant, kind=OWN_SCENARIOS, rollouts=rollouts, steps=steps, lr=lr,
-               seed=seed, duration=duration, weights=weights, references=refs,
+               seed=seed, duration=duration, weights=w, references=refs,
                scenario_kw=kw, progress=progress)
     seeds = (int(seed) + HELD_OUT,)
     ctrls = {"start": start, "tuned": res.controller, **designs}
-    held = _evaluate_all(ctrls, plant, seeds, rollouts, duration, weights, kw)
-    problem = judge({k: held["tuned"][k] for k in OWN_SCENARIOS}, duration)
+    held = _held_out(ctrls, plant, seeds[0], rollouts, duration, w, kw)
+    problem = _verdicts(held, duration)
     if problem is not None:
         raise ControlError(f"tune: {problem} at set point {np.round(r, 2).tolist()} °C; "
                            "not reported as tuned")
-    best = min(designs, key=lambda f: held[f]["cost"]) if designs else None
+    lam = held.get("pi_lambda")
     out = {"controller": controller_family, "setpoints": r.tolist(), "ts": float(env.ts),
-           "duration": duration, "scenario_kinds": list(OWN_SCENARIOS),
-           "envelope": env.to_dict(), "start_cost": held["start"]["cost"],
-           "tuned_cost": held["tuned"]["cost"], "lambda_pi_cost": held["pi_lambda"]["cost"]
-           if "pi_lambda" in held else None,
-           "improvement_percent": 100.0 * (1.0 - held["tuned"]["cost"] / held["pi_lambda"]["cost"])
-           if "pi_lambda" in held else None,
-           "best_classical": best,
-           "best_classical_cost": held[best]["cost"] if best else None,
-           "improvement_vs_best_classical_percent":
-               100.0 * (1.0 - held["tuned"]["cost"] / held[best]["cost"]) if best else None,
-           "saturated_fraction": {k: held["tuned"][k]["saturated_fraction"] for k in OWN_SCENARIOS},
+           "duration": duration, "scenario_kinds": list(OWN_SCENARIOS), "startup": STARTUP,
+           "envelope": env.to_dict(), "weights": {**OWN_WEIGHTS, **dict(weights or {})},
+           "term_scales": scales, "normalised_weights": w,
+           "start_cost": held["start"]["cost"], "tuned_cost": held["tuned"]["cost"],
+           "lambda_pi_cost": lam["cost"] if lam else None,
+           "improvement_percent": 100.0 * (1.0 - held["tuned"]["cost"] / lam["cost"])
+           if lam else None,
+           **{k: v for k, v in _comparison(held, designs, duration).items() if k != "verdict"},
+           "saturated_fraction": {k: held["tuned"][k]["saturated_fraction"]
+                                  for k in (*OWN_SCENARIOS, STARTUP)},
            "scenarios": held, "validation": None,
            "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,
            "guard": {k: v for k, v in (res.guard or {}).items() if k != "candidates"},
@@ -175,23 +276,21 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
            "moved": not all(np.allclose(np.asarray(a), np.asarray(b)) for a, b in zip(
                jax.tree_util.tree_leaves(eqx.filter(start, eqx.is_inexact_array)),
                jax.tree_util.tree_leaves(eqx.filter(res.controller, eqx.is_inexact_array)))),
-           "tracking_floor_mse": tracking_floor(plant, env, r, duration, seeds[0]),
+           "startup_floor_mse": tracking_floor(plant, env, r, duration, seeds[0]),
+           "tracking_floor_mse": tracking_floor(plant, env, r, duration, seeds[0], "tracking"),
            "history": [float(h) for h in res.history], "rollouts": int(rollouts),
            "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds)}
     if validation_plant is not None:
-        val = _evaluate_all(ctrls, validation_plant, seeds, rollouts, duration, weights, kw)
-        vbest = min(designs, key=lambda f: val[f]["cost"]) if designs else None
-        out["validation"] = {
-            "scenarios": val, "verdict": judge({k: val["tuned"][k] for k in OWN_SCENARIOS},
-                                               duration) or "settled",
-            "best_classical": vbest,
-            "improvement_vs_best_classical_percent":
-                100.0 * (1.0 - val["tuned"]["cost"] / val[vbest]["cost"]) if vbest else None,
-            "tracking_floor_mse": tracking_floor(validation_plant, env, r, duration, seeds[0])}
+        val = _held_out(ctrls, validation_plant, seeds[0], rollouts, duration, w, kw)
+        out["validation"] = {"scenarios": val, **_comparison(val, designs, duration),
+                             "startup_floor_mse": tracking_floor(validation_plant, env, r,
+                                                                 duration, seeds[0]),
+                             "tracking_floor_mse": tracking_floor(validation_plant, env, r,
+                                                                  duration, seeds[0], "tracking")}
     out["seconds"] = time.perf_counter() - t0
     out["tuned"] = res.controller
     return out
 
 
-__all__ = ["MAX_SATURATED", "OWN_SCENARIOS", "classical_at", "judge", "tracking_floor",
-           "tune_own_plant"]
+__all__ = ["MAX_SATURATED", "OWN_SCENARIOS", "OWN_WEIGHTS", "STARTUP", "classical_at", "judge",
+           "term_scales", "tracking_floor", "tune_own_plant"]

@@ -1,7 +1,8 @@
-"""The lean closed loop of tuning: cost terms and the measured-output MSE accumulated in the
-scan carry (`simulate_terms`, `rollout_terms`), and batches of `(plant, kind, scenarios)`
-grouped into one vmapped simulation per kind and plant structure (`group_batch`,
-`batch_terms`)."""
+"""The lean closed loop of tuning: the cost terms (`TERMS`: tracking, uniformity, effort,
+window, overshoot) and the measured-output MSE accumulated in the scan carry
+(`simulate_parts`, `simulate_terms`, `rollout_terms`), weights normalised by each term's scale
+(`normalised_weights`), and batches of `(plant, kind, scenarios)` grouped into one vmapped
+simulation per kind and plant structure (`group_batch`, `batch_terms`, `batch_parts`)."""
 
 from __future__ import annotations
 
@@ -14,19 +15,26 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..closedloop import DEFAULT_WEIGHTS, initial_state
+from ..closedloop.scoring import is_static_zero
 from ..control._base import AbstractController
 from ..errors import ControlError
 from ..models._base import AbstractModel
 from ..printer import Printer
 
+#: the cost terms of the lean path, in the order `simulate_parts` returns them: the
+#: `closedloop.cost` terms plus `overshoot` (tuning only, default weight 0)
+TERMS = ("tracking", "uniformity", "effort", "window", "overshoot")
+#: the overshoot term counts an excursion beyond the set point from this many smoothing widths
+OVERSHOOT_MARGIN = 3.0
+
 
 def _weights(weights) -> dict[str, float]:
-    w = dict(DEFAULT_WEIGHTS)
+    w = {**DEFAULT_WEIGHTS, "overshoot": 0.0}
     if weights is not None:
-        bad = [k for k in weights if k not in DEFAULT_WEIGHTS]
+        bad = [k for k in weights if k not in w]
         if bad:
             raise ControlError(f"tune: unknown cost weight `{bad[0]}` "
-                               f"(known: {', '.join(DEFAULT_WEIGHTS)})")
+                               f"(known: {', '.join(TERMS)})")
         w.update(weights)
     return w
 
@@ -54,15 +62,22 @@ def _plant_functions(plant):
                        "(a Printer or a fitted model)")
 
 
-def simulate_terms(plant, controller: AbstractController, scenario, weights=None, *,
-                   smoothing: float = 0.1) -> Float[Array, 2]:
-    """One closed-loop run reduced to `[cost, mse]` inside the scan (nothing of size T kept).
+def simulate_parts(plant, controller: AbstractController, scenario, *, overshoot: bool = True,
+                   smoothing: float = 0.1) -> Float[Array, 6]:
+    """One closed-loop run reduced inside the scan (nothing of size T kept) to the means of the
+    cost terms `TERMS` and the measured-output MSE: `[tracking, uniformity, effort, window,
+    overshoot, mse]`, differentiable in the controller.
 
-    `cost` equals `closedloop.cost(simulate(...), scenario, weights)` and `mse` equals
-    `closedloop.metrics(...)["mse"]` (measured outputs against the set point), both
-    differentiable in the controller. `scenario` is one (unbatched) `closedloop.Scenario`.
+    With $e = T - r$ (true temperatures) and $s$ = `smoothing` (°C):
+    tracking $\\overline{e^2}$; uniformity $\\overline{(T_i - T_j)^2}$ over grid neighbours;
+    effort $\\overline{\\Delta u^2}$ (mean squared input change per sample, over T − 1 changes);
+    window $\\overline{\\sigma((|e| - \\text{window})/s)}$, a smooth fraction of time outside;
+    overshoot $\\overline{o^2}$ with $o = |d|\\,s\\,\\mathrm{softplus}((d\\,e - 3s)/s)$, the excursion
+    beyond the set point in the direction $d = \\mathrm{sign}$ of the latest set-point change
+    (of $r_0 - y_0$ before the first; 0 without any: a load scenario has none).
+    `overshoot=False` leaves that term out of the scan (0). `scenario`: one unbatched
+    `closedloop.Scenario`.
     """
-    w = _weights(weights)
     step, measure = _plant_functions(plant)
     x0 = initial_state(plant, scenario)
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
@@ -71,9 +86,11 @@ def simulate_terms(plant, controller: AbstractController, scenario, weights=None
     dt = scenario.r.dtype
     eps = 0.1 * smoothing
     T = scenario.r.shape[0]
+    gap = scenario.r[0] - scenario.y0
+    dir0 = jnp.where(jnp.abs(gap) > 1e-9, jnp.sign(gap), 0.0)
 
     def body(carry, inp):
-        x, c, u_prev, acc = carry
+        x, c, u_prev, r_prev, direction, acc = carry
         k, r, d, v, s = inp
         y_clean, temps = measure(x, d)
         y = y_clean + v
@@ -84,17 +101,41 @@ def simulate_terms(plant, controller: AbstractController, scenario, weights=None
             else jnp.zeros((), dt)
         du = jnp.where(k == 0, 0.0, jnp.mean((u - u_prev) ** 2))
         win = jnp.mean(jax.nn.sigmoid((jnp.sqrt(e ** 2 + eps ** 2) - scenario.window) / smoothing))
-        acc = acc + jnp.stack([jnp.mean(e ** 2), unif, du, win, jnp.mean((y - r) ** 2)])
-        return (step(x, u, d), c, u, acc), None
+        if overshoot:
+            moved = jnp.abs(r - r_prev) > 1e-9
+            direction = jnp.where(moved, jnp.sign(r - r_prev), direction)
+            o = jnp.abs(direction) * smoothing * jax.nn.softplus(
+                (direction * e - OVERSHOOT_MARGIN * smoothing) / smoothing)
+            over = jnp.mean(o ** 2)
+        else:
+            over = jnp.zeros((), dt)
+        acc = acc + jnp.stack([jnp.mean(e ** 2), unif, du, win, over, jnp.mean((y - r) ** 2)])
+        return (step(x, u, d), c, u, r, direction, acc), None
 
     u_shape = jax.eval_shape(lambda: controller.step(c0, scenario.r[0], scenario.r[0])[0])
-    init = (x0, c0, jnp.zeros(u_shape.shape, dt), jnp.zeros((5,), dt))
-    (_, _, _, acc), _ = jax.lax.scan(
+    init = (x0, c0, jnp.zeros(u_shape.shape, dt), scenario.r[0], dir0, jnp.zeros((6,), dt))
+    (*_, acc), _ = jax.lax.scan(
         body, init, (jnp.arange(T), scenario.r, scenario.d, scenario.v, scenario.s))
-    J = (w["tracking"] * acc[0] + w["window"] * acc[3]) / T + w["effort"] * acc[2] / max(T - 1, 1)
-    if edges.size:
-        J = J + w["uniformity"] * acc[1] / T
-    return jnp.stack([J, acc[4] / T])
+    n = jnp.asarray([T, T, max(T - 1, 1), T, T, T], dt)
+    return acc / n
+
+
+def simulate_terms(plant, controller: AbstractController, scenario, weights=None, *,
+                   smoothing: float = 0.1) -> Float[Array, 2]:
+    """One closed-loop run reduced to `[cost, mse]` inside the scan: `cost` is
+    $\\sum_i w_i\\,\\text{term}_i$ over `simulate_parts`' terms (the uniformity term only where the
+    scenario has grid neighbours).
+
+    At weights without `overshoot` (or it 0) `cost` equals
+    `closedloop.cost(simulate(...), scenario, weights)`; `mse` equals
+    `closedloop.metrics(...)["mse"]` (measured outputs against the set point).
+    """
+    w = _weights(weights)
+    parts = simulate_parts(plant, controller, scenario, smoothing=smoothing,
+                           overshoot=not is_static_zero(w["overshoot"]))
+    used = [k for k in TERMS if k != "uniformity" or len(scenario.edges)]
+    J = sum(w[k] * parts[TERMS.index(k)] for k in used)
+    return jnp.stack([J, parts[-1]])
 
 
 def rollout_terms(plant, controller: AbstractController, scenarios, weights=None, *,
@@ -153,28 +194,64 @@ def group_batch(batch) -> tuple[_Group, ...]:
 
 
 @eqx.filter_jit
-def _group_terms(controller, groups, weights):
-    """`(items, 2)`: mean cost and mse over the rollouts of each item of a grouped batch."""
-    parts, order = [], []
+def _group_terms(controller, groups, weights, parts: bool = False):
+    """`(items, 2)`: mean cost and mse over the rollouts of each item of a grouped batch
+    (`parts=True`: `(items, 6)`, the mean of each term of `simulate_parts` and the mse)."""
+    out, order = [], []
     for g in groups:
         def one(p, sc):
-            return jnp.mean(rollout_terms(p, controller, sc, weights), axis=0)
+            if parts:
+                per = jax.vmap(lambda s: simulate_parts(p, controller, s))(sc)
+            else:
+                per = rollout_terms(p, controller, sc, weights)
+            return jnp.mean(per, axis=0)
 
         if g.stacked:
             arrays, static = eqx.partition(g.plants, eqx.is_array)
-            parts.append(jax.vmap(lambda a, sc, st=static: one(eqx.combine(a, st), sc))(
+            out.append(jax.vmap(lambda a, sc, st=static: one(eqx.combine(a, st), sc))(
                 arrays, g.scenarios))
         else:
-            parts.append(one(g.plants, g.scenarios)[None])
+            out.append(one(g.plants, g.scenarios)[None])
         order += list(g.index)
-    terms = jnp.concatenate(parts, axis=0)
+    terms = jnp.concatenate(out, axis=0)
     return terms[np.argsort(np.asarray(order))]
+
+
+def _groups(batch):
+    return batch if isinstance(batch, tuple) and batch and isinstance(batch[0], _Group) \
+        else group_batch(batch)
 
 
 def batch_terms(controller, batch, weights):
     """`(items, 2)`: mean cost and mse over the rollouts of each `(plant, kind, scenarios)`
     (a list of items, or the groups `group_batch` made of one)."""
-    groups = batch if isinstance(batch, tuple) and batch and isinstance(batch[0], _Group) \
-        else group_batch(batch)
-    return _group_terms(controller, groups, weights)
+    return _group_terms(controller, _groups(batch), weights)
 
+
+def batch_parts(controller, batch) -> Float[Array, "items 6"]:
+    """`(items, 6)`: per item of `batch` (as `batch_terms` takes it), the mean over its rollouts
+    of each cost term of `TERMS` and the mse (`simulate_parts`)."""
+    return _group_terms(controller, _groups(batch), None, parts=True)
+
+
+def normalised_weights(weights, scales) -> dict[str, float]:
+    """Weights that make each term count relative to its scale: $w_i / s_i$ for each term of
+    `TERMS` (the weights as `tune` takes them), so that a cost
+    $\\sum_i (w_i/s_i)\\,\\text{term}_i$ equals $\\sum_i w_i$ where every term sits at its
+    scale, and each weight moves the result whatever the terms' units (°C², power², a fraction).
+
+    **Arguments:**
+    - `weights`: `{term: weight}`; terms left out keep the default (`closedloop.DEFAULT_WEIGHTS`,
+      overshoot 0).
+    - `scales`: `{term: scale}` (e.g. each term's value for the starting controller,
+      `batch_parts`); a term without a positive finite scale keeps its weight as given.
+    """
+    w = _weights(weights)
+    bad = [k for k in scales if k not in TERMS]
+    if bad:
+        raise ControlError(f"tune: unknown cost term `{bad[0]}` (known: {', '.join(TERMS)})")
+    out = {}
+    for k, v in w.items():
+        s = float(scales.get(k, 0.0))
+        out[k] = float(v) / s if np.isfinite(s) and s > 0.0 else float(v)
+    return out
