@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import per_output
 from ..errors import ControlError
 from ..models._base import StateSpace
 from . import decoupled, feedforward, imc, lqg, relay
@@ -55,6 +56,7 @@ def design_point(model, setpoint=None, signals=None, inputs=None) -> StateSpace:
     w1 = w0 if signals is None else np.broadcast_to(np.asarray(signals, np.float64), w0.shape)
     y1 = y0 + G1 @ (u1 - u0) + Gw1 @ (w1 - w0)
     if setpoint is not None:
+        per_output("design", "setpoint", setpoint, y0.size)
         r = np.broadcast_to(np.asarray(setpoint, np.float64), y0.shape)
         u1 = u1 + np.linalg.lstsq(G1, r - y1, rcond=None)[0]
         y1 = r

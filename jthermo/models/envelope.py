@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from .._checks import per_output
 from ..errors import ConfigError
 from ._base import AbstractModel
 
@@ -215,7 +216,7 @@ def reach_problem(model: AbstractModel, env: Envelope, setpoint) -> str | None:
 def check_reachable(model: AbstractModel, env: Envelope, setpoint) -> np.ndarray:
     """`setpoint` broadcast per output, after checking the model can hold it
     (`ConfigError` with `reach_problem`'s line otherwise)."""
-    msg = reach_problem(model, env, setpoint)
+    msg = reach_problem(model, env, per_output("scenario", "setpoint", setpoint, env.n_outputs))
     if msg is not None:
         raise ConfigError(msg)
     return np.broadcast_to(np.asarray(setpoint, np.float64), (env.n_outputs,)).copy()

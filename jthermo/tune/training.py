@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..closedloop import KINDS, make_scenario
+from ..closedloop.checks import check_loop
 from ..control._base import AbstractController
 from ..control.margins import peak_sensitivity
 from ..errors import ControlError
@@ -240,6 +241,8 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     pl = [plant] if plants is None else list(plants)
     if not pl:
         raise ControlError("tune: empty plant ensemble")
+    for p in pl:
+        check_loop("tune", p, controller)
     if not (0.0 <= margin < 1.0):
         raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
     spec = _field_filter(controller, params)
