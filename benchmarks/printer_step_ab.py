@@ -77,7 +77,7 @@ def main() -> None:
     d = pr.default_disturbance()
     rows = []
     for B in (int(b) for b in args.rollouts.split(",")):
-        xs = jax.tree.map(lambda a: jnp.broadcast_to(a, (B, *a.shape)), pr.initial_state())
+        xs = jax.tree.map(lambda a, B=B: jnp.broadcast_to(a, (B, *a.shape)), pr.initial_state())
         u = jax.random.uniform(jax.random.key(1), (B, pr.n_inputs), pr.capacity.dtype)
         runs = {"earlier": scan_of(reference_step, args.duration),
                 "now": scan_of(DiscretePrinter.step, args.duration)}
@@ -98,12 +98,12 @@ def main() -> None:
         print(row, flush=True)
         rows.append(row)
     lines = ["# Printer sample: zone-column sub-steps against the earlier full-matrix form", "",
-             f"`python benchmarks/printer_step_ab.py`: N = {args.zones}, T = {args.duration}, "
-             f"{pr.discretise().m} sub-steps per sample, every closed-loop effect; median of "
-             f"{args.repeats} interleaved repeats; 2 shared CPU cores (load: 1-minute average "
-             "before / after).", "",
-             "| B | CPU s earlier | CPU s now | CPU ratio | wall s earlier | wall s now | "
-             "max abs difference of the zone temperatures, °C | load |",
+             (f"`python benchmarks/printer_step_ab.py`: N = {args.zones}, T = {args.duration}, "
+              f"{pr.discretise().m} sub-steps per sample, every closed-loop effect; median of "
+              f"{args.repeats} interleaved repeats; 2 shared CPU cores (load: 1-minute average "
+              "before / after)."), "",
+             ("| B | CPU s earlier | CPU s now | CPU ratio | wall s earlier | wall s now | "
+              "max abs difference of the zone temperatures, °C | load |"),
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['B']} | {r['cpu_earlier']:.2f} | {r['cpu_now']:.2f} | "
