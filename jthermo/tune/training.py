@@ -202,6 +202,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
          ms_max: float | None = None, ms_model=None,
          params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
+         optimiser: str = "adam",
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -217,7 +218,9 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     - `kind`: a scenario name or a sequence of them; `scenarios`: ready-made training batches
       (as `make_batches` returns) instead.
     - `rollouts`, `duration` (s), `n_batches`: size of the training set, drawn from `seed`.
-    - `steps`, `lr`: Adam iterations and learning rate; `weights`: `closedloop.cost` weights.
+    - `steps`, `lr`: iterations (at most, for L-BFGS) and learning rate (L-BFGS: largest first
+      move) of `optimiser` (`"adam"` or `"lbfgs"`, `minimise`); `weights`: `closedloop.cost`
+      weights.
     - `references`: designs the result must beat (with the start) in every scenario and plant;
       the robust objective is relative to the best of them in each.
     - `guard`: check the kept iterates on validation seeds (`seed + VALIDATION`) and return the
@@ -258,11 +261,11 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
             raise ControlError("tune: the reference designs give no finite cost on the training set")
         res = minimise(lambda c, br: robust_objective(batch_terms(c, br[0], weights), br[1], tau),
                        controller, pairs, steps=steps, lr=lr, progress=progress,
-                       snapshots=snapshots if guard else 0, filter_spec=spec)
+                       snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
     else:
         res = minimise(lambda c, b: jnp.mean(batch_terms(c, b, weights)[:, 0]), controller,
                        batches, steps=steps, lr=lr, progress=progress,
-                       snapshots=snapshots if guard else 0, filter_spec=spec)
+                       snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
     if not guard:
         return res
     t0 = time.perf_counter()
