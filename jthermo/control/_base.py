@@ -27,6 +27,10 @@ class AbstractController(eqx.Module):
     the limit.
     """
 
+    def __repr__(self) -> str:
+        """The controller with its gains' values (not only their shapes)."""
+        return eqx.tree_pformat(self, short_arrays=False)
+
     @abc.abstractmethod
     def init(self, y0: Output, r0: Setpoint) -> ControllerState:
         """Controller state before the first sample, given the first measurement and set point."""

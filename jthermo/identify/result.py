@@ -13,6 +13,7 @@ from typing import Any, Callable, NamedTuple
 
 from ..data import IOData
 from ..families import MODEL_FAMILIES, ORDER_NAMES
+from ..models.summary import gain_and_poles
 
 FAMILIES = MODEL_FAMILIES
 
@@ -73,12 +74,7 @@ class FitResult:
         if "fit_percent" in self.extra:
             lines.append(f"  fit %: {np.round(np.asarray(self.extra['fit_percent']), 2).tolist()}")
         try:
-            ss = self.model.to_statespace()
-            lines.append(f"  DC gain (°C per input): "
-                         f"{np.round(np.asarray(ss.dcgain(), np.float64), 4).tolist()}")
-            poles = np.linalg.eigvals(np.asarray(ss.A, np.float64))
-            lines.append(f"  poles ({poles.size}, z-plane, Ts {float(ss.ts):g} s): "
-                         f"{np.round(np.sort_complex(poles), 4).tolist()}")
+            lines.extend(gain_and_poles(self.model))
         except Exception as exc:  # noqa: BLE001 - a summary never fails on an odd model
             lines.append(f"  (no state-space view: {type(exc).__name__})")
         return "\n".join(lines)

@@ -42,6 +42,12 @@ class AbstractModel(eqx.Module):
     def to_statespace(self) -> "StateSpace":
         """The model as an innovations state space (A, B, Bw, C, D, K) with its operating point."""
 
+    def __repr__(self) -> str:
+        """Inputs, outputs, Ts, DC gain and poles (`models.summary.describe`)."""
+        from .summary import describe
+
+        return describe(self)
+
     # -- sizes -----------------------------------------------------------------------
     @property
     def ts(self) -> float:
