@@ -24,7 +24,7 @@ def _one(family, seed, T):
     true, _ = study.true_model(family)
     u, y = study.dataset(family, T, seed, 1)
     uv, yv = study.dataset(family, T, seed, 2)
-    res = fit(from_arrays(u, y), family, study.ORDERS[family])
+    res = fit(from_arrays(u, y), family, study.ORDERS[family], **study.FIT_OPTIONS.get(family, {}))
     gap = study.fit_percent(yv, study.simulate(true, uv)) - \
         study.fit_percent(yv, study.simulate(res.model, uv))
     est, std = study.estimated_parameters(family, res)

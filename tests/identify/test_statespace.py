@@ -56,7 +56,7 @@ def _fit_percent(y, yhat):
 @pytest.fixture(scope="module")
 def fitted():
     est = _data(1500, 1)
-    return est, fit_statespace(est, 2, n_starts=2, max_steps=50)
+    return est, fit_statespace(est, 2, n_starts=2, max_steps=50, focus="prediction")
 
 
 def test_pem_fit_close_to_true_model(fitted):
@@ -70,6 +70,18 @@ def test_pem_fit_close_to_true_model(fitted):
     assert res.cost < 1.1 * NOISE**2
     assert res.orders == {"n": 2}
     assert res.converged
+
+
+def test_default_focus_is_simulation():
+    """The default (`jthermo fit --model ss`) is an output-error fit: K = 0, and its simulation
+    is within a point of the true model's on fresh data (OE is consistent under any noise)."""
+    est, val = _data(1500, 1), _data(1500, 2)
+    res = fit_statespace(est, 2, n_starts=2, max_steps=50)
+    assert float(jnp.max(jnp.abs(res.model.K))) == 0.0
+    true = StateSpace(A_TRUE, B_TRUE, C_TRUE, K=K_TRUE, u0=np.full(2, 0.5), y0=np.full(2, 20.0))
+    fit_true = _fit_percent(val.y, np.asarray(true.simulate(val.u)))
+    assert _fit_percent(val.y, np.asarray(res.model.simulate(val.u))) > fit_true - 1.0
+    assert res.converged and is_stable(res.model)
 
 
 def test_returned_model_is_stable_and_poles(fitted):
