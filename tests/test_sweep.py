@@ -278,6 +278,8 @@ def test_history_frame():
                      tuned_cost=1.5)
     df = sweep.history_frame(res)
     assert list(df.columns) == ["iteration", "cost"] and list(df.cost) == [3.0, 2.0, 1.5]
+    assert repr(res).splitlines()[0] == ("TuneResult: training cost 3 -> 1.5 over 3 iterations, "
+                                         "guard not run, 0 s")
     assert list(sweep.history_frame({"history": [2.0, None]}).iteration) == [0, 1]
     with pytest.raises(ConfigError, match="carries no tuning history"):
         sweep.history_frame({"tuned_cost": 1.0})
@@ -337,7 +339,7 @@ def test_tune_kind_routes_a_fitted_model(tmp_path, monkeypatch):
 @pytest.mark.filterwarnings("ignore")
 def test_tune_kind_on_a_fitted_model(tmp_path):
     """`model = "fit.jtm"`: the trial tunes the user's model at its own sample time and set
-    point (not the printer's 1 s and window). 100 s under load 12 (24 s CPU): slow."""
+    point (not the printer's 1 s and window). Slow: it compiles the whole own-plant tuning."""
     model = _fitted_model_file(tmp_path)
     ts = 0.5
     cfg = sweep.parse_config(f'[sweep]\nname="t"\nkind="tune"\n[data]\nmodel="{model}"\n'
@@ -350,3 +352,13 @@ def test_tune_kind_on_a_fitted_model(tmp_path):
     assert rec["metrics"]["best_classical"] == "pi_lambda"
     assert len(sweep.history_frame(rec["metrics"])) == len(rec["metrics"]["history"]) >= 2
     assert rep.to_dataframe().loc[0, "tuned_cost"] == rec["metrics"]["tuned_cost"]
+
+
+def test_cli_sweep_with_a_typo_exits_2(tmp_path, capsys):
+    from jthermo import cli
+
+    (tmp_path / "s.toml").write_text('[sweep]\nname="x"\nkind="arx"\n[data]\nzone=2\n[space]\nna=[1]\n')
+    assert cli.main(["sweep", str(tmp_path / "s.toml"), "--results", str(tmp_path / "r.jsonl")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "unknown key `zone` in [data] for kind arx" in err
+    assert not (tmp_path / "r.jsonl").exists()

@@ -44,6 +44,15 @@ class TuneResult:
     evaluations: int = 0         # gradient evaluations of the training cost
     method: str = "adam"         # `minimise`'s method
 
+    def __repr__(self) -> str:
+        """The returned controller with its gains, the costs and the guard's verdict (not the
+        snapshots: they hold one controller per kept iterate)."""
+        verdict = ("not run" if self.guard is None else "passed" if self.guard.get("passed")
+                   else "failed: the start is returned")
+        return (f"TuneResult: training cost {self.start_cost:.4g} -> {self.tuned_cost:.4g} over "
+                f"{len(self.history)} iterations, guard {verdict}, {self.seconds:.3g} s\n"
+                f"  controller: {self.controller!r}")
+
 
 def _log_mask(params):
     """True for leaves optimised in log space (all entries positive at the start)."""
