@@ -1,29 +1,31 @@
-"""The experiment that separates two rival explanations: an input designed by gradient.
+"""The experiment that separates rival explanations: an input designed by gradient.
 
-When the diagnosis leaves two mechanisms within its test's resolution (a finding's `rivals`),
-both fitted models predict the records at hand about equally well. The next record should be
-one on which they disagree most, relative to the noise. For models $A$, $B$ (fitted on the
-estimation record, `select.diagnose`'s single-mechanism refits) and an input sequence $u$,
+When the diagnosis leaves explanations within its test's resolution (a finding's `rivals`),
+their fitted models predict the records at hand about equally well. The next record should be
+one on which they disagree most, relative to the noise. For two models $a$, $b$ (fitted on
+the estimation record, `select.diagnose`'s single-mechanism refits) and an input sequence $u$,
 
-$$S(u) = \\sum_i \\frac{\\|(I - \\Pi_N)\\,(\\hat y_{A,i}(u) - \\hat y_{B,i}(u))\\|^2}{\\sigma_i^2},$$
+$$S_{ab}(u) = \\sum_i \\frac{\\|(I - \\Pi_N)\\,(\\hat y_{a,i}(u) - \\hat y_{b,i}(u))\\|^2}{\\sigma_i^2},$$
 
 the expected log-likelihood gap per record between the two explanations under white noise of
 variance $\\sigma_i^2$ (the top model's validation residual power, zone $i$), after removing
 what the nuisance parameters re-estimated on a new record can absorb: $\\Pi_N$ projects onto a
-constant per zone (the initial level) and, when either rival is an unmeasured
-`ambient_variation`, onto the piecewise-linear drift basis. $S$ is differentiable in $u$ through
-both coupled simulations (`mechanisms.simulate_full`).
+constant per zone (the initial level) and, when the surroundings are not measured, onto the
+piecewise-linear drift basis of `ambient_variation`. With three models (the top finding and two
+rivals) the design maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
+differentiable in $u$ through the coupled simulations (`mechanisms.simulate_full`).
 
 The input is held piecewise constant over `hold` samples (the minimum switching time) and kept
 within the actuator limits by a smooth squash, $u = u_{min} + (u_{max} - u_{min})\\,
-\\mathrm{sigmoid}(z)$; $-\\log S$ is minimised over $z$ by Adam (`optax`) in one compiled
-`lax.scan`, from a PRBS start (seeded). The best iterate is kept, then the best of it, its
-bang-bang rounding to the limits and the PRBS itself, so the design never separates less than
-the PRBS it is compared with. Both models start at the estimation record's mean temperature, held at its
-mean input for a warm-up that the objective leaves out.
+\\mathrm{sigmoid}(z)$; the objective is maximised over $z$ by Adam (`optax`) in one compiled
+`lax.scan`, vmapped over two starts (a seeded PRBS at the limits, a small random input). The
+best iterate is kept, then the best of it, its bang-bang rounding to the limits and the PRBS
+itself, so the design never separates less than the PRBS it is compared with. The models start
+at the estimation record's mean temperature, held at its mean input for a warm-up that the
+objective leaves out.
 
 Reference: the model-discrimination design of Box & Hill (1967), with the divergence of the
-two predictive distributions (Ljung 1999, §13) as the criterion.
+predictive distributions (Ljung 1999, §13) as the criterion.
 """
 
 from __future__ import annotations
@@ -49,29 +51,31 @@ HOLD = 10
 #: Adam iterations and step on the unconstrained input
 N_STEPS = 150
 LEARNING_RATE = 0.3
+#: rivals of the top finding the design separates, besides it
+MAX_RIVALS = 2
 #: PRBS start, unconstrained: sigmoid(±START) ≈ 0.05 / 0.95 of the actuator range
 START = 3.0
 
 
-def rival_pair(result: dict) -> tuple[str, str, str]:
-    """(A, B, why) of the two explanations the design must separate.
+def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
+    """(models, why): the explanations the design must separate (two or three names).
 
-    The top finding and its first rival; with no rival, the top finding against the baseline;
-    with no finding, the two candidates that reduced the validation error most (or the best one
-    against the baseline when only one reduced it)."""
+    The top finding and its rivals (at most two); with no rival, the top finding against the
+    baseline; with no finding, the two candidates that reduced the validation error most (or
+    the best one against the baseline when only one reduced it)."""
     fs = result.get("findings") or []
     if fs and fs[0].get("rivals"):
-        return fs[0]["mechanism"], fs[0]["rivals"][0], "the top finding and its rival"
+        return (fs[0]["mechanism"], *fs[0]["rivals"][:MAX_RIVALS]), "the top finding and its rivals"
     if fs:
-        return fs[0]["mechanism"], "baseline", "no rival: the top finding against the baseline"
+        return (fs[0]["mechanism"], "baseline"), "no rival: the top finding against the baseline"
     cands = sorted((c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))),
                    key=lambda c: -c["val_reduction"])
     if not cands:
         raise ConfigError("design_experiment: the diagnosis has no candidate to separate from the baseline")
     if len(cands) > 1 and cands[1]["val_reduction"] > 0:
-        return (cands[0]["mechanism"], cands[1]["mechanism"],
+        return ((cands[0]["mechanism"], cands[1]["mechanism"]),
                 "no finding: the two candidates that reduced the validation error most")
-    return cands[0]["mechanism"], "baseline", "no finding: the best candidate against the baseline"
+    return (cands[0]["mechanism"], "baseline"), "no finding: the best candidate against the baseline"
 
 
 def nuisance_basis(T: int, ts: float, drift: bool) -> np.ndarray:
@@ -90,8 +94,9 @@ def squash(z, lo, hi, hold: int, T: int):
     return (lo + (hi - lo) * jax.nn.sigmoid(jnp.repeat(z, hold, axis=0)))[:T]
 
 
-def pair_context(models: dict, pair, T: int, ts: float, u_rest, x_start):
-    """Stacked parameters, switches, per-model simulation inputs and record states of the pair."""
+def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
+    """Stacked parameters, switches, per-model simulation inputs and record states of the models
+    `names` (mechanisms of the diagnosis' single-mechanism refits, or `baseline`)."""
     lay = models["layout"]
     n = lay.n
     Tw = T + WARMUP
@@ -99,7 +104,7 @@ def pair_context(models: dict, pair, T: int, ts: float, u_rest, x_start):
     P = int(models.get("period") or 0)
     ev = event_matrix(Tw, P, models["zone_phase"], offset=WARMUP) if P else np.zeros((Tw, n))
     thetas, ons, delays, recs = [], [], [], []
-    for m in pair:
+    for m in names:
         th = np.asarray(models["theta"][m], float)
         mech = () if m == "baseline" else (m,)
         thetas.append(th)
@@ -118,7 +123,7 @@ def pair_context(models: dict, pair, T: int, ts: float, u_rest, x_start):
 
 
 def predictions(u, ctx):
-    """Both models' coupled simulations `(2, T, n)` on the input `u (T, nu)` (warm-up dropped)."""
+    """The models' coupled simulations `(K, T, n)` on the input `u (T, nu)` (warm-up dropped)."""
     Th, on, delay, rec, shared, lay = ctx
     Tw = shared["Phi"].shape[0]
     full = jnp.concatenate([jnp.broadcast_to(shared["u_pad"], (Tw - u.shape[0], u.shape[1])), u])
@@ -126,17 +131,24 @@ def predictions(u, ctx):
     return jax.vmap(sim)(Th, on, delay, rec)[:, Tw - u.shape[0]:]
 
 
-def separation(u, ctx, Q, sigma):
-    """$S(u)$: the rivals' prediction gap outside the nuisance span, in noise units (≥ 0)."""
+def separations(u, ctx, Q, sigma):
+    """$S_{ab}(u)$ of every pair $a < b$ of the models (≥ 0), in `itertools.combinations` order:
+    their prediction gap outside the nuisance span, in noise units."""
     y = predictions(u, ctx)
-    d = y[0] - y[1]
-    d = d - Q @ (Q.T @ d)
-    return jnp.sum(d ** 2 / sigma ** 2)
+    a, b = np.triu_indices(y.shape[0], 1)
+    d = y[a] - y[b]
+    d = d - jnp.einsum("tk,pkn->ptn", Q, jnp.einsum("tk,ptn->pkn", Q, d))
+    return jnp.sum(d ** 2 / sigma ** 2, axis=(1, 2))
+
+
+def objective(u, ctx, Q, sigma):
+    """$\\sum_{a<b} \\log S_{ab}(u)$: every pair must separate (a product, like a D-criterion)."""
+    return jnp.sum(jnp.log(separations(u, ctx, Q, sigma) + 1e-300))
 
 
 def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
     opt = optax.adam(lr)
-    loss = lambda z: -jnp.log(separation(squash(z, lo, hi, hold, T), ctx, Q, sigma) + 1e-300)
+    loss = lambda z: -objective(squash(z, lo, hi, hold, T), ctx, Q, sigma)
 
     def step(carry, _):
         z, st, best_z, best_l = carry
@@ -150,16 +162,20 @@ def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
     carry = (z0, opt.init(z0), z0, jnp.asarray(jnp.inf, z0.dtype))
     (z, _, best_z, best_l), hist = jax.lax.scan(step, carry, None, length=n_steps)
     lz = loss(z)
-    return jnp.where(lz < best_l, z, best_z), hist
+    return jnp.where(lz < best_l, z, best_z), jnp.minimum(lz, best_l), hist
 
 
-_optimise_jit = eqx.filter_jit(_optimise)
+@eqx.filter_jit
+def _optimise_starts(Z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
+    """`_optimise` from each start `Z0 (S, segments, nu)`; the best end point and histories."""
+    z, l, hist = jax.vmap(lambda z0: _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr))(Z0)
+    return z[jnp.argmin(l)], hist
 
 
 def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int | None = None,
                       hold: int = HOLD, u_min=None, u_max=None, seed: int = 0,
                       n_steps: int = N_STEPS, learning_rate: float = LEARNING_RATE) -> dict:
-    """Design the input that best separates the diagnosis' two rival explanations.
+    """Design the input that best separates the diagnosis' rival explanations.
 
     **Arguments:**
     - `result`: the dict `diagnose(est, val)` returned (before `to_json`: it carries the fitted
@@ -170,11 +186,13 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
       (default: the range the two records' inputs span).
     - `seed`: the PRBS start and the PRBS it is compared with.
 
-    **Returns:** a dict with `rivals` [A, B], `why`, `separation_designed`,
-    `separation_prbs` (a PRBS over the same limits, switching time and length), `duration`
-    (samples), `duration_s`, `u` `(T, nu)`, `u_prbs`, `predictions` `(2, T, n)` on `u`,
-    `history` (−log S per iteration), `limits` and `record` (an `IOData` in the layout of `est`:
-    the designed inputs, the top model's predicted outputs, measured signals at their means).
+    **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
+    `separation_designed` and `separation_prbs` (the weakest pair's $S$, on the design and on
+    a PRBS over the same limits, switching time and length), `pair_separations`, `duration`
+    (samples), `duration_s`, `u` `(T, nu)`, `u_prbs`, `predictions` `(K, T, n)` on `u`,
+    `history` (−objective per iteration and start), `limits` and `record` (an `IOData` in the
+    layout of `est`: the designed inputs, the top model's predicted outputs, measured signals at
+    their means).
     """
     models = result.get("_models") if isinstance(result, dict) else None
     if models is None:
@@ -193,38 +211,46 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     hi = np.broadcast_to(np.max(U, axis=0) if u_max is None else np.asarray(u_max, float), (est.n_inputs,))
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
         raise ConfigError("design_experiment: the actuator limits need u_max > u_min for every input")
-    A, B, why = rival_pair(result)
+    names, why = rival_set(result)
     ts = float(est.ts)
     y_val = np.asarray(val.y, float)
     yhat = np.asarray(result["_arrays"]["yhat_augmented"])
     sigma = np.sqrt(np.maximum(np.mean((y_val - yhat) ** 2, axis=0), 1e-12))
     u_rest = np.clip(np.mean(np.asarray(est.u, float), axis=0), lo, hi)
-    ctx = pair_context(models, (A, B), T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
-    drift = "ambient_variation" in (A, B) and not models["measured_ambient"]
-    Q = jnp.asarray(nuisance_basis(T, ts, drift))
+    ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
+    # an unmeasured surroundings drift is always a candidate explanation of slow residuals:
+    # what it can absorb separates nothing
+    Q = jnp.asarray(nuisance_basis(T, ts, not models["measured_ambient"]))
     nseg = math.ceil(T / hold)
     bits = np.asarray(prbs(seed, nseg, est.n_inputs, levels=(0.0, 1.0), hold=(1, 4)), float)
-    z0 = jnp.asarray(START * (2.0 * bits - 1.0))
+    small = np.asarray(jax.random.normal(jax.random.key(seed), bits.shape, jnp.float64))
+    # two starts: the PRBS at the limits, and a small random input in the squash's linear range
+    # (from which the gradient grows the most separating direction, as a power iteration does)
+    Z0 = jnp.asarray(np.stack([START * (2.0 * bits - 1.0), 0.1 * small]))
     jlo, jhi, jsig = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sigma)
-    z, hist = _optimise_jit(z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
-                            float(learning_rate))
+    z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
+                               float(learning_rate))
     u_prbs = lo + (hi - lo) * np.repeat(bits, hold, axis=0)[:T]
-    s_prbs = float(separation(jnp.asarray(u_prbs), ctx, Q, jsig))
     # the squash never reaches the limits; its bang-bang rounding (often the optimum under
     # amplitude limits) and the PRBS start are candidates too: the best of the three is kept
     u_opt = np.asarray(squash(z, jlo, jhi, int(hold), int(T)))
     u_snap = np.where(u_opt >= 0.5 * (lo + hi), hi, lo)
-    scored = [(float(separation(jnp.asarray(c), ctx, Q, jsig)), k, c)
-              for k, c in enumerate((u_opt, u_snap))] + [(s_prbs, 2, u_prbs)]
-    s_design, _, u = max(scored, key=lambda x: (x[0], -x[1]))
+    score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig))
+    u = max(((score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:2])[2]
+    s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
+    s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
+    pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
     yp = np.asarray(predictions(jnp.asarray(u), ctx))
     w = np.broadcast_to(np.mean(np.asarray(est.w, float), axis=0), (T, est.w.shape[1]))
     record = from_arrays(u, yp[0], ts, w, input_names=est.input_names, output_names=est.output_names,
                          signal_names=est.signal_names,
-                         notes=((f"designed experiment: inputs separate `{A}` from `{B}`; outputs are "
-                                 f"`{A}`'s prediction, to be replaced by the measurement"),))
-    return {"rivals": [A, B], "why": why, "separation_designed": s_design,
-            "separation_prbs": s_prbs, "duration": int(T), "duration_s": T * ts, "hold": int(hold),
+                         notes=((f"designed experiment: inputs separate {', '.join(names)}; outputs are "
+                                 f"`{names[0]}`'s prediction, to be replaced by the measurement"),))
+    return {"rivals": list(names), "why": why, "separation_designed": float(s_design.min()),
+            "separation_prbs": float(s_prbs.min()),
+            "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
+                                 for p, a, b in zip(pairs, s_design, s_prbs)},
+            "duration": int(T), "duration_s": T * ts, "hold": int(hold),
             "limits": {"u_min": lo.tolist(), "u_max": hi.tolist()}, "sigma": sigma.tolist(),
             "u": u, "u_prbs": u_prbs, "predictions": yp, "history": np.asarray(hist),
             "record": record}
@@ -232,7 +258,7 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
 
 def to_json(design: dict, path=None) -> dict:
     """The JSON-ready summary of a design (no arrays); `path` the CSV it was written to."""
-    keys = ("rivals", "why", "separation_designed", "separation_prbs", "duration", "duration_s",
+    keys = ("rivals", "why", "separation_designed", "separation_prbs", "pair_separations", "duration", "duration_s",
             "hold", "limits", "sigma")
     out = {k: design[k] for k in keys}
     out["separation_ratio"] = (design["separation_designed"] / design["separation_prbs"]
@@ -241,5 +267,5 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["design_experiment", "nuisance_basis", "pair_context", "predictions", "rival_pair", "separation",
-           "squash", "to_json"]
+__all__ = ["design_experiment", "nuisance_basis", "objective", "predictions", "rival_context", "rival_set",
+           "separations", "squash", "to_json"]

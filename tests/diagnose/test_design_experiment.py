@@ -49,14 +49,14 @@ def _records(seed=0):
     return from_arrays(u, y, 1.0), from_arrays(u[::-1], y, 1.0)
 
 
-def test_separation_gradient_matches_central_differences():
+def test_objective_gradient_matches_central_differences():
     res = _result()
     hold = 5
-    ctx = X.pair_context(res["_models"], ("heater_lag", "input_delay"), T, 1.0, np.array([0.5]),
-                         np.array([TS + 29.0]))
+    ctx = X.rival_context(res["_models"], ("heater_lag", "input_delay", "baseline"), T, 1.0,
+                          np.array([0.5]), np.array([TS + 29.0]))
     Q = jnp.asarray(X.nuisance_basis(T, 1.0, drift=False))
     lo, hi, sig = jnp.array([0.3]), jnp.array([0.7]), jnp.array([0.05])
-    f = jax.jit(lambda z: X.separation(X.squash(z, lo, hi, hold, T), ctx, Q, sig))
+    f = jax.jit(lambda z: X.objective(X.squash(z, lo, hi, hold, T), ctx, Q, sig))
     z = jnp.asarray(np.random.default_rng(3).normal(size=(T // hold, 1)))
     g = np.asarray(jax.jit(jax.grad(f))(z))
     eps = 1e-6
@@ -65,6 +65,9 @@ def test_separation_gradient_matches_central_differences():
         fd = (float(f(z + dz)) - float(f(z - dz))) / (2 * eps)
         assert abs(g[idx] - fd) <= 1e-5 * max(1.0, np.max(np.abs(g)))
     assert np.max(np.abs(g)) > 0
+    u = X.squash(z, lo, hi, hold, T)
+    S = np.asarray(X.separations(u, ctx, Q, sig))
+    assert S.shape == (3,) and np.all(S > 0) and np.isclose(float(f(z)), np.sum(np.log(S)))
 
 
 def test_nuisance_projection_removes_constant_and_drift():
@@ -87,17 +90,19 @@ def test_design_beats_its_prbs_within_limits_and_is_deterministic():
     assert np.all(u.reshape(-1, 5)[:, :1] == u.reshape(-1, 5))          # held over 5 samples
     assert d1["separation_designed"] > d1["separation_prbs"] > 0
     assert d1["rivals"] == ["heater_lag", "input_delay"]
+    assert list(d1["pair_separations"]) == ["heater_lag/input_delay"]
     js = X.to_json(d1, "x.csv")
     assert js["separation_ratio"] > 1 and js["path"] == "x.csv" and json.dumps(js)
 
 
 def test_no_rival_designs_against_the_baseline_and_says_so():
-    assert X.rival_pair(_result(rivals=()))[1:] == ("baseline", "no rival: the top finding against the baseline")
+    assert X.rival_set(_result(rivals=())) == (("heater_lag", "baseline"),
+                                              "no rival: the top finding against the baseline")
     nothing = {"findings": [], "candidates": [{"mechanism": "heater_lag", "val_reduction": 0.01},
                                               {"mechanism": "input_delay", "val_reduction": 0.02}]}
-    assert X.rival_pair(nothing)[:2] == ("input_delay", "heater_lag")
+    assert X.rival_set(nothing)[0] == ("input_delay", "heater_lag")
     nothing["candidates"][0]["val_reduction"] = -0.01
-    assert X.rival_pair(nothing)[:2] == ("input_delay", "baseline")
+    assert X.rival_set(nothing)[0] == ("input_delay", "baseline")
 
 
 def test_bad_arguments_are_one_line_config_errors():
