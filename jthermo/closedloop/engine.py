@@ -318,13 +318,19 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     n_ctrl = getattr(ctrl, "zones", None)
     if n_ctrl is not None and n_ctrl != ny:
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
-    sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)), n_rollouts=int(rollouts),
-                       **dict(scenario_kw or {}))
-    vals, r0 = jax.device_get(_run_metrics(plant, ctrl, sc))   # one transfer to the host
+    key = jax.random.key(int(seed))
+    if isinstance(plant, Printer) and not scenario_kw:
+        # the printer's scenarios are drawn inside the same compiled call
+        out = _scenario_metrics(kind, plant, ctrl, duration, key, int(rollouts))
+    else:
+        sc = make_scenario(kind, plant, duration, key, n_rollouts=int(rollouts),
+                           **dict(scenario_kw or {}))
+        out = _run_metrics(plant, ctrl, sc)
+    vals, r0, n_samples = jax.device_get(out)   # one transfer to the host
     J = vals.pop("cost")
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
             else controller, "zones": int(getattr(plant, "zones", ny)), "rollouts": int(rollouts),
-            "duration": float(sc.n_samples * ts), "seed": int(seed),
+            "duration": float(n_samples * ts), "seed": int(seed),
             "metrics": {k: float(v) for k, v in vals.items()},
             "setpoints": np.asarray(r0).tolist(), "ts": float(ts),
             "cost": float(J), "seconds": time.perf_counter() - t0}
@@ -332,10 +338,19 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
 
 @eqx.filter_jit
 def _run_metrics(plant, controller, scenarios):
-    """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost) and
-    the first set point: one compiled call, no `(B, T, n)` output."""
+    """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost), the
+    first set point and the run length: one compiled call, no `(B, T, n)` output."""
     vals = rollout_metrics(plant, controller, scenarios)
-    return {k: jnp.mean(v) for k, v in vals.items()}, scenarios.r[0, 0]
+    return {k: jnp.mean(v) for k, v in vals.items()}, scenarios.r[0, 0], scenarios.n_samples
+
+
+@eqx.filter_jit
+def _scenario_metrics(kind, plant, controller, duration, key, n_rollouts):
+    """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
+    scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
+    traced: one compile for every seed)."""
+    return _run_metrics(plant, controller,
+                        make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts))
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
