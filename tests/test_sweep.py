@@ -362,3 +362,21 @@ def test_cli_sweep_with_a_typo_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "unknown key `zone` in [data] for kind arx" in err
     assert not (tmp_path / "r.jsonl").exists()
+
+
+def test_cli_sweep_writes_a_csv_table(tmp_path):
+    import pandas as pd
+
+    from jthermo import cli
+
+    (tmp_path / "s.toml").write_text(CFG)
+    res, table = tmp_path / "r.jsonl", tmp_path / "t.csv"
+    assert cli.main(["sweep", str(tmp_path / "s.toml"), "--results", str(res), "--csv", str(table),
+                     "--quiet"]) == 0
+    df = pd.read_csv(table)
+    assert len(df) == 4 and list(df.columns[:5]) == ["id", "status", "na", "nb", "nk"]
+    assert df.mean_fit_percent.is_monotonic_decreasing
+    table.unlink()
+    assert cli.main(["sweep", str(tmp_path / "s.toml"), "--results", str(res), "--summary",
+                     "--csv", str(table), "--quiet"]) == 0
+    assert pd.read_csv(table).id.tolist() == df.id.tolist()

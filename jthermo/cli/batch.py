@@ -25,6 +25,8 @@ def add_parsers(sub) -> None:
                     "('local' starts one here)")
     sp.add_argument("--results", metavar="FILE", help="JSON-lines results file (appended, resumable)")
     sp.add_argument("--summary", action="store_true", help="print the best trials and exit")
+    sp.add_argument("--csv", metavar="FILE", help="write every trial as a table (one row per "
+                    "trial: parameters, status, metrics; best first)")
     sp.add_argument("--top", type=positive_int(10000), default=10)
     sp.add_argument("--workers", type=positive_int(256), default=None,
                     help="local worker processes (default: 1, in-process)")
@@ -41,6 +43,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
     from .. import sweep
 
     js = output_path(args.json, "--json")
+    table = output_path(args.csv, "--csv")
     if args.config is not None:
         input_file(args.config, "sweep config")
         config = sweep.load_config(args.config)
@@ -53,6 +56,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
         best = sweep.best_trials(rows, config, top=args.top)
         print(sweep.format_summary(best, config, total=len(rows)))
         report = {"results": str(results), "n_trials": len(rows), "best": best}
+        _write_table(table, rows, config, report)
         return write_report(args, js, report)
     bar = progress_bar(args, f"sweep {config['name']}")
     try:
@@ -60,12 +64,24 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
                                  progress=bar)
     finally:
         bar.close()
+    _write_table(table, sweep.read_results(results), config, report)
     report = write_report(args, js, report)
     info(args, f"sweep {config['name']}: {report['n_run']} trials run, {report['n_skipped']} already done, "
                f"{report['n_failed']} failed; results in {results}")
     if report.get("best"):
         info(args, sweep.format_summary(report["best"], config, total=report["n_total"]))
     return report
+
+
+def _write_table(path: Path | None, rows: list[dict], config: dict, report: dict) -> None:
+    """`--csv`: the trials as `sweep.results_frame` lays them out, written atomically."""
+    if path is None:
+        return
+    from .. import sweep
+    from .._files import atomic_write_text
+
+    atomic_write_text(path, sweep.results_frame(rows, config).to_csv(index=False))
+    report["csv"] = str(path)
 
 
 def cmd_demo(args: argparse.Namespace) -> dict:
