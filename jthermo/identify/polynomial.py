@@ -4,7 +4,8 @@ Polynomial families are fitted on deviations from an operating point (the data's
 rest at zero input: see `fit_polynomial`'s `offset` and `operating_point.py`; stored as the
 model's `u0`, `y0`, so `model.simulate(u)` is in absolute units): ARX by linear
 least squares, ARMAX/OE/BJ by prediction-error minimisation (Levenberg–Marquardt, one MISO
-problem per output, all outputs and all start points solved together under `vmap`) started
+problem per output, the output rows and their start points solved one after another in one
+compiled call, so only one row's Jacobian is held at a time) started
 from the ARX estimate and `n_starts - 1` perturbed copies of it; every start gets
 `screen_steps` steps and only the best is solved to convergence. C, D and F are parametrised by
 reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are stable.
@@ -130,7 +131,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    offset: str = "auto", seed: int = 0, n_starts: int = 8, solver: str = "lm",
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
-                   screen_steps: int = 10, batch: str = "vmap", common_f: bool = False,
+                   screen_steps: int = 10, batch: str = "map", common_f: bool = False,
                    rest_level=None):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
@@ -147,9 +148,13 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     the same delays: ARMAX gets A, B from ARX (na, nb) and C = 1; OE and BJ get $F_{ij} = A_i$
     and $B_{ij}$ from ARX (nf, nb), and C = D = 1. `n_starts - 1` perturbed copies are added;
     every start is solved for `screen_steps` Levenberg–Marquardt steps and the best one is then
-    solved to convergence (`screen_steps=0`: all to convergence). `batch`: `"vmap"` or `"map"`
-    over the start points (see `jthermo.identify.pem.minimize`). `common_f`: OE/BJ with one
-    denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
+    solved to convergence (`screen_steps=0`: all to convergence). `batch`: `"map"` (default)
+    solves the output rows and their start points one after another inside one compiled call
+    (`lax.map`): one MISO problem's Jacobian $(T, p)$ is held at a time and each row stops at
+    its own step count; `"vmap"` solves all $n_y K$ problems together, which on CPU holds them
+    all at once and runs every row to the slowest one's step count (N = 16: peak RSS and time in
+    `benchmarks/results/identification_default_batch_n16_true.md`; same fits). `common_f`:
+    OE/BJ with one denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
     (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
     MATLAB's $F_{ij}$ per input–output pair.
 
