@@ -91,6 +91,6 @@ def _design(result, est, val, args, path, duration, hold) -> dict:
     d = experiment.design_experiment(result, est, val, duration=duration, hold=hold, seed=args.seed)
     save_csv(d["record"], path)
     js = experiment.to_json(d, path)
-    info(args, f"designed experiment ({js['why']}): {js['rivals'][0]} vs {js['rivals'][1]}, separation "
+    info(args, f"designed experiment ({js['why']}): {' vs '.join(js['rivals'])}, separation "
                f"{js['separation_designed']:.3g} (PRBS {js['separation_prbs']:.3g}), wrote {path}")
     return js

@@ -112,9 +112,9 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
     exp = result.get("experiment")
     if exp:
         lines += ["## Next experiment", "",
-                  (f"Designed to separate `{exp['rivals'][0]}` from `{exp['rivals'][1]}` ({exp['why']}): "
+                  (f"Designed to separate {', '.join(f'`{m}`' for m in exp['rivals'])} ({exp['why']}): "
                    f"{exp['duration_s']:g} s within inputs {exp['limits']['u_min']}–{exp['limits']['u_max']}, "
-                   f"expected separation {exp['separation_designed']:.3g} noise units against "
+                   f"expected separation (weakest pair) {exp['separation_designed']:.3g} noise units against "
                    f"{exp['separation_prbs']:.3g} for a PRBS of the same length"
                    + (f"; written to `{exp['path']}`." if exp.get("path") else ".")), ""]
     for f in result.get("flagged", []):
