@@ -215,7 +215,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 eval_rollouts: int | None = None, weights=None, ensemble: int = 2,
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
                 check_robustness: bool = True, ff_init: bool = True,
-                ms_max: float | None = 2.0, optimiser: str = "adam",
+                ms_max: float | None = 2.0, optimiser: str = "adam", ms_weight: float = 0.0,
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -236,6 +236,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     `model` is at most `ms_max` (else the start design), for the families `peak_sensitivity`
     covers; others are tuned unconstrained and reported with `computable: False`.
     `optimiser`: `"adam"` or `"lbfgs"` (`minimise`; `steps` is then the most iterations).
+    `ms_weight` > 0 also penalises the soft peak sensitivity above `ms_max` inside the tuning
+    objective (`tune`, `sensitivity.ms_penalty`).
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -264,7 +266,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         ensemble else [pl]
     res = tune(start, pl, plants=plants, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
                duration=duration, weights=weights, references=refs, progress=progress,
-               ms_max=ms_max, ms_model=model, optimiser=optimiser)
+               ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight)
     ms_c = (res.guard or {}).get("ms_constraint")
     if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
         ms = loop_ms(model, res.controller)
@@ -301,6 +303,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
             "ensemble": len(plants),
             "history": [float(h) for h in res.history], "rollouts": int(rollouts),
             "optimiser": res.method, "evaluations": res.evaluations,
+            "ms_weight": float(ms_weight),
             "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds),
             "duration": float(duration), "zones": int(getattr(pl, "zones", 0) or 0),
             "powder": powder, "ff_init": bool(ff_init and isinstance(start, ScheduleFF)),

@@ -20,6 +20,7 @@ from ..control.margins import peak_sensitivity
 from ..errors import ControlError
 from ..printer import Printer
 from .optimiser import TuneResult, minimise
+from .sensitivity import model_response, ms_penalty
 from .terms import batch_terms, group_batch
 
 #: the thesis' three test scenarios, tuned for jointly and reported separately
@@ -178,6 +179,17 @@ def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms
     return (start if chosen is None else candidates[chosen][2]), info
 
 
+def _penalty(ms_model, ms_max, weight) -> Callable:
+    """`controller -> penalty` on its soft peak sensitivity on `ms_model` above `ms_max`
+    (`sensitivity.ms_penalty`), or 0 when `weight` is 0 or the limit or model is missing."""
+    if weight < 0:
+        raise ControlError(f"tune: ms_weight must be >= 0, got {weight}")
+    if not weight or ms_max is None or ms_model is None:
+        return lambda c: 0.0
+    z, G = model_response(ms_model)
+    return lambda c: ms_penalty(c, z, G, float(ms_max), float(weight))
+
+
 def _field_filter(controller, names):
     """`eqx.partition` filter selecting the array leaves of the named fields (all: None)."""
     if names is None:
@@ -202,7 +214,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
          ms_max: float | None = None, ms_model=None,
          params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
-         optimiser: str = "adam",
+         optimiser: str = "adam", ms_weight: float = 0.0,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -233,6 +245,9 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       the linear `ms_model` exceeds `ms_max` (or whose loop there is unstable); families with
       no linear feedback form (`peak_sensitivity` raises) are not constrained. Reported in
       `guard["ms_constraint"]` (`ms_max`, `chosen_ms`, `satisfied`, `rejected_for_ms`).
+      `ms_weight` > 0 adds the smooth penalty $\\mu \\max(0, \\tilde M_s - M)^2$ on the soft
+      peak sensitivity on `ms_model` to the training objective (`sensitivity.ms_penalty`;
+      PI families), so that the iterates stay within the limit the guard enforces.
     - `params`: names of the controller fields to tune (e.g. `("q1", "q2", "qi", "qw", "b0",
       "tau_r")` for an LQG: its weights, not its design model or operating point); default
       every array leaf.
@@ -254,16 +269,19 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         scenario_kw=scenario_kw)
     batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
     refs = [controller, *references]
+    pen = _penalty(ms_model, ms_max, ms_weight)
     if normalise:
         # the references' best cost and mse per (plant, scenario), fixed (no gradient)
         pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
         if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
             raise ControlError("tune: the reference designs give no finite cost on the training set")
-        res = minimise(lambda c, br: robust_objective(batch_terms(c, br[0], weights), br[1], tau),
+        res = minimise(lambda c, br: robust_objective(batch_terms(c, br[0], weights), br[1], tau)
+                       + pen(c),
                        controller, pairs, steps=steps, lr=lr, progress=progress,
                        snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
     else:
-        res = minimise(lambda c, b: jnp.mean(batch_terms(c, b, weights)[:, 0]), controller,
+        res = minimise(lambda c, b: jnp.mean(batch_terms(c, b, weights)[:, 0]) + pen(c),
+                       controller,
                        batches, steps=steps, lr=lr, progress=progress,
                        snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
     if not guard:
