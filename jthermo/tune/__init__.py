@@ -2,8 +2,10 @@
 
 The closed-loop cost over B disturbance rollouts of each test scenario, on one plant or on a
 plant ensemble, is differentiated with `eqx.filter_value_and_grad` with respect to every
-inexact array leaf of the controller, and minimised with optax Adam in one jitted `make_step`;
-the loop over iterations and the progress report stay outside jit.
+inexact array leaf of the controller, and minimised with optax Adam in one jitted `make_step`,
+or with L-BFGS (`optimiser="lbfgs"`: two-loop recursion and a weak-Wolfe line search on one
+compiled value-and-gradient of the fixed batch's cost, `optimiser.minimise`); the loop over
+iterations and the progress report stay outside jit.
 
 The rollouts run on a lean path (`rollout_terms`): one `lax.scan` per rollout that accumulates
 the cost terms and the measured-output MSE in its carry, so no `(B, T, n)` trajectory is stored.
@@ -27,6 +29,9 @@ Parameters stay valid by construction: every leaf whose entries are all positive
 $\\theta = e^{z}$, so it stays positive and Adam's steps are relative; other leaves (e.g. a
 decoupling matrix with signs) are optimised as they are. Non-finite gradients are zeroed, and
 only finite iterates are kept, so tuning never hands back a NaN or diverging controller.
+
+Robustness in the cost (`ms_weight` > 0, PI families): a smooth peak sensitivity on the
+design model, penalised above the guard's `ms_max` (`sensitivity.ms_penalty`).
 """
 
 from .optimiser import TuneResult as TuneResult, minimise as minimise
@@ -42,6 +47,7 @@ from .training import (
 from .report import (
     evaluate as evaluate, printer_model as printer_model, tune_report as tune_report,
     CLASSICAL as CLASSICAL, classical_designs as classical_designs, robustness as robustness,
+    held_out_terms as held_out_terms,
 )
 from .own import (
     OWN_SCENARIOS as OWN_SCENARIOS, classical_at as classical_at, judge as judge,
