@@ -1,0 +1,145 @@
+"""Where `jthermo simulate` spends its time (issue 13 item 1): the command's stages timed one by
+one in this process, each with its wall and CPU seconds and the JAX compile events it caused.
+
+Stages, as `jthermo.cli.control.cmd_simulate` runs them: import, `make_printer`, the design
+model (`tune.printer_model`), the controller design, then `closedloop.run`'s program: the
+scenarios drawn and the figures accumulated inside the scan, no `(B, T, n)` array returned.
+With `--dense` the earlier path follows for comparison: `make_scenario`, stored trajectories,
+then `metrics` and `cost`. Each runs twice (the second call is the warm one in a process).
+Compile events come from `jax.monitoring` (trace, lowering,
+backend compile: count and seconds); a warm persistent cache still traces and lowers.
+
+    python benchmarks/simulate_profile.py                 # N = 16, B = 256, T = 3600
+    python benchmarks/simulate_profile.py --rollouts 32 --duration 600 --out -   # quick look
+
+Run it twice with the same `JTHERMO_CACHE_DIR` for the warm-cache profile. CPU seconds (user +
+system of this process, all threads) are less sensitive than wall seconds to other jobs on a
+shared machine; the load average is recorded at the start and the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import sys
+import time
+from pathlib import Path
+
+T_START = time.perf_counter()
+CPU_START = time.process_time()
+
+HERE = Path(__file__).resolve().parent
+EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+          "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+          "/jax/core/compile/backend_compile_duration": "compile"}
+_seen: collections.Counter = collections.Counter()
+_secs: collections.Counter = collections.Counter()
+
+
+def _on_span(event: str, start: float, end: float, **_) -> None:
+    if event in EVENTS:
+        _seen[EVENTS[event]] += 1
+        _secs[EVENTS[event]] += end - start
+
+
+def _load() -> str:
+    try:
+        return Path("/proc/loadavg").read_text().split()[0]
+    except OSError:
+        return "n/a"
+
+
+def stage(rows: list, name: str, fn):
+    """Run `fn()`, block on its result, append a row; return the result."""
+    import jax
+
+    seen, secs = _seen.copy(), _secs.copy()
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = jax.block_until_ready(fn())
+    rows.append({"stage": name, "wall_s": time.perf_counter() - t0,
+                 "cpu_s": time.process_time() - c0,
+                 **{k: _seen[k] - seen[k] for k in EVENTS.values()},
+                 "compile_events_s": sum(_secs.values()) - sum(secs.values())})
+    print(rows[-1], flush=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--zones", type=int, default=16)
+    ap.add_argument("--rollouts", type=int, default=256)
+    ap.add_argument("--duration", type=float, default=3600.0)
+    ap.add_argument("--dense", action=argparse.BooleanOptionalAction, default=True,
+                    help="also time the dense metrics path")
+    ap.add_argument("--out", default=str(HERE / "results" / "simulate_profile.md"),
+                    help="Markdown file to write ('-': print only)")
+    args = ap.parse_args()
+    load0 = _load()
+    rows: list = []
+    t0, c0 = time.perf_counter(), time.process_time()
+    from jthermo import runtime
+
+    runtime.enable_cache()
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    jax.monitoring.register_event_time_span_listener(_on_span)
+    import equinox as eqx
+
+    from jthermo import closedloop as cl
+    from jthermo.closedloop import engine
+    from jthermo.control.design import design
+    from jthermo.printer import make_printer
+    from jthermo.tune import printer_model
+
+    rows.append({"stage": "import (python start to jthermo.closedloop, tune, design loaded)",
+                 "wall_s": time.perf_counter() - T_START, "cpu_s": time.process_time() - CPU_START,
+                 "trace": 0, "lower": 0, "compile": 0, "compile_events_s": 0.0})
+    print(rows[-1], flush=True)
+    del t0, c0
+    plant = stage(rows, "make_printer", lambda: make_printer(
+        args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0))
+    model = stage(rows, "design model (tune.printer_model, one jit as in the CLI)",
+                  lambda: eqx.filter_jit(printer_model)(plant))
+    ctrl = stage(rows, "design pi_lambda", lambda: design("pi_lambda", model))
+    key = jax.random.key(0)
+    lean = None
+    for rep in ("first", "second"):
+        lean = stage(rows, f"scenarios + lean metrics, one program as in `run` ({rep} call)",
+                     lambda: engine._scenario_metrics("tracking", plant, ctrl, args.duration,
+                                                      key, args.rollouts))
+    if args.dense:
+        sc = stage(rows, "make_scenario (dense path)", lambda: cl.make_scenario(
+            "tracking", plant, args.duration, key, n_rollouts=args.rollouts))
+        dense = eqx.filter_jit(lambda p, c, s: engine.rollouts_and_cost(p, c, s))
+        for rep in ("first", "second"):
+            traj, J = stage(rows, f"dense trajectories + cost ({rep} call)",
+                            lambda: dense(plant, ctrl, sc))
+            m = stage(rows, f"dense metrics ({rep} call)", lambda t=traj: cl.metrics(t, sc))
+        del traj
+        worst = max(abs(float(lean[0][k]) - m[k]) for k in m)
+        print("max |lean - dense| over the metrics:", worst, " cost:", abs(float(lean[0]["cost"]) - float(J)))
+    rows.append({"stage": "total (this process)", "wall_s": time.perf_counter() - T_START,
+                 "cpu_s": time.process_time() - CPU_START, **{k: _seen[k] for k in EVENTS.values()},
+                 "compile_events_s": sum(_secs.values())})
+    load1 = _load()
+    lines = [(f"# `jthermo simulate` profile: N = {args.zones}, B = {args.rollouts}, "
+              f"T = {args.duration:g} s"), "",
+             (f"`python benchmarks/simulate_profile.py --zones {args.zones} --rollouts "
+              f"{args.rollouts} --duration {args.duration:g}`, {runtime.cache_info()}; "
+              f"1-minute load {load0} at the start, {load1} at the end (2 shared cores: wall "
+              "seconds scale with the load, CPU seconds less so)."), "",
+             "| stage | wall s | CPU s | traces | lowerings | backend compiles | compile-event s |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['stage']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {r['trace']} | "
+                     f"{r['lower']} | {r['compile']} | {r['compile_events_s']:.2f} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out != "-":
+        Path(args.out).write_text(text.replace(os.path.expanduser("~"), "~"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
