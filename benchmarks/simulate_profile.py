@@ -43,6 +43,14 @@ def _on_span(event: str, start: float, end: float, **_) -> None:
         _secs[EVENTS[event]] += end - start
 
 
+def _cache_entries() -> int:
+    """Entries in the persistent compilation cache (`JTHERMO_CACHE_DIR` or the default)."""
+    from jthermo import runtime
+
+    d = runtime.default_cache_dir()
+    return sum(1 for p in d.iterdir() if p.name.endswith("-cache")) if d.is_dir() else 0
+
+
 def _load() -> str:
     try:
         return Path("/proc/loadavg").read_text().split()[0]
@@ -76,6 +84,7 @@ def main() -> None:
                     help="Markdown file to write ('-': print only)")
     args = ap.parse_args()
     load0 = _load()
+    n_cache0 = _cache_entries()
     rows: list = []
     t0, c0 = time.perf_counter(), time.process_time()
     from jthermo import runtime
@@ -127,7 +136,8 @@ def main() -> None:
     lines = [(f"# `jthermo simulate` profile: N = {args.zones}, B = {args.rollouts}, "
               f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_profile.py --zones {args.zones} --rollouts "
-              f"{args.rollouts} --duration {args.duration:g}`, {runtime.cache_info()}; "
+              f"{args.rollouts} --duration {args.duration:g}`, compilation cache entries "
+              f"{n_cache0} at the start, {_cache_entries()} at the end; "
               f"1-minute load {load0} at the start, {load1} at the end (2 shared cores: wall "
               "seconds scale with the load, CPU seconds less so)."), "",
              "| stage | wall s | CPU s | traces | lowerings | backend compiles | compile-event s |",
