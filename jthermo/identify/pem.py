@@ -268,15 +268,15 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
                   solver: str = "lm", max_steps: int = 200, rtol: float = 1e-8,
                   atol: float = 1e-8, learning_rate: float = 1e-2, covariance: bool = True,
                   throw: bool = True, batch: str = "vmap", screen_steps: int = 0) -> PEMResult:
-    """`minimize` for M independent problems of the same shape, solved together with `vmap`.
+    """`minimize` for M independent problems of the same shape, in one compiled call.
 
     Used for models whose outputs do not share parameters (MISO per output): a block-diagonal
     Jacobian is then never formed. `batch` applies to the problems too: `"vmap"` holds all
     M·K problems' Jacobians at once and runs each to the slowest one's step count; `"map"`
     solves them one after another in the same compiled call (the memory of one, each stopping
     at its own count: the polynomial families' default). `theta0` is `(M, p)` or `(M, K, p)`;
-    every array leaf of `args` carries the problem index on axis 0. The returned `PEMResult` has a leading `M` axis
-    on every field.
+    every array leaf of `args` carries the problem index on axis 0. The returned `PEMResult`
+    has a leading `M` axis on every field.
     """
     theta0 = _check(theta0, solver, max_steps, 1, batch)
     res = _minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
