@@ -1,6 +1,7 @@
 """The closed-loop engine: plant adapters, `simulate` (one `lax.scan`), batched `rollouts`, the
-lean cost paths that accumulate the cost inside the scan (`simulate_cost`, `rollout_costs`,
-`CompactScenario`), and `run`, the one-call test of a controller."""
+lean paths that accumulate the cost (`simulate_cost`, `rollout_costs`, `CompactScenario`) or
+every test figure (`simulate_metrics`, `rollout_metrics`) inside the scan, and `run`, the
+one-call test of a controller (one compiled program, no `(B, T, n)` array)."""
 
 from __future__ import annotations
 
@@ -303,9 +304,12 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     `plant` defaults to `make_printer(zones, REALISTIC_EFFECTS, powder=powder, seed=seed)`;
     `controller` is a controller module or `"untuned"` (the original identical PI per zone);
     `scenario_kw` goes to `make_scenario` (a fitted model's `envelope` and `setpoint`).
+    The figures come from `rollout_metrics` (accumulated in the scan: no trajectory is stored;
+    equal to `metrics` of the stored rollouts to rounding), the printer's scenarios drawn
+    inside the same compiled call.
 
     **Returns:** `{"scenario", "controller", "zones", "rollouts", "duration", "seed", "metrics",
-    "cost", "seconds"}`.
+    "setpoints", "ts", "cost", "seconds"}`.
     """
     t0 = time.perf_counter()
     if not isinstance(rollouts, (int, np.integer)) or rollouts < 1:
