@@ -21,6 +21,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -52,16 +53,23 @@ def _load() -> str:
         return "n/a"
 
 
-def _jthermo(argv: list[str], env: dict, json_path: Path | None) -> dict:
+def _child_cpu() -> float:
+    """User + system CPU seconds of the finished child processes so far."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def _jthermo(argv: list[str], env: dict, json_path: Path | None, cwd: str | None = None) -> dict:
     cmd = [sys.executable, "-m", "jthermo.cli", *argv, "--quiet"]
     if json_path is not None:
         cmd += ["--json", str(json_path)]
     load0 = _load()
+    cpu0 = _child_cpu()
     t0 = time.perf_counter()
-    r = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True)
+    r = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, cwd=cwd)
     wall = time.perf_counter() - t0
-    row = {"wall_s": round(wall, 2), "load_before": load0, "load_after": _load(),
-           "returncode": r.returncode}
+    row = {"wall_s": round(wall, 2), "cpu_s": round(_child_cpu() - cpu0, 2), "load_before": load0,
+           "load_after": _load(), "returncode": r.returncode}
     if r.returncode != 0:
         row["error"] = (r.stderr.strip().splitlines() or ["?"])[-1]
         return row
@@ -106,8 +114,9 @@ def _cell(run: dict | None) -> str:
         return "—"
     if run.get("returncode"):
         return f"failed: {run.get('error', '')}"
+    cpu = f" CPU {run['cpu_s']:.1f}" if "cpu_s" in run else ""
     return (f"{run['wall_s']:.1f} ({run.get('compile_s', float('nan')):.1f} / "
-            f"{run.get('run_s', float('nan')):.1f}) load {run['load_before'].split()[0]}")
+            f"{run.get('run_s', float('nan')):.1f}){cpu} load {run['load_before'].split()[0]}")
 
 
 def _result(row: dict) -> str:
@@ -128,7 +137,9 @@ def write(rows: dict, meta: dict) -> None:
              ("`python benchmarks/latency.py`: each command in a fresh process, cold = empty "
              "compilation cache (a new temporary `JTHERMO_CACHE_DIR`), warm = a second process "
              "with the cache the first one filled. Cells: wall s (compile s / run s from the "
-             "command's `--json`) and the 1-minute load average when it started."), "",
+             "command's `--json`), the process's CPU s (user + system, all threads; rows "
+             "measured before it was recorded have none) and the 1-minute load average when "
+             "it started."), "",
              (f"Machine: {meta['machine']}, {meta['cpus']} CPUs shared with other jobs; "
              "wall times scale with the load (2 cores: a load of 10 makes everything ~5× slower)."), "",
              "| command | goal cold / warm s | cold | warm | --no-cache | result (warm run) |",

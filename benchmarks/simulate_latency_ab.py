@@ -1,0 +1,68 @@
+"""`jthermo simulate` (N = 16, B = 256, T = 3600: the latency row) from two source trees in
+turn, at the same load: an earlier revision against this checkout, cold and warm, interleaved.
+
+On a shared machine the wall clock follows the load, so `benchmarks/latency.py` alone cannot
+say whether a change helped; here both trees run back to back (cold base, cold this, warm
+base, warm this), each in its own process with its own fresh `JTHERMO_CACHE_DIR`, and the
+process's CPU seconds (user + system) are recorded next to the wall seconds.
+
+    git archive REV | (mkdir -p BASE && tar -x -C BASE)
+    python benchmarks/simulate_latency_ab.py --base BASE --base-label REV
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from latency import COMMANDS, _jthermo
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", required=True, help="source tree of the earlier revision")
+    ap.add_argument("--base-label", required=True, help="how the table names it (e.g. a commit)")
+    ap.add_argument("--out", default=str(HERE / "results" / "simulate_latency_ab.md"))
+    args = ap.parse_args()
+    trees = {args.base_label: Path(args.base).resolve(), "this checkout": HERE.parent}
+    argv = COMMANDS["simulate"][0]
+    env0 = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env0.pop("JTHERMO_NO_CACHE", None)
+    rows: dict = {name: {} for name in trees}
+    with tempfile.TemporaryDirectory(prefix="jthermo-ab-") as tmp:
+        caches = {name: str(Path(tmp) / f"cache-{i}") for i, name in enumerate(trees)}
+        for phase in ("cold", "warm"):
+            for name, tree in trees.items():
+                env = dict(env0, PYTHONPATH=str(tree), JTHERMO_CACHE_DIR=caches[name])
+                rows[name][phase] = _jthermo(argv, env, Path(tmp) / f"{phase}.json", cwd=str(tree))
+                print(name, phase, rows[name][phase], flush=True)
+    lines = ["# `jthermo simulate` latency: an earlier revision against this checkout", "",
+             (f"`python benchmarks/simulate_latency_ab.py --base BASE --base-label {args.base_label}` "
+              f"(BASE: `git archive {args.base_label}`); command `jthermo {' '.join(argv)}`; cold = "
+              "empty compilation cache, warm = a second process with that cache; run order: cold "
+              "base, cold this, warm base, warm this. 2 CPU cores shared with other jobs: the wall "
+              "seconds follow the load (1-minute average before each run), the CPU seconds (user + "
+              "system of the process, all threads) much less."), "",
+             ("| tree | cold wall s (compile / run) | cold CPU s | cold load | warm wall s "
+              "(compile / run) | warm CPU s | warm load | mse |"),
+             "|---|---|---|---|---|---|---|---|"]
+    for name, r in rows.items():
+        c, w = r["cold"], r["warm"]
+        lines.append(
+            f"| {name} | {c['wall_s']:.1f} ({c.get('compile_s', float('nan')):.1f} / "
+            f"{c.get('run_s', float('nan')):.1f}) | {c['cpu_s']:.1f} | {c['load_before'].split()[0]} | "
+            f"{w['wall_s']:.1f} ({w.get('compile_s', float('nan')):.1f} / "
+            f"{w.get('run_s', float('nan')):.1f}) | {w['cpu_s']:.1f} | {w['load_before'].split()[0]} | "
+            f"{w.get('mse', float('nan')):.10g} |")
+    text = "\n".join(lines) + "\n"
+    Path(args.out).write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
