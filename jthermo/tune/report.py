@@ -61,26 +61,26 @@ def printer_model(printer):
     steady input and the window-centre readings. Input delay is left out (a design model)."""
     if printer.has_areas:
         raise ControlError("printer_model: printers with areas 1–3 are not supported here")
+    Ad, Bd, u0, y0 = _design_point(printer)
+    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:printer.n_outputs]
+    return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=y0)
+
+
+@eqx.filter_jit
+def _design_point(printer):
+    """`(A, B, u0, y0)`: the Jacobians of the one-sample map in the state and the input at the
+    steady state, the steady input and the readings there, as one compiled program (eager, it
+    compiled about a hundred small ones: `benchmarks/tuning_profile.py`, phase design model)."""
     x0 = printer.initial_state()
     u0 = printer.steady_input()
     disc = printer.discretise()
     d = printer.default_disturbance()
 
-    Ad, Bd = _linearise(disc, x0, u0, d)
-    n = printer.n_outputs
-    C = jnp.eye(Ad.shape[0], dtype=Ad.dtype)[:n]
-    return StateSpace(Ad, Bd, C, ts=printer.ts, u0=u0, y0=printer.output(x0))
-
-
-@eqx.filter_jit
-def _linearise(disc, x0, u0, d):
-    """Jacobians of the one-sample map in the state and the input (one compiled program: the
-    eager version dispatched hundreds of small ones)."""
     def f(z, u):
         buf = jnp.broadcast_to(u, x0.buffer.shape)        # the delay line holds u: no delay
         return disc.step(PrinterState(z=z, buffer=buf, since=x0.since), u, d).z
 
-    return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0)
+    return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0), u0, printer.output(x0)
 
 
 def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
