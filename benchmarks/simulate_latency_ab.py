@@ -23,6 +23,13 @@ sys.path.insert(0, str(HERE))
 from latency import COMMANDS, _jthermo
 
 
+def _cells(run: dict) -> str:
+    """`wall (compile / run) | CPU | load` of one run."""
+    nan = float("nan")
+    return (f"{run['wall_s']:.1f} ({run.get('compile_s', nan):.1f} / {run.get('run_s', nan):.1f})"
+            f" | {run['cpu_s']:.1f} | {run['load_before'].split()[0]}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="source tree of the earlier revision")
@@ -52,13 +59,8 @@ def main() -> None:
               "(compile / run) | warm CPU s | warm load | mse |"),
              "|---|---|---|---|---|---|---|---|"]
     for name, r in rows.items():
-        c, w = r["cold"], r["warm"]
-        lines.append(
-            f"| {name} | {c['wall_s']:.1f} ({c.get('compile_s', float('nan')):.1f} / "
-            f"{c.get('run_s', float('nan')):.1f}) | {c['cpu_s']:.1f} | {c['load_before'].split()[0]} | "
-            f"{w['wall_s']:.1f} ({w.get('compile_s', float('nan')):.1f} / "
-            f"{w.get('run_s', float('nan')):.1f}) | {w['cpu_s']:.1f} | {w['load_before'].split()[0]} | "
-            f"{w.get('mse', float('nan')):.10g} |")
+        lines.append(f"| {name} | {_cells(r['cold'])} | {_cells(r['warm'])} | "
+                     f"{r['warm'].get('mse', float('nan')):.10g} |")
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)
     print(text)
