@@ -88,7 +88,13 @@ def fit_greybox(data, *, seed: int = 0, n_starts: int = 1, capacity: float = NOM
 
     **Returns:** a `FitResult` whose `model` is the fitted `BedModel`; `covariance` is that of
     `[log G (N), log n (N nu), x0 (N)(, T_s)]`, block diagonal by zone (the $T_s$ variance:
-    the spread of the per-zone estimates over N); `converged` holds when every zone converged.
+    the spread of the per-zone estimates over N); `converged` holds when every zone converged
+    (MATLAB pem's rule: the Gauss–Newton step from the result would lower the zone's cost by less
+    than 0.01 %); `extra["zones_not_converged"]` lists the others and
+    `extra["expected_improvement"]` gives that relative gain per zone. A heater gain whose
+    least-squares value is at or below zero makes its zone creep: its logarithm falls without
+    bound at a nearly constant predicted gain (the bound $n_{ij} > 0$ is active), so such a zone
+    reports not converged at the step cap although its fit no longer changes.
     Raises `FitError` when a zone's fit is not finite.
     """
     y = np.asarray(data.y, float)
@@ -152,6 +158,8 @@ def fit_greybox(data, *, seed: int = 0, n_starts: int = 1, capacity: float = NOM
     info = {"cost": cost, "zone_costs": np.asarray(res.cost).tolist(),
             "start_costs": np.asarray(res.start_costs).tolist(),
             "n_steps": int(jnp.max(res.n_steps)), "measured_surroundings": measured,
+            "zones_not_converged": np.flatnonzero(~np.asarray(res.converged)).tolist(),
+            "expected_improvement": np.asarray(res.expected_improvement).tolist(),
             "surroundings": None if measured else s, "x0": x0.tolist()}
     return FitResult(model=model, family="greybox", orders={}, converged=bool(jnp.all(res.converged)),
                      cost=cost, seconds=seconds, covariance=jnp.asarray(cov),

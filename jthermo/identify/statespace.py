@@ -81,9 +81,10 @@ def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
     return jnp.mean(ss_residuals(theta, args) ** 2)
 
 
-def _sim_error(ss, data: IOData, free_x0: bool = True) -> float:
-    """Simulation error on `data` with the least-squares initial state (`free_x0`) or from
-    rest (x0 = 0, the output level fitted by least squares) (NumPy)."""
+def simulation_error(ss, data: IOData, free_x0: bool = True) -> float:
+    """Sum of squared simulation errors $\\sum_t \\|y_t - \\hat y_{sim}(t)\\|^2$ on `data`,
+    with the least-squares initial state (`free_x0`) or from rest (x0 = 0, the output level
+    fitted by least squares) (NumPy)."""
     A, C = np.asarray(ss.A), np.asarray(ss.C)
     w = data.w if ss.Bw.shape[1] else None
     y_free = np.asarray(ss.simulate(data.u, w))
@@ -109,7 +110,7 @@ def choose_operating_point(data: IOData, n: int, horizon: int | None = None) -> 
     errs = {}
     for op in OPERATING_POINTS:
         try:
-            errs[op] = _sim_error(n4sid(data, n, horizon, operating_point=op)[0], data,
+            errs[op] = simulation_error(n4sid(data, n, horizon, operating_point=op)[0], data,
                                   free_x0=op == "mean")
         except JThermoError:
             errs[op] = float("inf")
@@ -288,6 +289,7 @@ __all__ = [
     "choose_operating_point",
     "fit_statespace",
     "fit_statespace_family",
+    "simulation_error",
     "ss_cost",
     "ss_residuals",
     "ss_residuals_level",
