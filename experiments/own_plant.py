@@ -6,7 +6,8 @@ record (the evaluation plant, never tuned on). From the design model: every clas
 of `tune.report.CLASSICAL` (untuned PI, lambda PI, decoupled PI, feed-forward, IMC, LQG and
 `pid_relay`, the firmware's relay auto-tune + Ziegler–Nichols) at the set point's
 equilibrium, and PI and PID tuned with jthermo's defaults (`tune.tune_own_plant`, starting
-from the lambda PI and from `pid_relay`). All are run on the evaluation plant in the model's
+from the lambda PI and from `pid_relay`; a PID also tuned on the start-up step is reported
+beside them, not for the acceptance). All are run on the evaluation plant in the model's
 own scenarios (set-point changes around the operating point, load, start-up; held-out seed). Reported:
 set-point-change MSE on the evaluation plant, the start-up step's overshoot, and the acceptance of
 issue 18 (tuned MSE ≥ 20 % below the best classical; hot-end overshoot ≤ 2 °C).
@@ -38,6 +39,7 @@ from jthermo.data import load_csv  # noqa: E402
 from jthermo.errors import ControlError  # noqa: E402
 from jthermo.identify import fit  # noqa: E402
 from jthermo.tune import tune_own_plant  # noqa: E402
+from jthermo.tune.own import OWN_SCENARIOS  # noqa: E402
 from jthermo.validate import compare  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -52,7 +54,11 @@ DEVICES = {
                    evaluation=REAL / "klipper_onionheater" / "sample_trace" / "data.csv",
                    family="ss", orders=(2,), setpoint=(200.0,)),
 }
-TUNED = {"tuned PI": "pi_lambda", "tuned PID": "pid_relay"}
+#: label: (start family, extra scenarios tuned on besides the defaults)
+TUNED = {"tuned PI": ("pi_lambda", ()), "tuned PID": ("pid_relay", ()),
+         "tuned PID (+start-up)": ("pid_relay", ("preheat",))}
+#: the classical designs a firmware user would otherwise have: PI rules and the relay PID
+PID_TYPE = ("pi_untuned", "pi_lambda", "pi_decoupled", "pid_relay")
 
 
 def load(path):
@@ -73,11 +79,12 @@ def device_study(name, spec, steps, rollouts, seed):
     fits = {"design_on_evaluation_record": compare(fd.model, ev)["fit_percent"],
             "evaluation_on_design_record": compare(fe.model, est)["fit_percent"]}
     runs, failed = {}, {}
-    for label, fam in TUNED.items():
+    for label, (fam, extra) in TUNED.items():
         try:
             runs[label] = tune_own_plant(fam, fd.model, envelope=fd.envelope,
                                          setpoint=spec["setpoint"], validation_plant=fe.model,
-                                         steps=steps, rollouts=rollouts, seed=seed)
+                                         steps=steps, rollouts=rollouts, seed=seed,
+                                         kinds=(*OWN_SCENARIOS, *extra))
         except ControlError as exc:          # the tuned loop failed its own judge: say so
             failed[label] = str(exc)
     if not runs:
@@ -89,8 +96,13 @@ def device_study(name, spec, steps, rollouts, seed):
         table[label] = row(res["validation"]["scenarios"]["tuned"])
     classical = [f for f in table if f not in TUNED]
     best = min(classical, key=lambda f: table[f]["tracking_mse"])
-    tuned = min(runs, key=lambda f: table[f]["tracking_mse"])
+    defaults = [f for f in runs if not TUNED[f][1]] or list(runs)   # jthermo's defaults
+    tuned = min(defaults, key=lambda f: table[f]["tracking_mse"])
     gain = 100.0 * (1.0 - table[tuned]["tracking_mse"] / table[best]["tracking_mse"])
+    pid_type = [f for f in classical if f in PID_TYPE]
+    best_pid = min(pid_type, key=lambda f: table[f]["tracking_mse"]) if pid_type else None
+    gain_pid = None if best_pid is None else 100.0 * (
+        1.0 - table[tuned]["tracking_mse"] / table[best_pid]["tracking_mse"])
     ctrls = {label: res["tuned"] for label, res in runs.items()}
     figure(name, fe.model, fd.envelope, first["setpoints"], first["duration"],
            {**ctrls, best: classical_controller(fd.model, best, first["setpoints"])}, seed)
@@ -104,6 +116,8 @@ def device_study(name, spec, steps, rollouts, seed):
             "startup_overshoot_C": table[tuned]["startup_overshoot_C"],
             "accept_overshoot_2C": bool(table[tuned]["startup_overshoot_C"] <= 2.0),
             "startup_floor_mse": first["validation"]["startup_floor_mse"],
+            "tracking_floor_mse": first["validation"]["tracking_floor_mse"],
+            "best_pid_type": best_pid, "improvement_vs_best_pid_type_percent": gain_pid,
             "weights": first["weights"], "term_scales": {k: r["term_scales"] for k, r in runs.items()},
             "tuning": {label: {"moved": res["moved"], "guard": res["guard"],
                                "verdict": res["validation"]["verdict"],
@@ -178,6 +192,16 @@ def markdown(results, args) -> str:
                   f"it (acceptance ≥ 20 %: {'met' if r['accept_20_percent'] else 'NOT met'}); its "
                   f"start-up overshoot {r['startup_overshoot_C']:.3g} °C (≤ 2 °C: "
                   f"{'met' if r['accept_overshoot_2C'] else 'NOT met'})", ""]
+        if r.get("best_pid_type"):
+            lines += [f"- against the best PI/PID-type classical design ({r['best_pid_type']}): "
+                      f"{r['improvement_vs_best_pid_type_percent']:.1f} % below it", ""]
+        if r.get("tracking_floor_mse") is not None:
+            lines += [(f"- set-point-change MSE floor estimate on the evaluation plant (after "
+                       f"each change, every heater at its limit from steady state until the new "
+                       f"set point; `tune.own.tracking_floor(kind='tracking')`): "
+                       f"{r['tracking_floor_mse']:.4g} °C², i.e. at most "
+                       f"{100 * (1 - r['tracking_floor_mse'] / r['table'][r['best_classical']]['tracking_mse']):.1f}"
+                       f" % below {r['best_classical']}"), ""]
         if r.get("startup_floor_mse") is not None:
             lines += [(f"- start-up MSE floor on the evaluation plant (every heater at full "
                        f"power until the set point, zero error after; `tune.own.tracking_floor`):"

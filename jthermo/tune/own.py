@@ -34,10 +34,11 @@ OWN_SCENARIOS = ("tracking", "load")
 #: power until near the set point whatever the controller, so its MSE says little of the tuning
 STARTUP = "preheat"
 #: default cost weights of own-plant tuning, each relative to its term's value for the
-#: starting controller (`normalised_weights`); overshoot is measured in units of the tracking
-#: term (both °C²), so its weight says how much an overshoot counts against tracking error
+#: starting controller (`normalised_weights`, `term_scales`)
 OWN_WEIGHTS = {"tracking": 1.0, "uniformity": 0.0, "effort": 0.1, "window": 0.1,
-               "overshoot": 10.0}
+               "overshoot": 1.0}
+#: the overshoot term's scale is at least this share of the tracking term's
+OVERSHOOT_FLOOR = 1e-3
 #: a loop at an input limit longer than this share of a scenario has failed
 MAX_SATURATED = 0.9
 #: the quantities reported per scenario and controller
@@ -125,20 +126,21 @@ def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: i
 def term_scales(controller, plant, *, rollouts: int, duration: float, seed: int, kw,
                 kinds: Sequence[str] = OWN_SCENARIOS) -> dict[str, float]:
     """Each cost term's value (`terms.TERMS`) for `controller` on `plant`, averaged over the
-    training scenarios of `kinds` (seed `seed`); `overshoot` gets the tracking term's scale
-    (both °C²), so that its weight compares an overshoot with tracking error."""
+    training scenarios of `kinds` (seed `seed`); the overshoot's scale is at least
+    `OVERSHOOT_FLOOR` times the tracking term's (both °C²), so that a start without overshoot
+    does not make its weight unbounded."""
     batch = make_batches([plant], kinds, rollouts=rollouts, duration=duration, seed=seed,
                          scenario_kw=kw)[0]
     parts = np.mean(np.asarray(batch_parts(controller, batch)), axis=0)
     scales = {k: float(parts[i]) for i, k in enumerate(TERMS)}
-    scales["overshoot"] = scales["tracking"]
+    scales["overshoot"] = max(scales["overshoot"], OVERSHOOT_FLOOR * scales["tracking"])
     return scales
 
 
-def _held_out(ctrls, plant, seed, rollouts, duration, weights, kw) -> dict:
+def _held_out(ctrls, plant, seed, rollouts, duration, weights, kw, tuned_on) -> dict:
     """Per controller and scenario (`OWN_SCENARIOS` and `STARTUP`): the metrics `REPORTED`,
     the raw cost terms under their weights' names (`terms`), and the normalised `cost`; the
-    controller's `cost` is the mean over `OWN_SCENARIOS`."""
+    controller's `cost` is the mean over the scenarios `tuned_on`."""
     kinds = (*OWN_SCENARIOS, STARTUP)
     scs = {k: model_scenario(k, plant, duration, jax.random.key(int(seed)),
                              n_rollouts=int(rollouts), **kw) for k in kinds}
@@ -151,7 +153,7 @@ def _held_out(ctrls, plant, seed, rollouts, duration, weights, kw) -> dict:
             terms = {t: float(parts[i, j]) for j, t in enumerate(TERMS)}
             row[k] = {**{q: m[q] for q in REPORTED}, "terms": terms,
                       "cost": float(sum(weights[t] * v for t, v in terms.items()))}
-        row["cost"] = float(np.mean([row[k]["cost"] for k in OWN_SCENARIOS]))
+        row["cost"] = float(np.mean([row[k]["cost"] for k in tuned_on]))
         out[name] = row
     return out
 
@@ -191,6 +193,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
                    envelope: Envelope | None = None, setpoint=None, validation_plant=None,
                    rollouts: int = 8, steps: int = 150, seed: int = 0, lr: float = 0.05,
                    duration: float | None = None, weights=None,
+                   kinds: Sequence[str] = OWN_SCENARIOS,
                    references: Sequence[str] = ("pi_lambda",),
                    classical: Sequence[str] = CLASSICAL,
                    progress: Callable[[int, float], None] | None = None) -> dict:
@@ -210,6 +213,8 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
       and classical controllers are judged as well, never tuned on.
     - `weights`: `{term: weight}` over `OWN_WEIGHTS` (tracking, uniformity, effort = mean
       squared input change, window, overshoot), before normalisation.
+    - `kinds`: the scenarios tuned on (default `OWN_SCENARIOS`; add `STARTUP` to tune on the
+      start-up step as well); the scales and the held-out cost use the same.
     - `classical`: the families `best_classical` is taken over (by held-out cost;
       `best_classical_tracking` by the tracking scenario's MSE).
 
@@ -245,21 +250,23 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     designs = classical_at(model, r, classical)
     refs = [designs.get(f) or design(f, model, setpoint=r)
             for f in references if f != controller_family]
-    scales = term_scales(start, plant, rollouts=rollouts, duration=duration, seed=seed, kw=kw)
+    kinds = tuple(kinds)
+    scales = term_scales(start, plant, rollouts=rollouts, duration=duration, seed=seed, kw=kw,
+                         kinds=kinds)
     w = normalised_weights({**OWN_WEIGHTS, **dict(weights or {})}, scales)
-    res = tune(start, plant, kind=OWN_SCENARIOS, rollouts=rollouts, steps=steps, lr=lr,
+    res = tune(start, plant, kind=kinds, rollouts=rollouts, steps=steps, lr=lr,
                seed=seed, duration=duration, weights=w, references=refs,
                scenario_kw=kw, progress=progress)
     seeds = (int(seed) + HELD_OUT,)
     ctrls = {"start": start, "tuned": res.controller, **designs}
-    held = _held_out(ctrls, plant, seeds[0], rollouts, duration, w, kw)
+    held = _held_out(ctrls, plant, seeds[0], rollouts, duration, w, kw, kinds)
     problem = _verdicts(held, duration)
     if problem is not None:
         raise ControlError(f"tune: {problem} at set point {np.round(r, 2).tolist()} °C; "
                            "not reported as tuned")
     lam = held.get("pi_lambda")
     out = {"controller": controller_family, "setpoints": r.tolist(), "ts": float(env.ts),
-           "duration": duration, "scenario_kinds": list(OWN_SCENARIOS), "startup": STARTUP,
+           "duration": duration, "scenario_kinds": list(kinds), "startup": STARTUP,
            "envelope": env.to_dict(), "weights": {**OWN_WEIGHTS, **dict(weights or {})},
            "term_scales": scales, "normalised_weights": w,
            "start_cost": held["start"]["cost"], "tuned_cost": held["tuned"]["cost"],
@@ -281,7 +288,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
            "history": [float(h) for h in res.history], "rollouts": int(rollouts),
            "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds)}
     if validation_plant is not None:
-        val = _held_out(ctrls, validation_plant, seeds[0], rollouts, duration, w, kw)
+        val = _held_out(ctrls, validation_plant, seeds[0], rollouts, duration, w, kw, kinds)
         out["validation"] = {"scenarios": val, **_comparison(val, designs, duration),
                              "startup_floor_mse": tracking_floor(validation_plant, env, r,
                                                                  duration, seeds[0]),
@@ -292,5 +299,5 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     return out
 
 
-__all__ = ["MAX_SATURATED", "OWN_SCENARIOS", "OWN_WEIGHTS", "STARTUP", "classical_at", "judge",
+__all__ = ["MAX_SATURATED", "OVERSHOOT_FLOOR", "OWN_SCENARIOS", "OWN_WEIGHTS", "STARTUP", "classical_at", "judge",
            "term_scales", "tracking_floor", "tune_own_plant"]
