@@ -12,7 +12,9 @@ backend compile: count and seconds); a warm persistent cache still traces and lo
     python benchmarks/simulate_profile.py                 # N = 16, B = 256, T = 3600
     python benchmarks/simulate_profile.py --rollouts 32 --duration 600 --out -   # quick look
 
-Run it twice with the same `JTHERMO_CACHE_DIR` for the warm-cache profile. CPU seconds (user +
+Run it twice with the same `JTHERMO_CACHE_DIR` for the warm-cache profile. `--imports` times
+the imports alone instead (a fresh interpreter per import, median of 5: `import jthermo` is
+lazy; the simulate command's stack is JAX, equinox, closedloop, design and tune). CPU seconds (user +
 system of this process, all threads) are less sensitive than wall seconds to other jobs on a
 shared machine; the load average is recorded at the start and the end.
 """
@@ -73,6 +75,40 @@ def stage(rows: list, name: str, fn):
     return out
 
 
+IMPORTS = {"jthermo": "import jthermo", "jthermo.cli (the command's parser)": "import jthermo.cli",
+           "jax": "import jax",
+           "simulate's stack (closedloop, control.design, tune)":
+               "import jthermo.closedloop, jthermo.control.design, jthermo.tune"}
+
+
+def imports(out: str) -> None:
+    """Median wall and CPU seconds of each import in `IMPORTS`, a fresh interpreter each."""
+    import statistics
+    import subprocess
+
+    probe = ("import time; w, c = time.perf_counter(), time.process_time(); {stmt}; "
+             "print(time.perf_counter() - w, time.process_time() - c)")
+    load0 = _load()
+    lines = ["# Import times", "",
+             (f"`python benchmarks/simulate_profile.py --imports`: a fresh interpreter per import, "
+              f"median of 5; 1-minute load {load0} at the start, {{load1}} at the end (2 shared "
+              "cores)."), "", "| import | wall s | CPU s | heavy modules loaded |", "|---|---|---|---|"]
+    heavy = ("matplotlib", "pandas", "optimistix", "optax", "scipy")
+    for name, stmt in IMPORTS.items():
+        runs = [subprocess.run([sys.executable, "-c", probe.format(stmt=stmt)], check=True,
+                               capture_output=True, text=True).stdout.split() for _ in range(5)]
+        check = f"import sys; {stmt}; print(' '.join(m for m in {heavy!r} if m in sys.modules))"
+        mods = subprocess.run([sys.executable, "-c", check], check=True, capture_output=True,
+                              text=True).stdout.strip()
+        lines.append(f"| `{stmt}` ({name}) | {statistics.median(float(r[0]) for r in runs):.3f} | "
+                     f"{statistics.median(float(r[1]) for r in runs):.3f} | {mods or 'none'} |")
+        print(lines[-1], flush=True)
+    text = "\n".join(lines).replace("{load1}", _load()) + "\n"
+    print(text)
+    if out != "-":
+        Path(out).write_text(text)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--zones", type=int, default=16)
@@ -82,7 +118,12 @@ def main() -> None:
                     help="also time the dense metrics path")
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_profile.md"),
                     help="Markdown file to write ('-': print only)")
+    ap.add_argument("--imports", action="store_true", help="time the imports only")
     args = ap.parse_args()
+    if args.imports:
+        imports(args.out if args.out != str(HERE / "results" / "simulate_profile.md")
+                else str(HERE / "results" / "import_times.md"))
+        return
     load0 = _load()
     n_cache0 = _cache_entries()
     rows: list = []
