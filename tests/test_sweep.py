@@ -24,7 +24,7 @@ nk = [1]
 
 def test_default_config_is_valid():
     cfg = sweep.default_config()
-    assert cfg["kind"] == "arx" and sweep.count_trials(cfg) == len(sweep.trials(cfg)) == 48
+    assert cfg["kind"] == "arx" and sweep.count_trials(cfg) == len(sweep.trials(cfg)) == 18
     assert cfg["objective"] == "mean_fit_percent" and cfg["direction"] == "max"
 
 

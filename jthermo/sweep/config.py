@@ -29,13 +29,14 @@ DATA_KEYS = {
 #: identification kinds also take every order name and every option of `identify.fit`, the
 #: tuning kind a cost weight `w_<term>` per term of `closedloop.DEFAULT_WEIGHTS`
 SETTINGS = {
-    "arx": ("seed", "n_starts"),
+    "arx": ("seed", "n_starts", "criterion"),
     "identify": ("family", "seed", "n_starts", "criterion"),
     "tune": ("controller", "rollouts", "steps", "seed", "lr", "duration", "setpoint"),
 }
 
 DEFAULT_CONFIG = """
-# The embedded default: ARX orders on a simulated two-zone bed, then read the best ones.
+# The embedded default: ARX orders on a simulated two-zone bed (each trial a `fit` and a
+# `compare`, one compile per order set: 18 trials), then read the best ones.
 [sweep]
 name = "default"
 kind = "arx"
@@ -50,9 +51,9 @@ samples = 2000
 noise = 0.05
 
 [space]
-na = [1, 2, 3, 4]
-nb = [1, 2, 3, 4]
-nk = [0, 1, 2]
+na = [1, 2, 3]
+nb = [1, 2, 3]
+nk = [1, 2]
 """
 
 _DEFAULTS = {"method": "grid", "samples": 10, "seed": 0, "objective": None, "direction": None}
