@@ -78,3 +78,18 @@ def test_run_reports_the_dense_figures_and_lean_path_checks_batching():
         rollout_metrics(plant, ctrl, jax.tree.map(lambda a: a[0], sc))
     with pytest.raises(ConfigError, match="batched scenario"):
         simulate(plant, ctrl, sc)
+
+
+def test_lean_metrics_on_fitted_model_plants():
+    """The grey-box bed (its own step) and its state space (the linear adapter) as plants,
+    under the reference printer's ensemble scenario: lean equals dense."""
+    from jthermo.models import BedModel
+
+    pr = make_printer(3, ["laser_exposure", "recoat_cooling"], seed=2)
+    par = pr.linear_bed_parameters()
+    bed = BedModel.from_physical(*(np.asarray(par[k]) for k in ("capacity", "loss", "gain")),
+                                 ts=1.0)
+    ctrl = DiagonalPI.untuned(3)
+    for plant in (bed, bed.to_statespace()):
+        sc = make_scenario("ensemble", plant, 150.0, 6, n_rollouts=2, reference=pr)
+        _assert_same(eqx.filter_jit(rollout_metrics)(plant, ctrl, sc), _dense(plant, ctrl, sc))
