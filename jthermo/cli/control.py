@@ -166,9 +166,8 @@ def _one_trajectory(cl, kind, controller, plant, duration, seed, scenario_kw=Non
 
 
 def _printer_model(printer):
-    """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches ~100
-    small ones, each traced, lowered and looked up in the cache on every run
-    (`benchmarks/results/simulate_profile.md`)."""
+    """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
+    many small ones, each traced, lowered and looked up in the cache on every run."""
     import equinox as eqx
 
     tune = require("jthermo.tune", "the printer's design model")
