@@ -183,7 +183,8 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     - `est`, `val`: the records it was run on (`val` gives the noise level σ per zone).
     - `duration`: samples of the designed record (default: the estimation record's length).
     - `hold`: minimum switching time, samples. `u_min`, `u_max`: actuator limits per input
-      (default: the range the two records' inputs span).
+      (default: the range the two records' inputs span); inputs the diagnosis left out (idle)
+      stay at their recorded value.
     - `seed`: the PRBS start and the PRBS it is compared with.
 
     **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
@@ -198,9 +199,6 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     if models is None:
         raise ConfigError("design_experiment: `result` must be the dict `diagnose` returned, "
                           "before `to_json`")
-    if models.get("inputs_left_out"):
-        raise ConfigError("design_experiment: the diagnosis left out idle inputs "
-                          f"({', '.join(models['inputs_left_out'])}); design with them removed")
     if not (isinstance(hold, (int, np.integer)) and hold >= 1):
         raise ConfigError(f"design_experiment: hold must be a positive integer of samples, got {hold!r}")
     T = est.n_samples if duration is None else duration
@@ -209,6 +207,10 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     U = np.concatenate([np.asarray(est.u, float), np.asarray(val.u, float)])
     lo = np.broadcast_to(np.min(U, axis=0) if u_min is None else np.asarray(u_min, float), (est.n_inputs,))
     hi = np.broadcast_to(np.max(U, axis=0) if u_max is None else np.asarray(u_max, float), (est.n_inputs,))
+    # inputs the diagnosis left out (idle in both records) stay at their recorded value
+    idle = set(models.get("inputs_left_out") or ())
+    keep = np.array([j for j, nm in enumerate(est.input_names) if nm not in idle], dtype=int)
+    lo, hi = lo[keep], hi[keep]
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
         raise ConfigError("design_experiment: the actuator limits need u_max > u_min for every input")
     names, why = rival_set(result)
@@ -216,13 +218,13 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     y_val = np.asarray(val.y, float)
     yhat = np.asarray(result["_arrays"]["yhat_augmented"])
     sigma = np.sqrt(np.maximum(np.mean((y_val - yhat) ** 2, axis=0), 1e-12))
-    u_rest = np.clip(np.mean(np.asarray(est.u, float), axis=0), lo, hi)
+    u_rest = np.clip(np.mean(np.asarray(est.u, float)[:, keep], axis=0), lo, hi)
     ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
     # an unmeasured surroundings drift is always a candidate explanation of slow residuals:
     # what it can absorb separates nothing
     Q = jnp.asarray(nuisance_basis(T, ts, not models["measured_ambient"]))
     nseg = math.ceil(T / hold)
-    bits = np.asarray(prbs(seed, nseg, est.n_inputs, levels=(0.0, 1.0), hold=(1, 4)), float)
+    bits = np.asarray(prbs(seed, nseg, len(keep), levels=(0.0, 1.0), hold=(1, 4)), float)
     small = np.asarray(jax.random.normal(jax.random.key(seed), bits.shape, jnp.float64))
     # two starts: the PRBS at the limits, and a small random input in the squash's linear range
     # (from which the gradient grows the most separating direction, as a power iteration does)
@@ -242,6 +244,7 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
     yp = np.asarray(predictions(jnp.asarray(u), ctx))
     w = np.broadcast_to(np.mean(np.asarray(est.w, float), axis=0), (T, est.w.shape[1]))
+    u, u_prbs = (with_idle(v, np.asarray(est.u, float)[0], keep) for v in (u, u_prbs))
     record = from_arrays(u, yp[0], ts, w, input_names=est.input_names, output_names=est.output_names,
                          signal_names=est.signal_names,
                          notes=((f"designed experiment: inputs separate {', '.join(names)}; outputs are "
@@ -251,9 +254,18 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
             "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
                                  for p, a, b in zip(pairs, s_design, s_prbs)},
             "duration": int(T), "duration_s": T * ts, "hold": int(hold),
-            "limits": {"u_min": lo.tolist(), "u_max": hi.tolist()}, "sigma": sigma.tolist(),
+            "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
+                       "u_max": hi.tolist()}, "sigma": sigma.tolist(),
             "u": u, "u_prbs": u_prbs, "predictions": yp, "history": np.asarray(hist),
             "record": record}
+
+
+def with_idle(u_keep, u_idle, keep) -> np.ndarray:
+    """All inputs `(T, nu)`: the designed columns `keep` from `u_keep`, the others held at
+    their value in `u_idle (nu,)`."""
+    out = np.tile(np.asarray(u_idle, float), (u_keep.shape[0], 1))
+    out[:, keep] = u_keep
+    return out
 
 
 def to_json(design: dict, path=None) -> dict:
@@ -268,4 +280,4 @@ def to_json(design: dict, path=None) -> dict:
 
 
 __all__ = ["design_experiment", "nuisance_basis", "objective", "predictions", "rival_context", "rival_set",
-           "separations", "squash", "to_json"]
+           "separations", "squash", "to_json", "with_idle"]

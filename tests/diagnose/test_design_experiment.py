@@ -105,6 +105,19 @@ def test_no_rival_designs_against_the_baseline_and_says_so():
     assert X.rival_set(nothing)[0] == ("input_delay", "baseline")
 
 
+def test_an_idle_input_is_held_at_its_recorded_value():
+    est, val = _records()
+    u2 = np.column_stack([est.u[:, 0], np.full(T, 0.25)])
+    v2 = np.column_stack([val.u[:, 0], np.full(T, 0.25)])
+    est2 = est.replace(u=u2, input_names=("1", "2"))
+    val2 = val.replace(u=v2, input_names=("1", "2"))
+    res = _result()
+    res["_models"]["inputs_left_out"] = ["2"]
+    d = X.design_experiment(res, est2, val2, hold=5, n_steps=40, seed=2)    # compiled above
+    assert d["u"].shape == (T, 2) and np.all(d["u"][:, 1] == 0.25) and np.ptp(d["u"][:, 0]) > 0
+    assert d["limits"]["inputs"] == ["1"] and d["record"].n_inputs == 2
+
+
 def test_bad_arguments_are_one_line_config_errors():
     est, val = _records()
     with pytest.raises(ConfigError, match="before `to_json`"):
