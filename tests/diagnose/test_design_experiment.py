@@ -153,3 +153,17 @@ def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypa
     rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
                    "--design-hold", "0"])
     assert rc == 2 and "--design-hold" in capsys.readouterr().err
+
+
+def test_report_has_the_next_experiment(tmp_path):
+    from jthermo.diagnose import write_report
+
+    exp = {"rivals": ["heater_lag", "input_delay"], "why": "the top finding and its rivals",
+           "separation_designed": 60.0, "separation_prbs": 27.0, "duration_s": 600.0,
+           "limits": {"inputs": ["1"], "u_min": [0.3], "u_max": [0.7]}, "path": "next.csv"}
+    res = {"verdict": "no_significant_mismatch", "findings": [], "experiment": exp,
+           "baseline": {"model": "greybox", "mean_fit_percent": 90.0, "fit_percent": [90.0]}}
+    est, val = _records()
+    text = write_report(res, tmp_path, est, val).read_text()
+    assert "## Next experiment" in text and "`heater_lag`, `input_delay`" in text and "next.csv" in text
+    assert json.loads((tmp_path / "diagnosis.json").read_text())["experiment"]["separation_prbs"] == 27.0
