@@ -74,6 +74,12 @@ CASES = {
         lambda L: closedloop.rollouts(L["m2"], L["pi1"], closedloop.make_scenario(
             "tracking", L["m2"], 30.0, setpoint=60.0, n_rollouts=2)),
         r"simulate: " + WRONG_PI),
+    "x0_shape": (
+        lambda L: closedloop.simulate(L["m2"], L["pi2"], L["sc_m2"], x0=np.zeros(5)),
+        r"simulate: x0 has shapes \[\(5,\)\], the plant's state has \[\(2,\)\]"),
+    "x0_printer_state": (
+        lambda L: closedloop.simulate(L["p2"], L["pi2"], L["sc_p2"], x0=np.zeros(2)),
+        r"simulate: x0 has shapes \[\(2,\)\], the plant's state has \[\(2,\), "),
     "tune_controller_zones": (
         lambda L: tune(L["pi1"], L["m2"], kind=("tracking",), rollouts=1, steps=1, duration=30.0),
         r"tune: " + WRONG_PI),
@@ -96,6 +102,9 @@ def test_right_shapes_still_run(loops):
     assert traj.u.shape == (30, 2) and bool(np.all(np.isfinite(traj.y)))
     sc = closedloop.make_scenario("tracking", loops["p2"], 20.0)
     assert closedloop.simulate(loops["p2"], loops["pi2"], sc).y.shape == (20, 2)
+    for plant, scen in ((loops["p2"], sc), (loops["m2"], loops["sc_m2"])):    # a given x0
+        x0 = closedloop.initial_state(plant, scen)
+        assert closedloop.simulate(plant, loops["pi2"], scen, x0=x0).y.shape[1] == 2
 
 
 def test_model_prints_gain_and_poles(loops):

@@ -27,9 +27,28 @@ def _what(is_model: bool) -> str:
     return "a fitted model" if is_model else "the virtual printer"
 
 
-def check_loop(where: str, plant, controller, scenario: Scenario | None = None) -> None:
+def _state_like(plant, scenario: Scenario):
+    """Shapes of the state `initial_state(plant, scenario)` returns (traced abstractly)."""
+    import equinox as eqx
+
+    if isinstance(plant, AbstractModel):
+        return eqx.filter_eval_shape(lambda m: m.to_statespace().A[0], plant)
+    pr = plant.printer if isinstance(plant, DiscretePrinter) else plant
+    return eqx.filter_eval_shape(lambda p, y0, a: p.initial_state(y0, ambient=a), pr,
+                                 scenario.y0, scenario.d.ambient[0])
+
+
+def _shapes(tree) -> list:
+    import jax
+
+    return [tuple(np.shape(x)) for x in jax.tree.leaves(tree)]
+
+
+def check_loop(where: str, plant, controller, scenario: Scenario | None = None,
+               x0=None) -> None:
     """`scenario` (one run, `(T, ny)`) was built for this kind of plant and its number of
-    outputs, and `controller` maps the plant's outputs to its inputs."""
+    outputs, `controller` maps the plant's outputs to its inputs, and a given start state
+    `x0` has the structure and shapes of the plant's state."""
     n_in, n_out = plant_size(plant)
     if scenario is None:
         y = r = np.zeros(n_out)
@@ -46,6 +65,13 @@ def check_loop(where: str, plant, controller, scenario: Scenario | None = None) 
                               f"plant has {n_out}")
         y = r = scenario.r[0]
         s = None if scenario.s is None else scenario.s[0]
+        if x0 is not None:
+            import jax
+
+            like = _state_like(plant, scenario)
+            if jax.tree.structure(x0) != jax.tree.structure(like) or _shapes(x0) != _shapes(like):
+                raise ConfigError(f"{where}: x0 has shapes {_shapes(x0)}, the plant's state "
+                                  f"has {_shapes(like)}")
     controller_fits(where, controller, y, r, s, n_in)
 
 

@@ -143,7 +143,7 @@ def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, 
     saturated input, the true temperatures and the set point. Returns `(acc, outs)`."""
     if scenario.r.ndim != 2:
         raise ConfigError("simulate: a batched scenario needs `rollouts`, not `simulate`")
-    check_loop("simulate", plant, controller, scenario)
+    check_loop("simulate", plant, controller, scenario, x0)
     p = _prepare(plant)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
