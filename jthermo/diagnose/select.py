@@ -11,8 +11,10 @@ the surroundings level when no surroundings signal is measured, for every model 
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
 Significant candidates are ranked by their validation MSE; explanations within the test's resolution
 of the top one are reported as its `rivals`. Combinations are grown greedily from the top one
-(up to `MAX_COMBINED` mechanisms), each addition fitted and kept only if it passes the same
-tests against the smaller model: chosen by validation, not by estimation cost.
+(up to `MAX_COMBINED` mechanisms) with any candidate that lowered the validation error on its
+own (significant alone or not: a coupling can show only behind a lag), each addition fitted and
+kept only if it passes the same tests against the smaller model: chosen by validation, not by
+estimation cost.
 
 Fitting is per zone (series-parallel form): zone i's model sees its neighbours' and the bed's
 measured temperatures, so all zones and candidates are independent small problems solved
@@ -259,15 +261,17 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                          "baseline_cost": float(np.mean(R_e ** 2))}
     tick({"stage": "localisation"})
 
-    def fit_sets(sets, starts):
-        """Fit one augmented model per mechanism set on the estimation record: (θ, residuals)."""
+    def fit_sets(sets, starts, n_act=None):
+        """Fit one augmented model per mechanism set on the estimation record: (θ, residuals);
+        `n_act` (static) the most free parameters of one problem (default: the sets' own)."""
         S = len(sets)
         masks = np.concatenate([np.tile(np.minimum(base_mask + sum(lay.mask(M.MECH_PARAMS[m]) for m in st),
                                                    1.0), (n, 1)) for st in sets])
         ons = jnp.asarray(np.concatenate([np.tile(M.on_vector(st), (n, 1)) for st in sets]))
         per_s = _problems(rec_e, S, events=np.stack([ev_e] * S),
                           delays=[best_delay if "input_delay" in st else 0.0 for st in sets])
-        n_act = 4 * math.ceil(masks.sum(axis=1).max() / 4)          # fewer distinct compilations
+        if n_act is None:
+            n_act = 4 * math.ceil(masks.sum(axis=1).max() / 4)      # fewer distinct compilations
         th, _, _ = fit_zones(jnp.asarray(starts.reshape(S * n, -1)), jnp.asarray(masks), ons, per_s,
                              sh_e, lay, n_iter, n_act)
         ys = np.asarray(sim_zones(th, ons, per_s, sh_e, lay)).reshape(S, n, T).transpose(0, 2, 1)
@@ -377,11 +381,20 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         chosen = [top["mechanism"]]
         aug_theta, aug_yhat = thc[kt], yhat_v[kt + 1]
         cur_res, cur_e = res_c[kt], e_c[kt]
-        pool = [r["mechanism"] for r in sig[1:4]]
+        # additions: every candidate that lowered the validation error on its own (an addition
+        # still has to pass both tests against the smaller model), not only the significant
+        # ones: a mechanism can show only beside another (a coupling behind a lag)
+        pool = [r["mechanism"] for r in others if r["mechanism"] not in forbidden][:4]
         partner = {"input_delay": "heater_lag", "heater_lag": "input_delay"}.get(chosen[0])
         if partner in cands and partner not in pool and partner not in forbidden:
             pool.append(partner)
         # ---- 6. combinations grown by validation ------------------------------------------------
+        # every round has the same shapes (sets padded by repeats, one bound on the free
+        # parameters), so the rounds share one compiled fit and one compiled validation
+        n_pool = len(pool)
+        per_zone = sorted((M.n_added_per_zone(m, lay) for m in pool), reverse=True)
+        n_act_c = 4 * math.ceil((base_mask.sum() + M.n_added_per_zone(chosen[0], lay)
+                                 + sum(per_zone[:MAX_COMBINED - 1])) / 4)
         while pool and len(chosen) < MAX_COMBINED:
             sets = [tuple(chosen) + (m,) for m in pool]
             starts = []
@@ -390,8 +403,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                 for grp in M.MECH_PARAMS[m]:
                     th[:, lay.sl(grp)] = thc[cands.index(m)][:, lay.sl(grp)]
                 starts.append(th)
-            th_s, res_s = fit_sets(sets, np.stack(starts))
-            yh_s = validate([(th_s[i], st) for i, st in enumerate(sets)])
+            pad = n_pool - len(sets)
+            th_s, res_s = fit_sets(sets + [sets[-1]] * pad, np.stack(starts + [starts[-1]] * pad), n_act_c)
+            yh_s = validate([(th_s[i], st) for i, st in enumerate(sets + [sets[-1]] * pad)])
             best = None
             for i, st in enumerate(sets):
                 e_i = yv - yh_s[i]
