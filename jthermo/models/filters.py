@@ -92,6 +92,20 @@ rational_sum = jax.custom_jvp(rational_sum)
 rational_sum.defjvp(_rational_sum_jvp, symbolic_zeros=True)
 
 
+def companion_free_response(x0: Float[Array, "blocks n"], den: Float[Array, "blocks n"],
+                            T: int) -> Float[Array, "T blocks"]:
+    """Zero-input output of observer-canonical blocks started at `x0`: per block
+    $x(t+1) = S x(t) - den\\, x_1(t)$ ($S$ the upward shift), output $x_1(t)$, i.e.
+    $y(t) = x_1(t)$ of $\\mathrm{den}(q)\\, y = 0$ from the given state. O(blocks · n) per
+    sample, whatever the number of blocks (a dense realisation costs (blocks · n)^2)."""
+    def body(x, _):
+        y = x[:, 0]
+        return jnp.concatenate([x[:, 1:], jnp.zeros_like(x[:, :1])], axis=1) - den * y[:, None], y
+
+    _, ys = jax.lax.scan(body, x0, None, length=T)
+    return ys
+
+
 def fir_monic(x: Array, num: Array) -> Array:
     """$y(t) = x(t) + \\sum_{k=1}^{n} num_k\\, x(t-k)$ for `x (T, *batch)`, `num (*batch, n)`."""
     n = num.shape[-1]
