@@ -105,13 +105,14 @@ def _sysid_sim_from_rest(model, scaling, u: np.ndarray) -> np.ndarray:
     return ys / ygain + ymean
 
 
-def child(tool: str, config: str, N: int) -> dict:
-    """One fresh process: cold call, warm call, validation fit from rest."""
+def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
+    """One fresh process: cold call, warm call (unless not `warm`), validation fit from rest."""
     W, est, val, oracle = _data(N)
-    row = {"tool": tool, "config": config, "N": N, "oracle": oracle}
+    row = {"tool": tool, "config": config, "N": N, "oracle": oracle, "warm_s": None}
     if tool == "jax-sysid":
         model, scaling, row["cold_s"] = _sysid_fit(est, N, config)
-        model, scaling, row["warm_s"] = _sysid_fit(est, N, config)
+        if warm:
+            model, scaling, row["warm_s"] = _sysid_fit(est, N, config)
         yhat = _sysid_sim_from_rest(model, scaling, val["u"])
     else:
         import jax
@@ -123,7 +124,7 @@ def child(tool: str, config: str, N: int) -> dict:
         from jthermo.identify.fit import fit
 
         data = from_arrays(est["u"], est["y"])
-        for key in ("cold_s", "warm_s"):
+        for key in ("cold_s", "warm_s")[:2 if warm else 1]:
             t0 = time.perf_counter()
             res = fit(data, "ss", (N,), seed=0)
             jax.block_until_ready(res.model)
@@ -160,6 +161,10 @@ def report(rows: list[dict], args, uptime: str) -> list[str]:
              "Speed-up = jax-sysid s / jthermo s, cold / warm. Shared 2-core machine (load1 at "
              f"the end of each row; wall times inflated by the load); uptime "
              f"{'when rendered from the run log' if args.from_log else 'at the end'}: `{uptime}`.",
+             "" if not args.from_log else
+             f"Rendered with `--from-log {Path(args.from_log).name}`: the rows of that log only (a "
+             "configuration absent at some N was not run there; warm `—`: the child ran with "
+             "`--cold-only`).",
              "", "| N | tool | configuration | cold s | warm s | fit % | oracle % | speed-up cold / warm | load1 |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -167,7 +172,8 @@ def report(rows: list[dict], args, uptime: str) -> list[str]:
                     and "cold_s" in q), None)
         speed = "—"
         if r["tool"] != "jthermo" and ref and "cold_s" in r:
-            speed = f"{r['cold_s'] / ref['cold_s']:.1f}× / {r['warm_s'] / ref['warm_s']:.1f}×"
+            speed = f"{r['cold_s'] / ref['cold_s']:.1f}× / " + (
+                "—" if r["warm_s"] is None else f"{r['warm_s'] / ref['warm_s']:.1f}×")
         if "error" in r:
             lines.append(f"| {r['N']} | {r['tool']} | {r['config']} | — | — | — | — | "
                          f"{r['error']} | — |")
@@ -188,12 +194,13 @@ def main(argv=None) -> int:
                     choices=sorted(SYSID_CONFIGS))
     ap.add_argument("--timeout", type=float, default=1800.0, help="s per process")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "peers_fair"))
+    ap.add_argument("--cold-only", action="store_true", help="with --child: no warm call")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="render the rows a run printed (one JSON object a line) instead of running")
     args = ap.parse_args(argv)
     if args.child:
         tool, config, n = args.child
-        print(json.dumps(child(tool, config, int(n))), flush=True)
+        print(json.dumps(child(tool, config, int(n), warm=not args.cold_only)), flush=True)
         return 0
     rows = []
     if args.from_log is not None:
