@@ -66,7 +66,9 @@ def _controllers():
                               h_recoat=jnp.asarray(0.05 * rng.standard_normal((8, N))),
                               h_laser=jnp.full((8, N), -0.02))
     tustin = DiagonalPI(lam.kp, lam.ti, lam.u0, antiwindup="backcalc", method="tustin")
-    return plant, {"lambda_pi": lam, "tustin_backcalc": tustin, "decoupled": design(
+    weighted = DiagonalPI(lam.kp, lam.ti, lam.u0, b=0.4)    # set-point weight b < 1
+    return plant, {"lambda_pi": lam, "tustin_backcalc": tustin, "pi_b04": weighted,
+                   "decoupled": design(
         "pi_decoupled", plant), "mimo_pi": mimo, "pi_ff": ff, "lqg": design("lqg", plant),
         "lqg_ff": lqg_ff}
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -88,6 +89,11 @@ def test_hysteresis_and_errors():
 
 
 def closed_loop(ctrl, model, r, n):
+    return (np.asarray(o) for o in traced_loop(ctrl, model, r))
+
+
+def traced_loop(ctrl, model, r):
+    """`(y, u, integral)` of the loop on `model` following `r`, as JAX arrays."""
     A, B, C = (jnp.asarray(x) for x in (model.A, model.B, model.C))
     u0, y0 = jnp.asarray(model.u0), jnp.asarray(model.y0)
 
@@ -99,7 +105,7 @@ def closed_loop(ctrl, model, r, n):
 
     x0 = jnp.zeros(A.shape[0])
     _, out = jax.lax.scan(body, (x0, ctrl.init(y0, r[0])), jnp.asarray(r))
-    return (np.asarray(o) for o in out)
+    return out
 
 
 def test_ziegler_nichols_pid_from_design():
@@ -134,3 +140,67 @@ def test_pid_does_not_wind_up():
 def design_point_of(model, r):
     from jthermo.control.design import design_point
     return design_point(model, r)
+
+
+def _pid_before_weight(c, state, y, r):
+    """The one-degree-of-freedom law `DiagonalPID.step` had before the set-point weight."""
+    e = r - y
+    inc = c.kp * (c.ts / c.ti) * e
+    tf = c.td / c.n_filter
+    deriv = (tf * state.deriv - c.kp * c.td * (y - state.y_prev)) / (tf + c.ts)
+    i_try = state.integral + inc
+    v = c.u0 + c.kp * e + i_try + deriv
+    wind = ((v > c.u_max) & (inc > 0)) | ((v < c.u_min) & (inc < 0))
+    return jnp.clip(v, c.u_min, c.u_max), (jnp.where(wind, state.integral, i_try), deriv, y)
+
+
+def test_setpoint_weight_one_is_the_old_pid_bit_for_bit():
+    c = DiagonalPID([0.3, 0.1], [8.0, 20.0], [1.0, 2.5], [0.4, 0.6], ts=0.5)
+    assert np.all(np.asarray(c.b) == 1.0)
+    rng = np.random.default_rng(3)
+    ys = jnp.asarray(50 + 3 * rng.normal(size=(60, 2)))
+    rs = jnp.asarray(np.where(np.arange(60)[:, None] < 20, 50.0, [54.0, 47.0]))
+    s = c.init(ys[0], rs[0])
+    old = (s.integral, s.deriv, s.y_prev)
+    for y, r in zip(ys, rs):
+        u, s = c.step(s, y, r)
+        u_old, old = _pid_before_weight(c, s.__class__(*old, s.y_ref), y, r)
+        assert np.array_equal(np.asarray(u), np.asarray(u_old))
+        assert all(np.array_equal(np.asarray(a), np.asarray(b))
+                   for a, b in zip((s.integral, s.deriv, s.y_prev), old))
+
+
+def _step_overshoot(c, m, n=600):
+    r = np.full((n, 1), 50.0)
+    r[100:] = 50.4
+    y, u, _ = closed_loop(c, m, r, n)
+    return float(y[100:, 0].max() - 50.4), float(abs(y[-1, 0] - 50.4))
+
+
+def test_setpoint_weight_cuts_the_step_overshoot_and_its_gradient():
+    """A first-order plant, $K/(1 + sT)$: the PID's zero makes a set-point step overshoot;
+    weighting the set point by b < 1 in the proportional part takes most of it away."""
+    m = fopdt(0.0, 0.5)
+    pid = DiagonalPID(2.0, 5.0, 0.5, 0.5, ts=0.5)
+    over1, err1 = _step_overshoot(pid, m)
+    weighted = DiagonalPID(2.0, 5.0, 0.5, 0.5, ts=0.5, b=0.3)
+    np.testing.assert_allclose(weighted.b, 0.3, rtol=1e-12)
+    over_b, err_b = _step_overshoot(weighted, m)
+    assert over1 > 0.01 and over_b < 0.5 * over1 and err1 < 1e-6 and err_b < 1e-6
+    r = np.full((400, 1), 50.0)
+    r[50:] = 50.4
+
+    def cost(angle):
+        y = traced_loop(eqx.tree_at(lambda k: k.b_angle, pid, angle), m, r)[0]
+        return jnp.mean((y - jnp.asarray(r)) ** 2)
+
+    theta, h = jnp.asarray([0.7]), 1e-6
+    g = float(jax.grad(cost)(theta)[0])
+    fd = (float(cost(theta + h)) - float(cost(theta - h))) / (2 * h)
+    assert g == pytest.approx(fd, rel=1e-5) and abs(g) > 1e-8
+
+
+def test_setpoint_weight_outside_zero_one_is_refused():
+    for b in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ControlError, match="set-point weight"):
+            DiagonalPID(0.1, 10.0, 1.0, b=b)

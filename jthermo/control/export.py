@@ -11,7 +11,7 @@ a closed-loop replay matches to ~1e-15). `schedule` is the event row of
 `closedloop.Scenario.s` (`[recoat, exposure 1..N]`; may be NULL for controllers without a
 schedule feed-forward, and means no events for those with one).
 
-Exported families: `DiagonalPI` (every anti-windup and discretisation), `DecoupledPI` and
+Exported families: `DiagonalPI` (every anti-windup and discretisation, set-point weight $b$), `DecoupledPI` and
 `MIMOPI` (as the MIMO PI law $u = u_0 + K_p e + I$, $I \\mathrel{+}= K_i e$, back-calculation),
 `LQG` (observer, integrators, reference model; the gains of its current weights), and
 `ScheduleFF` around a MIMO PI or an LQG.
@@ -51,7 +51,7 @@ def _feedback_tables(ctrl) -> dict:
                 "tables": {"Kp": _arr(kp), "Ki": _arr(ki), "u0": _arr(ctrl.u0)}}
     if isinstance(ctrl, DiagonalPI):
         tt = ctrl.tt if ctrl.tt is not None else None
-        t = {"kp": _arr(ctrl.kp), "ti": _arr(ctrl.ti), "u0": _arr(ctrl.u0)}
+        t = {"kp": _arr(ctrl.kp), "ti": _arr(ctrl.ti), "u0": _arr(ctrl.u0), "b": _arr(ctrl.b)}
         if ctrl.antiwindup == "backcalc":
             t["tt"] = _arr(jnp.sqrt(ctrl.ti * ctrl.ts)) if tt is None else np.full(ctrl.zones, tt)
         return {"kind": "diagonal_pi", "ts": ctrl.ts, "n": ctrl.zones, "tables": t,
@@ -150,15 +150,15 @@ def _pi_code(t: dict, p: str) -> tuple[str, str, str]:
         upd = f"s->integ[i] = itry + ({_num(t['ts'])} / tt[i]) * (u[i] - v);"
     else:
         upd = "s->integ[i] = itry;"
-    fields = f"double integ[{p}_NU]; double err[{p}_NU];"
+    fields = f"double integ[{p}_NU]; double err[{p}_NU]; double yref[{p}_NU];"
     init = (f"for (int i = 0; i < {p}_NU; ++i) {{ s->integ[i] = 0.0; "
-            f"s->err[i] = (r0 ? r0[i] - y0[i] : 0.0); }}")
+            f"s->err[i] = (r0 ? r0[i] - y0[i] : 0.0); s->yref[i] = y0[i]; }}")
     step = f"""for (int i = 0; i < {p}_NU; ++i) {{
         double e = r[i] - y[i];
         double ki = kp[i] * {_num(t['ts'])} / ti[i];
         double inc = {inc};
         double itry = s->integ[i] + inc;
-        double v = u0[i] + uadd[i] + kp[i] * e + itry;
+        double v = u0[i] + uadd[i] + kp[i] * (e - (1.0 - b[i]) * (r[i] - s->yref[i])) + itry;
         u[i] = clip(v, {lo}, {hi});
         {upd}
         s->err[i] = e;

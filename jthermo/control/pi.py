@@ -9,6 +9,13 @@ $$u_k = u_0 + K_p e_k + I_k, \\qquad I_k = I_{k-1} + \\frac{K_p T_s}{T_i} e_k ,$
 while the output is saturated and the error would drive it further) or by back-calculation
 (the integral is pulled back by $\\frac{T_s}{T_t}(\\mathrm{sat}(v) - v)$).
 
+Set-point weight (two degrees of freedom, Åström & Hägglund 2006, §3.4): the proportional
+part acts on $b\\,\\tilde r - \\tilde y$ in deviations from the measurement $y_0$ the loop
+starts from, $K_p\\big(e_k - (1 - b)(r_k - y_0)\\big)$, the integral on $e = r - y$; so a
+set-point step of size $\\Delta$ kicks the input by $b K_p \\Delta$ and the integral brings
+the rest. $b = \\sin^2\\theta \\in [0, 1]$ (the leaf is $\\theta$, smooth and unconstrained);
+$b = 1$ ($\\theta = \\pi/2$, the default) is the one-degree-of-freedom PI bit for bit.
+
 `pi_update` is the Euler-backward sample with back-calculation to the exact limit, behind a
 static matrix $W_1$ (the decoupled PI and the feed-forward's feedback PI).
 """
@@ -43,19 +50,41 @@ def pi_update(kp, ti, ts, integ, e, u_open, W1=None):
     return u_sat, integ_new
 
 
+def weight_angle(b, like) -> Array:
+    """$\\theta = \\arcsin\\sqrt{b}$, the leaf of a set-point weight $b = \\sin^2\\theta$,
+    broadcast to `like`'s shape and dtype; `ControlError` unless $0 \\le b \\le 1$."""
+    try:
+        bad = not 0.0 <= float(jnp.min(jnp.asarray(b))) <= float(jnp.max(jnp.asarray(b))) <= 1.0
+    except (TypeError, ValueError):
+        bad = True
+    if bad:
+        raise ControlError(f"set-point weight b must lie in [0, 1], got {b!r}")
+    return jnp.broadcast_to(jnp.arcsin(jnp.sqrt(jnp.asarray(b, like.dtype))), like.shape)
+
+
+def p_error(e, b, r, y_ref):
+    """The proportional part's error with set-point weight $b$: $e - (1 - b)(r - y_{ref})$
+    (exactly $e$ when $b = 1$)."""
+    return e - (1.0 - b) * (r - y_ref)
+
+
 class PIState(eqx.Module):
     integral: Float[Array, " zones"]    # power fraction
     error: Float[Array, " zones"]       # previous error (Tustin), °C
+    y_ref: Float[Array, " zones"]       # measurement at the start, °C (set-point weight)
 
 
 class DiagonalPI(AbstractController):
-    """One PI loop per zone: `kp` (1/°C), `ti` (s) and the bias `u0` (power fraction) are
-    array leaves, so `jax.grad` reaches them; `ts`, the limits and the discretisation are static.
+    """One PI loop per zone: `kp` (1/°C), `ti` (s), the bias `u0` (power fraction) and the
+    set-point weight's angle `b_angle` ($b = \\sin^2\\theta$, property `b`; constructor
+    argument `b`, default 1) are array leaves, so `jax.grad` reaches them; `ts`, the limits and
+    the discretisation are static.
     """
 
     kp: Float[Array, " zones"]
     ti: Float[Array, " zones"]
     u0: Float[Array, " zones"]
+    b_angle: Float[Array, " zones"]
     ts: float = eqx.field(static=True, default=1.0)
     u_min: float = eqx.field(static=True, default=U_MIN)
     u_max: float = eqx.field(static=True, default=U_MAX)
@@ -65,7 +94,7 @@ class DiagonalPI(AbstractController):
 
     def __init__(self, kp, ti, u0=0.5, *, ts: float = 1.0, u_min: float = U_MIN,
                  u_max: float = U_MAX, antiwindup: str = "clamp", method: str = "euler",
-                 tt: float | None = None):
+                 tt: float | None = None, b=1.0):
         kp = jnp.asarray(kp)
         ti = jnp.asarray(ti)
         if kp.ndim == 0:
@@ -79,6 +108,7 @@ class DiagonalPI(AbstractController):
         self.kp = jnp.broadcast_to(kp, (n,)).astype(dtype)
         self.ti = jnp.broadcast_to(ti, (n,)).astype(dtype)
         self.u0 = jnp.broadcast_to(jnp.asarray(u0, dtype), (n,))
+        self.b_angle = weight_angle(b, self.kp)
         self.ts = float(ts)
         self.u_min, self.u_max = float(u_min), float(u_max)
         self.antiwindup = antiwindup
@@ -110,20 +140,26 @@ class DiagonalPI(AbstractController):
     def zones(self) -> int:
         return int(self.kp.shape[0])
 
+    @property
+    def b(self) -> Array:
+        """The set-point weight $b = \\sin^2\\theta$."""
+        return jnp.sin(self.b_angle) ** 2
+
     def init(self, y0, r0=None) -> PIState:
         z = jnp.zeros_like(self.kp)
         e0 = z if r0 is None else jnp.asarray(r0, self.kp.dtype)[:self.zones] - jnp.asarray(y0)[:self.zones]
-        return PIState(integral=z, error=e0)
+        return PIState(integral=z, error=e0, y_ref=jnp.asarray(y0, self.kp.dtype)[:self.zones] + z)
 
     def step(self, state: PIState, y, r) -> tuple[Array, PIState]:
-        e = jnp.asarray(r)[:self.zones] - jnp.asarray(y)[:self.zones]
+        r = jnp.asarray(r)[:self.zones]
+        e = r - jnp.asarray(y)[:self.zones]
         ki = self.kp * self.ts / self.ti
         if self.method == "tustin":
             inc = 0.5 * ki * (e + state.error)
         else:
             inc = ki * e
         i_try = state.integral + inc
-        v = self.u0 + self.kp * e + i_try
+        v = self.u0 + self.kp * p_error(e, self.b, r, state.y_ref) + i_try
         u = jnp.clip(v, self.u_min, self.u_max)
         if self.antiwindup == "clamp":
             wind = ((v > self.u_max) & (inc > 0)) | ((v < self.u_min) & (inc < 0))
@@ -134,4 +170,4 @@ class DiagonalPI(AbstractController):
             integral = i_try + (self.ts / tt) * (u - v)
         else:
             integral = i_try
-        return u, PIState(integral=integral, error=e)
+        return u, PIState(integral=integral, error=e, y_ref=state.y_ref)

@@ -38,7 +38,9 @@ not those of the first harmonic), so its $P_u$ is biased: the symmetric relay is
 **Ziegler–Nichols** (1942): $K_p = 0.6 K_u$, $T_i = P_u/2$, $T_d = P_u/8$, run as `DiagonalPID`:
 derivative on the measurement through a first-order filter $T_f = T_d/N$, integral frozen
 while the output is saturated and the error would push it further (conditional integration,
-Åström & Hägglund 2006, §3.5, §13.3), backward-Euler discretisation.
+Åström & Hägglund 2006, §3.5, §13.3), backward-Euler discretisation. Its proportional part
+can carry a set-point weight $b \\in [0, 1]$ (two degrees of freedom, `pi.p_error`; default
+$b = 1$, the firmware's law).
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ from jaxtyping import Array, Float
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import U_MAX, U_MIN, AbstractController
+from .pi import p_error, weight_angle
 from .rules import as_array, as_state_space
 
 #: derivative filter: $T_f = T_d / N$
@@ -64,26 +67,31 @@ class PIDState(eqx.Module):
     integral: Float[Array, " zones"]     # power fraction
     deriv: Float[Array, " zones"]        # filtered derivative term, power fraction
     y_prev: Float[Array, " zones"]       # previous measurement, °C
+    y_ref: Float[Array, " zones"]        # measurement at the start, °C (set-point weight)
 
 
 class DiagonalPID(AbstractController):
-    """One PID per zone, $u = u_0 + K_p e + I + D$ with $e = r - y$:
+    """One PID per zone, $u = u_0 + K_p e_b + I + D$ with $e = r - y$ and
+    $e_b = e - (1 - b)(r - y_0)$ (set-point weight $b = \\sin^2\\theta$, $y_0$ the measurement
+    at `init`; $b = 1$, the default, gives $e_b = e$):
     $I_k = I_{k-1} + K_p T_s/T_i\\, e_k$ (frozen while saturated further),
     $D_k = \\frac{T_f}{T_f + T_s} D_{k-1} - \\frac{K_p T_d}{T_f + T_s}(y_k - y_{k-1})$,
     $T_f = T_d/N$ (derivative on the measurement: a set-point step gives no kick).
-    `kp` (1/°C), `ti`, `td` (s) and `u0` are array leaves (tunable); the rest is static."""
+    `kp` (1/°C), `ti`, `td` (s), `u0` and `b_angle` ($\\theta$; constructor argument `b`)
+    are array leaves (tunable); the rest is static."""
 
     kp: Float[Array, " zones"]
     ti: Float[Array, " zones"]
     td: Float[Array, " zones"]
     u0: Float[Array, " zones"]
+    b_angle: Float[Array, " zones"]
     ts: float = eqx.field(static=True, default=1.0)
     n_filter: float = eqx.field(static=True, default=FILTER_N)
     u_min: float = eqx.field(static=True, default=U_MIN)
     u_max: float = eqx.field(static=True, default=U_MAX)
 
     def __init__(self, kp, ti, td, u0=0.5, *, ts: float = 1.0, n_filter: float = FILTER_N,
-                 u_min: float = U_MIN, u_max: float = U_MAX):
+                 u_min: float = U_MIN, u_max: float = U_MAX, b=1.0):
         kp, ti, td = (jnp.atleast_1d(jnp.asarray(g)) for g in (kp, ti, td))
         if not (kp.ndim == ti.ndim == td.ndim == 1 and kp.shape == ti.shape == td.shape):
             raise ControlError(f"DiagonalPID: kp, ti and td must be 1-D of one length, got "
@@ -91,6 +99,7 @@ class DiagonalPID(AbstractController):
         dtype = jnp.result_type(kp.dtype, ti.dtype, td.dtype, float)
         self.kp, self.ti, self.td = (g.astype(dtype) for g in (kp, ti, td))
         self.u0 = jnp.broadcast_to(jnp.asarray(u0, dtype), kp.shape)
+        self.b_angle = weight_angle(b, self.kp)
         self.ts, self.n_filter = float(ts), float(n_filter)
         self.u_min, self.u_max = float(u_min), float(u_max)
 
@@ -102,23 +111,29 @@ class DiagonalPID(AbstractController):
     def zones(self) -> int:
         return int(self.kp.shape[0])
 
+    @property
+    def b(self) -> Array:
+        """The set-point weight $b = \\sin^2\\theta$."""
+        return jnp.sin(self.b_angle) ** 2
+
     def init(self, y0: Output, r0: Setpoint) -> PIDState:
         z = jnp.zeros_like(self.kp)
-        return PIDState(integral=z, deriv=z,
-                        y_prev=jnp.asarray(y0, self.kp.dtype)[:self.zones] + z)
+        y0 = jnp.asarray(y0, self.kp.dtype)[:self.zones] + z
+        return PIDState(integral=z, deriv=z, y_prev=y0, y_ref=y0)
 
     def step(self, state: PIDState, y: Output, r: Setpoint) -> tuple[Input, PIDState]:
         y = jnp.asarray(y)[:self.zones]
-        e = jnp.asarray(r)[:self.zones] - y
+        r = jnp.asarray(r)[:self.zones]
+        e = r - y
         inc = self.kp * (self.ts / self.ti) * e
         tf = self.td / self.n_filter
         deriv = (tf * state.deriv - self.kp * self.td * (y - state.y_prev)) / (tf + self.ts)
         i_try = state.integral + inc
-        v = self.u0 + self.kp * e + i_try + deriv
+        v = self.u0 + self.kp * p_error(e, self.b, r, state.y_ref) + i_try + deriv
         u = jnp.clip(v, self.u_min, self.u_max)
         wind = ((v > self.u_max) & (inc > 0)) | ((v < self.u_min) & (inc < 0))
         integral = jnp.where(wind, state.integral, i_try)
-        return u, PIDState(integral=integral, deriv=deriv, y_prev=y)
+        return u, PIDState(integral=integral, deriv=deriv, y_prev=y, y_ref=state.y_ref)
 
 
 class RelayResult(NamedTuple):
