@@ -38,7 +38,7 @@ from pathlib import Path
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")   # as identification.py: one BLAS thread for every tool
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -140,7 +140,8 @@ def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
 def run_child(python: str, tool: str, config: str, N: int, timeout: float) -> dict:
     cmd = [python, str(Path(__file__).resolve()), "--child", tool, config, str(N)]
     try:
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT,
+                           check=False)
     except subprocess.TimeoutExpired:
         return {"tool": tool, "config": config, "N": N, "error": f"timeout {timeout:.0f} s"}
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
@@ -153,14 +154,14 @@ def run_child(python: str, tool: str, config: str, N: int, timeout: float) -> di
 def report(rows: list[dict], args, uptime: str) -> list[str]:
     f = (lambda v, nd=1: "—" if v is None else f"{v:.{nd}f}")
     lines = ["# State space vs jax-sysid, cold with cold and warm with warm (issue 12 item 5)", "",
-             f"`python benchmarks/peers_fair.py --n {' '.join(map(str, args.n))} --configs "
+             (f"`python benchmarks/peers_fair.py --n {' '.join(map(str, args.n))} --configs "
              f"{' '.join(args.configs)}` (jax-sysid in its own environment: jax-sysid 1.1.0 pins "
              "jax <= 0.4.31; jthermo on jax 0.10). W1 records of `identification.py`, T = 6000 + "
              "6000, fit % = validation simulation from rest. One fresh process per row: cold = "
              "first fit call (compilation included), warm = second call in that process. "
              "Speed-up = jax-sysid s / jthermo s, cold / warm. Shared 2-core machine (load1 at "
              f"the end of each row; wall times inflated by the load); uptime "
-             f"{'when rendered from the run log' if args.from_log else 'at the end'}: `{uptime}`.",
+             f"{'when rendered from the run log' if args.from_log else 'at the end'}: `{uptime}`."),
              "" if not args.from_log else
              f"Rendered with `--from-log {Path(args.from_log).name}`: the rows of that log only (a "
              "configuration absent at some N was not run there; warm `—`: the child ran with "
@@ -215,7 +216,7 @@ def main(argv=None) -> int:
             print(f"[peers_fair] N={N} {tool} {config} ...", file=sys.stderr, flush=True)
             rows.append(run_child(python, tool, config, N, args.timeout))
             print(json.dumps(rows[-1]), flush=True)
-    uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    uptime = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
     out = Path(args.out)
     out.with_suffix(".json").write_text(json.dumps({"rows": rows, "uptime": uptime}, indent=1))
     out.with_suffix(".md").write_text("\n".join(report(rows, args, uptime)) + "\n")

@@ -103,9 +103,9 @@ def main(argv=None) -> int:
         lines = bed_rows(args.n)
         out = ("ss_focus_scale.md" if args.n == [4, 16]
                else f"ss_focus_scale_n{'_'.join(map(str, args.n))}.md")
-    up = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    lines = [head, ""] + lines + ["", f"uptime at the end: `{up}` (shared 2-core machine: "
-                                  "wall times are inflated by the load)"]
+    up = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
+    lines = [head, ""] + lines + ["", (f"uptime at the end: `{up}` (shared 2-core machine: "
+                                  "wall times are inflated by the load)")]
     (ROOT / "experiments" / "results" / out).write_text("\n".join(lines) + "\n")
     return 0
 

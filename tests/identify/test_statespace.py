@@ -8,7 +8,10 @@ import pytest
 from jthermo.data import from_arrays
 from jthermo.errors import ModelError
 from jthermo.identify.statespace import (
-    fit_statespace, ss_residuals, ss_residuals_level, ss_residuals_offset,
+    fit_statespace,
+    ss_residuals,
+    ss_residuals_level,
+    ss_residuals_offset,
 )
 from jthermo.identify.subspace import n4sid
 from jthermo.models import StateSpace, is_stable
