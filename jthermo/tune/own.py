@@ -196,7 +196,8 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
                    kinds: Sequence[str] = OWN_SCENARIOS,
                    references: Sequence[str] = ("pi_lambda",),
                    classical: Sequence[str] = CLASSICAL,
-                   progress: Callable[[int, float], None] | None = None) -> dict:
+                   progress: Callable[[int, float], None] | None = None,
+                   start=None) -> dict:
     """Design `controller_family` from the fitted `model` at the set point's equilibrium, tune
     it on `plant` (default the model) over the own-plant scenarios (`OWN_SCENARIOS`, built from
     `envelope`, default `Envelope.from_model`), and judge it on held-out seeds, the start-up
@@ -215,6 +216,9 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
       squared input change, window, overshoot), before normalisation.
     - `kinds`: the scenarios tuned on (default `OWN_SCENARIOS`; add `STARTUP` to tune on the
       start-up step as well); the scales and the held-out cost use the same.
+    - `start`: the controller tuning starts from (default `design(controller_family, ...)` at
+      the set point; e.g. a `DiagonalPID` with set-point weight b < 1, whose gradient in b
+      vanishes at b = 1).
     - `classical`: the families `best_classical` is taken over (by held-out cost;
       `best_classical_tracking` by the tracking scenario's MSE).
 
@@ -246,7 +250,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
                 raise ConfigError(f"tune: on {what}, {exc}") from None
     duration = model_duration(model) if duration is None else float(duration)
     kw = {"envelope": env, "setpoint": r}
-    start = design(controller_family, model, setpoint=r)
+    start = design(controller_family, model, setpoint=r) if start is None else start
     designs = classical_at(model, r, classical)
     refs = [designs.get(f) or design(f, model, setpoint=r)
             for f in references if f != controller_family]
