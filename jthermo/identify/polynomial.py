@@ -158,8 +158,10 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
     MATLAB's $F_{ij}$ per input–output pair.
 
-    **Returns:** `(model, info)` where `info` has `converged`, `cost`, `covariance`, `std`,
-    `start_costs`, `start_steps`, `n_steps`, `offset`.
+    **Returns:** `(model, info)` where `info` has `converged` (every output row), `cost`,
+    `covariance`, `std`, `start_costs`, `start_steps`, `n_steps`, `offset`, and per output row
+    `row_converged` and `expected_improvement` (the relative cost decrease the Gauss–Newton
+    step from the result would still give; converged below 1e-4, see `PEMResult`).
     """
     y = jnp.asarray(y)
     u = jnp.asarray(u, y.dtype)
@@ -232,6 +234,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
                        n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
+                       row_converged=np.asarray(res.converged),
+                       expected_improvement=np.asarray(res.expected_improvement),
                        offset=offset, reference=start,
                        start_model=_model_from_theta(jnp.asarray(theta0, y.dtype), spec, nkt, ts,
                                                      u0, yref))

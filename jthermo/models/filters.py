@@ -93,14 +93,16 @@ rational_sum.defjvp(_rational_sum_jvp, symbolic_zeros=True)
 
 
 def companion_free_response(x0: Float[Array, "blocks n"], den: Float[Array, "blocks n"],
-                            T: int) -> Float[Array, "T blocks"]:
-    """Zero-input output of observer-canonical blocks started at `x0`: per block
-    $x(t+1) = S x(t) - den\\, x_1(t)$ ($S$ the upward shift), output $x_1(t)$, i.e.
-    $y(t) = x_1(t)$ of $\\mathrm{den}(q)\\, y = 0$ from the given state. O(blocks · n) per
-    sample, whatever the number of blocks (a dense realisation costs (blocks · n)^2)."""
+                            T: int, groups: int) -> Float[Array, "T groups"]:
+    """Zero-input output of observer-canonical blocks started at `x0`, summed over `groups`
+    runs of consecutive blocks: per block $x(t+1) = S x(t) - den\\, x_1(t)$ ($S$ the upward
+    shift) with output $x_1(t)$, i.e. $\\mathrm{den}(q)\\, y = 0$ from the given state.
+    O(blocks · n) per sample (a dense realisation costs (blocks · n)^2), and only the group
+    sums are stacked over time (what a Jacobian in `x0` carries per sample)."""
     def body(x, _):
         y = x[:, 0]
-        return jnp.concatenate([x[:, 1:], jnp.zeros_like(x[:, :1])], axis=1) - den * y[:, None], y
+        x = jnp.concatenate([x[:, 1:], jnp.zeros_like(x[:, :1])], axis=1) - den * y[:, None]
+        return x, y.reshape(groups, -1).sum(axis=1)
 
     _, ys = jax.lax.scan(body, x0, None, length=T)
     return ys

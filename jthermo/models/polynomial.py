@@ -203,14 +203,16 @@ class Polynomial(AbstractModel):
         if x0.shape != (ny * nu * n + ny * m,):
             raise ModelError(f"Polynomial.simulate: x0 must have shape ({ny * nu * n + ny * m},), "
                              f"got {x0.shape}")
-        y = self.simulate(u)
-        if n:
-            free = companion_free_response(x0[:ny * nu * n].reshape(ny * nu, n),
-                                           den.reshape(ny * nu, n + 1)[:, 1:], T)
-            y = y + free.reshape(T, ny, nu).sum(axis=2)
-        if m:
-            y = y + companion_free_response(x0[ny * nu * n:].reshape(ny, m), de[:, 1:], T)
-        return y
+        # one block row per output: its nu pair blocks, then its noise block, zero-padded to a
+        # common size (a padded state starts at 0 and stays 0), so one scan serves them all
+        k = max(n, m)
+        pad = lambda a: jnp.pad(a, ((0, 0), (0, 0), (0, k - a.shape[-1])))  # noqa: E731
+        xb = jnp.concatenate([pad(x0[:ny * nu * n].reshape(ny, nu, n)),
+                              pad(x0[ny * nu * n:].reshape(ny, 1, m))], axis=1)
+        db = jnp.concatenate([pad(den[:, :, 1:]), pad(de[:, None, 1:])], axis=1)
+        free = companion_free_response(xb.reshape(ny * (nu + 1), k), db.reshape(ny * (nu + 1), k),
+                                       T, ny)
+        return self.simulate(u) + free
 
     def residuals(self, y, u, w=None, x0=None):
         """One-step prediction errors $\\varepsilon_i = \\frac{D_i}{C_i}\\big((A y)_i - \\sum_j
