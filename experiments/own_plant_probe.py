@@ -18,32 +18,24 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "experiments"))
 
-from own_plant import DEVICES, OUT, load  # noqa: E402
+from own_plant import OUT  # noqa: E402
+from own_plant_overshoot import setup  # noqa: E402
 
-from jthermo.closedloop import metrics, model_duration, model_scenario, simulate  # noqa: E402
+from jthermo.closedloop import metrics, simulate  # noqa: E402
 from jthermo.control.design import design  # noqa: E402
 from jthermo.control.relay import DiagonalPID  # noqa: E402
-from jthermo.identify import fit  # noqa: E402
-from jthermo.models.envelope import check_reachable  # noqa: E402
 from jthermo.tune.own import STARTUP, tracking_floor  # noqa: E402
 from jthermo.tune.training import HELD_OUT  # noqa: E402
 
 
 def main():
-    spec = DEVICES["hotend"]
-    fd = fit(load(spec["design"]), spec["family"], spec["orders"])
-    fe = fit(load(spec["evaluation"]), spec["family"], spec["orders"])
-    env = fd.envelope.check(fd.model)
-    r = check_reachable(fd.model, env, spec["setpoint"])
-    dur = model_duration(fd.model)
+    fd, fe, env, r, dur, scs = setup()      # hot-end fits, held-out scenarios
     kinds = ("tracking", STARTUP)
-    scs = {k: model_scenario(k, fe.model, dur, HELD_OUT, envelope=env, setpoint=r) for k in kinds}
     zn = design("pid_relay", fd.model, setpoint=r)
 
     def run(c):
