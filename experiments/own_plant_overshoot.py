@@ -9,9 +9,9 @@ one rollout) for the Ziegler–Nichols PID of the relay test (`pid_relay`) and h
 (kp, ti, td scaled as in `own_plant_probe.py`), over a grid of b: set-point changes and load
 MSE, overshoots, start-up MSE, overshoot and settling time, and whether `tune.own.judge` passes
 the loop (settles, not saturated). `--tune` also runs `tune_own_plant` from `pid_relay` with
-b = `--b0` (tracking + load [+ start-up with `--startup`], `--steps`, `--rollouts`).
+each b of `--b0` at the start (tracking + load [+ start-up with `--startup`], `--steps`, `--rollouts`).
 
-Usage:  python experiments/own_plant_overshoot.py [--tune --b0 0.9 --steps 60 --rollouts 4]
+Usage:  python experiments/own_plant_overshoot.py [--tune --b0 1 0.95 --steps 60 --rollouts 4]
         ->  experiments/results/own_plant_overshoot.md (and .json)
 """
 
@@ -71,7 +71,7 @@ def evaluate(c, plant, scs, dur) -> dict:
     out = {k: {m: float(v) for m, v in metrics(simulate(plant, c, sc), sc).items()
                if m in ("mse", "overshoot_C", "settling_time_s", "saturated_fraction")}
            for k, sc in scs.items()}
-    out["judge"] = judge({k: out[k] for k in KINDS}, dur, who="this")
+    out["judge"] = judge({k: out[k] for k in KINDS}, dur, who="2-DOF PID")
     return out
 
 
@@ -82,10 +82,19 @@ def row(label, v) -> str:
             f"{'ok' if v['judge'] is None else v['judge']} |")
 
 
+def command_tail(args) -> str:
+    """The options a `--tune` run was given, as typed."""
+    if not args.tune:
+        return ""
+    b0 = " ".join(f"{b:g}" for b in args.b0)
+    return (f" --tune --b0 {b0} --steps {args.steps} --rollouts {args.rollouts}"
+            + (" --startup" if args.startup else ""))
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--tune", action="store_true")
-    ap.add_argument("--b0", type=float, default=0.9)
+    ap.add_argument("--b0", type=float, nargs="+", default=[1.0, 0.95])
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--rollouts", type=int, default=4)
     ap.add_argument("--startup", action="store_true", help="tune on the start-up step as well")
@@ -101,8 +110,7 @@ def main():
                             **evaluate(c, fe.model, scs, dur)})
         print(row(f"{kf:g} | {tif:g} | {tdf:g} | {b:g}", res["grid"][-1]), flush=True)
     lines = ["# Hot-end start-up overshoot with a set-point-weighted (2-DOF) PID", "",
-             f"`python experiments/own_plant_overshoot.py"
-             f"{f' --tune --b0 {args.b0:g} --steps {args.steps} --rollouts {args.rollouts}' + (' --startup' if args.startup else '') if args.tune else ''}`:"
+             f"`python experiments/own_plant_overshoot.py{command_tail(args)}`:"
              f" evaluation plant, seed {HELD_OUT}, one rollout per scenario ({dur:.1f} s), set "
              f"point {r.tolist()} °C. LQG: changes MSE {lqg['tracking']['mse']:.4g} °C², "
              f"load MSE {lqg['load']['mse']:.4g} °C², start-up MSE {lqg[STARTUP]['mse']:.5g} °C², "
@@ -126,22 +134,24 @@ def main():
         lines.append(row(f"{b:g} | {seed}", v))
     if args.tune:
         from jthermo.tune import tune_own_plant
-        start = DiagonalPID(zn.kp, zn.ti, zn.td, zn.u0, ts=zn.ts, b=args.b0)
         kinds = OWN_SCENARIOS + ((STARTUP,) if args.startup else ())
-        out = tune_own_plant("pid_relay", fd.model, envelope=fd.envelope, setpoint=r,
-                             validation_plant=fe.model, steps=args.steps,
-                             rollouts=args.rollouts, kinds=kinds, start=start)
-        c = out["tuned"]
-        v = evaluate(c, fe.model, scs, dur)
-        res["tuned"] = {"b": float(c.b[0]), "kp": float(c.kp[0]), "ti": float(c.ti[0]),
-                        "td": float(c.td[0]), **v}
-        lines += ["", f"Tuned from `pid_relay` with b = {args.b0:g} on {list(kinds)} "
-                  f"(`tune_own_plant`, {args.steps} steps, {args.rollouts} rollouts): b = "
-                  f"{float(c.b[0]):.3f}, kp = {float(c.kp[0]):.4g} /°C, ti = "
-                  f"{float(c.ti[0]):.4g} s, td = {float(c.td[0]):.4g} s.", "",
-                  "| controller | changes MSE (°C²) | changes overshoot (°C) | load MSE (°C²) | "
-                  "start-up MSE (°C²) | start-up overshoot (°C) | start-up settling (s) | judge |",
-                  "|---|---|---|---|---|---|---|---|", row("tuned 2-DOF PID", v)]
+        lines += ["", f"Tuned from `pid_relay` with its set-point weight b at the start as "
+                  f"given, on {list(kinds)} (`tune_own_plant`, {args.steps} steps, "
+                  f"{args.rollouts} rollouts), evaluated as above:", "",
+                  "| b at the start | b | kp (1/°C) | ti (s) | td (s) | changes MSE (°C²) | "
+                  "changes overshoot (°C) | load MSE (°C²) | start-up MSE (°C²) | "
+                  "start-up overshoot (°C) | start-up settling (s) | judge |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        res["tuned"] = []
+        for b0 in args.b0:
+            start = DiagonalPID(zn.kp, zn.ti, zn.td, zn.u0, ts=zn.ts, b=b0)
+            c = tune_own_plant("pid_relay", fd.model, envelope=fd.envelope, setpoint=r,
+                               validation_plant=fe.model, steps=args.steps,
+                               rollouts=args.rollouts, kinds=kinds, start=start)["tuned"]
+            gains = {k: float(getattr(c, k)[0]) for k in ("b", "kp", "ti", "td")}
+            res["tuned"].append({"b0": b0, **gains, **evaluate(c, fe.model, scs, dur)})
+            lines.append(row(f"{b0:g} | {gains['b']:.3f} | {gains['kp']:.4g} | "
+                             f"{gains['ti']:.4g} | {gains['td']:.4g}", res["tuned"][-1]))
     res["seconds"] = time.perf_counter() - t0
     res["load_average"] = os.getloadavg()
     lines += ["", f"{res['seconds']:.0f} s wall on a shared machine (1/5/15-min load average "

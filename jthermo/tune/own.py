@@ -217,8 +217,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     - `kinds`: the scenarios tuned on (default `OWN_SCENARIOS`; add `STARTUP` to tune on the
       start-up step as well); the scales and the held-out cost use the same.
     - `start`: the controller tuning starts from (default `design(controller_family, ...)` at
-      the set point; e.g. a `DiagonalPID` with set-point weight b < 1, whose gradient in b
-      vanishes at b = 1).
+      the set point; e.g. a `DiagonalPID` with a chosen set-point weight b).
     - `classical`: the families `best_classical` is taken over (by held-out cost;
       `best_classical_tracking` by the tracking scenario's MSE).
 
