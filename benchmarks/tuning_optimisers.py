@@ -84,16 +84,18 @@ def main(argv=None) -> int:
             row["process_s"] = time.perf_counter() - t0
             rows.append(row)
             print(json.dumps(row), flush=True)
-    cmd = ("python benchmarks/tuning_optimisers.py" + ("" if args.rollouts == 16 else
-                                                       f" --rollouts {args.rollouts}"))
+    cmd = "python benchmarks/tuning_optimisers.py" + "".join(
+        f" --{k.replace('_', '-')} {getattr(args, k)}" for k in
+        ("controllers", "methods", "adam_steps", "lbfgs_steps", "rollouts", "out")
+        if getattr(args, k) != ap.get_default(k))
     lines = ["# Tuning optimisers: Adam against L-BFGS in `tune_report` (`jthermo tune`)", "",
-             f"`{cmd}` — fresh process per row, no persistent cache (cold); "
-             f"{os.cpu_count()} cores shared with other work: wall times are inflated by the "
-             "load average shown (1-minute, at the end of the row).", "",
-             "| controller | optimiser | steps (max) | iterations | gradient evaluations | "
-             "held-out vs lambda PI % | vs best classical % | best classical | "
-             "changed powder vs lambda PI % | Ms | report s | backend compile s | "
-             "process s | load |",
+             (f"`{cmd}` — fresh process per row, no persistent cache (cold); "
+              f"{os.cpu_count()} cores shared with other work: wall times are inflated by the "
+              "load average shown (1-minute, at the end of the row)."), "",
+             ("| controller | optimiser | steps (max) | iterations | gradient evaluations | "
+              "held-out vs lambda PI % | vs best classical % | best classical | "
+              "changed powder vs lambda PI % | Ms | report s | backend compile s | "
+              "process s | load |"),
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     fmt = lambda v: "—" if v is None else (f"{v:.2f}" if isinstance(v, float) else str(v))
     for r in rows:
