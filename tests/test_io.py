@@ -153,6 +153,25 @@ def test_changed_class_fields(tmp_path):
         io.load(path)
 
 
+def test_pi_saved_before_the_setpoint_weight_loads_with_b_one(tmp_path):
+    """A field without a default is derived by its `older_files` rule (b = 1: the old law)."""
+    from jthermo.control.pi import DiagonalPI
+    from jthermo.control.relay import DiagonalPID
+
+    for ctrl in (DiagonalPI([0.1, 0.2], [50.0, 60.0], ts=0.5, b=0.3),
+                 DiagonalPID([0.1], [50.0], [5.0], ts=0.3, b=0.3)):
+        path = io.save(ctrl, tmp_path / "c.jtm")
+
+        def drop(h):
+            h["spec"]["fields"].pop("b_angle")
+            return h
+
+        _rewrite(path, header_fn=drop)
+        old = io.load(path)
+        np.testing.assert_array_equal(np.asarray(old.kp), np.asarray(ctrl.kp))
+        np.testing.assert_allclose(np.asarray(old.b), 1.0, rtol=0, atol=1e-15)
+
+
 def test_truncated_and_corrupt(tmp_path):
     path = io.save(_model(), tmp_path / "m.jtm")
     raw = path.read_bytes()

@@ -62,6 +62,12 @@ def weight_angle(b, like) -> Array:
     return jnp.broadcast_to(jnp.arcsin(jnp.sqrt(jnp.asarray(b, like.dtype))), like.shape)
 
 
+def unit_weight_angle(controller) -> Array:
+    """$\\theta = \\pi/2$ ($b = 1$) per zone: what a controller saved before the set-point
+    weight existed had."""
+    return jnp.full_like(controller.kp, jnp.pi / 2)
+
+
 def p_error(e, b, r, y_ref):
     """The proportional part's error with set-point weight $b$: $e - (1 - b)(r - y_{ref})$
     (exactly $e$ when $b = 1$)."""
@@ -84,7 +90,7 @@ class DiagonalPI(AbstractController):
     kp: Float[Array, " zones"]
     ti: Float[Array, " zones"]
     u0: Float[Array, " zones"]
-    b_angle: Float[Array, " zones"]
+    b_angle: Float[Array, " zones"] = eqx.field(metadata={"older_files": unit_weight_angle})
     ts: float = eqx.field(static=True, default=1.0)
     u_min: float = eqx.field(static=True, default=U_MIN)
     u_max: float = eqx.field(static=True, default=U_MAX)

@@ -56,7 +56,7 @@ from jaxtyping import Array, Float
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import U_MAX, U_MIN, AbstractController
-from .pi import p_error, weight_angle
+from .pi import p_error, unit_weight_angle, weight_angle
 from .rules import as_array, as_state_space
 
 #: derivative filter: $T_f = T_d / N$
@@ -84,7 +84,7 @@ class DiagonalPID(AbstractController):
     ti: Float[Array, " zones"]
     td: Float[Array, " zones"]
     u0: Float[Array, " zones"]
-    b_angle: Float[Array, " zones"]
+    b_angle: Float[Array, " zones"] = eqx.field(metadata={"older_files": unit_weight_angle})
     ts: float = eqx.field(static=True, default=1.0)
     n_filter: float = eqx.field(static=True, default=FILTER_N)
     u_min: float = eqx.field(static=True, default=U_MIN)
