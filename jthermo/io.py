@@ -179,17 +179,10 @@ def _build(spec: Any, trusted: tuple[str, ...], arrays: list | None) -> Any:
             raise ConfigError(f"saved file names `{spec['cls']}`, which is not a dataclass or Module")
         obj = object.__new__(cls)
         names = {f.name for f in dataclasses.fields(cls)}
-        # fields added since the file was written take their defaults, or the value their
-        # `metadata["older_files"](obj)` derives from the saved fields (older files load)
-        derived = []
+        # fields added since the file was written take their defaults (older files load)
         for f in dataclasses.fields(cls):
-            if f.name in spec["fields"]:
-                continue
-            if f.default is not dataclasses.MISSING:
+            if f.name not in spec["fields"] and f.default is not dataclasses.MISSING:
                 object.__setattr__(obj, f.name, f.default)
-                names.discard(f.name)
-            elif callable(f.metadata.get("older_files")):
-                derived.append(f)
                 names.discard(f.name)
         if set(spec["fields"]) != names:
             raise ConfigError(
@@ -197,9 +190,6 @@ def _build(spec: Any, trusted: tuple[str, ...], arrays: list | None) -> Any:
                 f"{sorted(names)}: incompatible version")
         for name, sub in spec["fields"].items():
             object.__setattr__(obj, name, _build(sub, trusted, arrays))
-        for f in derived:   # (the first pass, without arrays, checks classes and names only)
-            value = f.metadata["older_files"](obj) if arrays is not None else None
-            object.__setattr__(obj, f.name, value)
         return obj
     if t == "namedtuple":
         cls = _import(spec["cls"], trusted)

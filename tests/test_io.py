@@ -154,7 +154,7 @@ def test_changed_class_fields(tmp_path):
 
 
 def test_pi_saved_before_the_setpoint_weight_loads_with_b_one(tmp_path):
-    """A field without a default is derived by its `older_files` rule (b = 1: the old law)."""
+    """A file without `b_angle` loads with no weight (b = 1: the old law)."""
     from jthermo.control.pi import DiagonalPI
     from jthermo.control.relay import DiagonalPID
 

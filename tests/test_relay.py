@@ -191,7 +191,7 @@ def test_setpoint_weight_cuts_the_step_overshoot_and_its_gradient():
     r[50:] = 50.4
 
     def cost(angle):
-        y = traced_loop(eqx.tree_at(lambda k: k.b_angle, pid, angle), m, r)[0]
+        y = traced_loop(eqx.tree_at(lambda k: k.b_angle, weighted, angle), m, r)[0]
         return jnp.mean((y - jnp.asarray(r)) ** 2)
 
     theta, h = jnp.asarray([0.7]), 1e-6

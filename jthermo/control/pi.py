@@ -62,10 +62,10 @@ def weight_angle(b, like) -> Array:
     return jnp.broadcast_to(jnp.arcsin(jnp.sqrt(jnp.asarray(b, like.dtype))), like.shape)
 
 
-def unit_weight_angle(controller) -> Array:
-    """$\\theta = \\pi/2$ ($b = 1$) per zone: what a controller saved before the set-point
-    weight existed had."""
-    return jnp.full_like(controller.kp, jnp.pi / 2)
+def with_setpoint_weight(controller, b):
+    """`controller` (a PI or PID with a set-point weight) with weight `b` as a tunable leaf."""
+    return eqx.tree_at(lambda c: c.b_angle, controller, weight_angle(b, controller.kp),
+                       is_leaf=lambda x: x is None)
 
 
 def p_error(e, b, r, y_ref):
@@ -90,7 +90,7 @@ class DiagonalPI(AbstractController):
     kp: Float[Array, " zones"]
     ti: Float[Array, " zones"]
     u0: Float[Array, " zones"]
-    b_angle: Float[Array, " zones"] = eqx.field(metadata={"older_files": unit_weight_angle})
+    b_angle: Float[Array, " zones"] | None = None   # None: b = 1, not a tuned leaf
     ts: float = eqx.field(static=True, default=1.0)
     u_min: float = eqx.field(static=True, default=U_MIN)
     u_max: float = eqx.field(static=True, default=U_MAX)
@@ -100,7 +100,7 @@ class DiagonalPI(AbstractController):
 
     def __init__(self, kp, ti, u0=0.5, *, ts: float = 1.0, u_min: float = U_MIN,
                  u_max: float = U_MAX, antiwindup: str = "clamp", method: str = "euler",
-                 tt: float | None = None, b=1.0):
+                 tt: float | None = None, b=None):
         kp = jnp.asarray(kp)
         ti = jnp.asarray(ti)
         if kp.ndim == 0:
@@ -114,7 +114,7 @@ class DiagonalPI(AbstractController):
         self.kp = jnp.broadcast_to(kp, (n,)).astype(dtype)
         self.ti = jnp.broadcast_to(ti, (n,)).astype(dtype)
         self.u0 = jnp.broadcast_to(jnp.asarray(u0, dtype), (n,))
-        self.b_angle = weight_angle(b, self.kp)
+        self.b_angle = None if b is None else weight_angle(b, self.kp)
         self.ts = float(ts)
         self.u_min, self.u_max = float(u_min), float(u_max)
         self.antiwindup = antiwindup
@@ -149,7 +149,13 @@ class DiagonalPI(AbstractController):
     @property
     def b(self) -> Array:
         """The set-point weight $b = \\sin^2\\theta$."""
+        if self.b_angle is None:
+            return jnp.ones_like(self.kp)
         return jnp.sin(self.b_angle) ** 2
+
+    def p_term(self, e, r, state):
+        """The proportional part's error: $e$, or $e - (1 - b)(r - y_{ref})$ with a weight."""
+        return e if self.b_angle is None else p_error(e, self.b, r, state.y_ref)
 
     def init(self, y0, r0=None) -> PIState:
         z = jnp.zeros_like(self.kp)
@@ -165,7 +171,7 @@ class DiagonalPI(AbstractController):
         else:
             inc = ki * e
         i_try = state.integral + inc
-        v = self.u0 + self.kp * p_error(e, self.b, r, state.y_ref) + i_try
+        v = self.u0 + self.kp * self.p_term(e, r, state) + i_try
         u = jnp.clip(v, self.u_min, self.u_max)
         if self.antiwindup == "clamp":
             wind = ((v > self.u_max) & (inc > 0)) | ((v < self.u_min) & (inc < 0))

@@ -56,7 +56,7 @@ from jaxtyping import Array, Float
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
 from ._base import U_MAX, U_MIN, AbstractController
-from .pi import p_error, unit_weight_angle, weight_angle
+from .pi import p_error, weight_angle
 from .rules import as_array, as_state_space
 
 #: derivative filter: $T_f = T_d / N$
@@ -84,14 +84,14 @@ class DiagonalPID(AbstractController):
     ti: Float[Array, " zones"]
     td: Float[Array, " zones"]
     u0: Float[Array, " zones"]
-    b_angle: Float[Array, " zones"] = eqx.field(metadata={"older_files": unit_weight_angle})
+    b_angle: Float[Array, " zones"] | None = None   # None: b = 1, not a tuned leaf
     ts: float = eqx.field(static=True, default=1.0)
     n_filter: float = eqx.field(static=True, default=FILTER_N)
     u_min: float = eqx.field(static=True, default=U_MIN)
     u_max: float = eqx.field(static=True, default=U_MAX)
 
     def __init__(self, kp, ti, td, u0=0.5, *, ts: float = 1.0, n_filter: float = FILTER_N,
-                 u_min: float = U_MIN, u_max: float = U_MAX, b=1.0):
+                 u_min: float = U_MIN, u_max: float = U_MAX, b=None):
         kp, ti, td = (jnp.atleast_1d(jnp.asarray(g)) for g in (kp, ti, td))
         if not (kp.ndim == ti.ndim == td.ndim == 1 and kp.shape == ti.shape == td.shape):
             raise ControlError(f"DiagonalPID: kp, ti and td must be 1-D of one length, got "
@@ -99,7 +99,7 @@ class DiagonalPID(AbstractController):
         dtype = jnp.result_type(kp.dtype, ti.dtype, td.dtype, float)
         self.kp, self.ti, self.td = (g.astype(dtype) for g in (kp, ti, td))
         self.u0 = jnp.broadcast_to(jnp.asarray(u0, dtype), kp.shape)
-        self.b_angle = weight_angle(b, self.kp)
+        self.b_angle = None if b is None else weight_angle(b, self.kp)
         self.ts, self.n_filter = float(ts), float(n_filter)
         self.u_min, self.u_max = float(u_min), float(u_max)
 
@@ -114,7 +114,13 @@ class DiagonalPID(AbstractController):
     @property
     def b(self) -> Array:
         """The set-point weight $b = \\sin^2\\theta$."""
+        if self.b_angle is None:
+            return jnp.ones_like(self.kp)
         return jnp.sin(self.b_angle) ** 2
+
+    def p_term(self, e, r, state):
+        """The proportional part's error: $e$, or $e - (1 - b)(r - y_{ref})$ with a weight."""
+        return e if self.b_angle is None else p_error(e, self.b, r, state.y_ref)
 
     def init(self, y0: Output, r0: Setpoint) -> PIDState:
         z = jnp.zeros_like(self.kp)
@@ -129,7 +135,7 @@ class DiagonalPID(AbstractController):
         tf = self.td / self.n_filter
         deriv = (tf * state.deriv - self.kp * self.td * (y - state.y_prev)) / (tf + self.ts)
         i_try = state.integral + inc
-        v = self.u0 + self.kp * p_error(e, self.b, r, state.y_ref) + i_try + deriv
+        v = self.u0 + self.kp * self.p_term(e, r, state) + i_try + deriv
         u = jnp.clip(v, self.u_min, self.u_max)
         wind = ((v > self.u_max) & (inc > 0)) | ((v < self.u_min) & (inc < 0))
         integral = jnp.where(wind, state.integral, i_try)

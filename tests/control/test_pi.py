@@ -141,7 +141,7 @@ def test_setpoint_weight_cuts_the_overshoot_and_its_gradient():
     assert over[1.0] > 0.002 and over[0.3] < 0.1 * over[1.0]
 
     def cost(angle):
-        pi = eqx.tree_at(lambda c: c.b_angle, DiagonalPI(2.0, 5.0, 0.5, ts=0.5), angle)
+        pi = eqx.tree_at(lambda c: c.b_angle, DiagonalPI(2.0, 5.0, 0.5, ts=0.5, b=0.3), angle)
         y, r = _first_order_step(pi, 120)
         return jnp.mean((y - r) ** 2)
 
