@@ -97,6 +97,8 @@ def test_fit_design_tune_simulate_end_to_end(fitted):
     assert set(rep["saturated_fraction"]) == {"tracking", "load", "preheat"}
     assert all(0.0 <= v < 0.9 for v in rep["saturated_fraction"].values())
     assert rep["validation"]["verdict"] == "settled"
+    # a designed PI starts with the set-point weight as a tuned leaf (b = 1 would never move)
+    assert rep["tuned"].b_angle is not None and 0.0 <= float(np.max(np.asarray(rep["tuned"].b))) <= 1.0
     # what the tuning did is reported: whether the gains moved, and the heaters' floor
     assert isinstance(rep["moved"], bool) and "passed" in rep["guard"]
     assert 0.0 < rep["startup_floor_mse"] <= rep["scenarios"]["tuned"]["preheat"]["mse"]
