@@ -14,7 +14,9 @@ part acts on $b\\,\\tilde r - \\tilde y$ in deviations from the measurement $y_0
 starts from, $K_p\\big(e_k - (1 - b)(r_k - y_0)\\big)$, the integral on $e = r - y$; so a
 set-point step of size $\\Delta$ kicks the input by $b K_p \\Delta$ and the integral brings
 the rest. $b = \\sin^2\\theta \\in [0, 1]$ (the leaf is $\\theta$, smooth and unconstrained);
-$b = 1$ ($\\theta = \\pi/2$, the default) is the one-degree-of-freedom PI bit for bit.
+Without `b` there is no weight leaf and the law is the one-degree-of-freedom PI bit for bit
+(`with_setpoint_weight` adds one; $b = 1$ is a stationary point of $\\sin^2\\theta$, so a
+weight that should be tuned starts below 1).
 
 `pi_update` is the Euler-backward sample with back-calculation to the exact limit, behind a
 static matrix $W_1$ (the decoupled PI and the feed-forward's feedback PI).
@@ -83,8 +85,8 @@ class PIState(eqx.Module):
 class DiagonalPI(AbstractController):
     """One PI loop per zone: `kp` (1/°C), `ti` (s), the bias `u0` (power fraction) and the
     set-point weight's angle `b_angle` ($b = \\sin^2\\theta$, property `b`; constructor
-    argument `b`, default 1) are array leaves, so `jax.grad` reaches them; `ts`, the limits and
-    the discretisation are static.
+    argument `b`; None, the default, is no weight: $b = 1$, no leaf) are array leaves, so
+    `jax.grad` reaches them; `ts`, the limits and the discretisation are static.
     """
 
     kp: Float[Array, " zones"]

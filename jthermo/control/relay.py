@@ -77,8 +77,8 @@ class DiagonalPID(AbstractController):
     $I_k = I_{k-1} + K_p T_s/T_i\\, e_k$ (frozen while saturated further),
     $D_k = \\frac{T_f}{T_f + T_s} D_{k-1} - \\frac{K_p T_d}{T_f + T_s}(y_k - y_{k-1})$,
     $T_f = T_d/N$ (derivative on the measurement: a set-point step gives no kick).
-    `kp` (1/°C), `ti`, `td` (s), `u0` and `b_angle` ($\\theta$; constructor argument `b`)
-    are array leaves (tunable); the rest is static."""
+    `kp` (1/°C), `ti`, `td` (s), `u0` and `b_angle` ($\\theta$; constructor argument `b`;
+    None, the default: no weight, $b = 1$) are array leaves (tunable); the rest is static."""
 
     kp: Float[Array, " zones"]
     ti: Float[Array, " zones"]
