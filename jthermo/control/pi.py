@@ -82,7 +82,23 @@ class PIState(eqx.Module):
     y_ref: Float[Array, " zones"]       # measurement at the start, °C (set-point weight)
 
 
-class DiagonalPI(AbstractController):
+class SetpointWeighted(AbstractController):
+    """A PI-type loop per zone with an optional set-point weight: subclasses have the leaves
+    `kp` and `b_angle` (None: no weight) and a state with `y_ref`."""
+
+    @property
+    def b(self) -> Array:
+        """The set-point weight $b = \\sin^2\\theta$."""
+        if self.b_angle is None:
+            return jnp.ones_like(self.kp)
+        return jnp.sin(self.b_angle) ** 2
+
+    def p_term(self, e, r, state):
+        """The proportional part's error: $e$, or $e - (1 - b)(r - y_{ref})$ with a weight."""
+        return e if self.b_angle is None else p_error(e, self.b, r, state.y_ref)
+
+
+class DiagonalPI(SetpointWeighted):
     """One PI loop per zone: `kp` (1/°C), `ti` (s), the bias `u0` (power fraction) and the
     set-point weight's angle `b_angle` ($b = \\sin^2\\theta$, property `b`; constructor
     argument `b`; None, the default, is no weight: $b = 1$, no leaf) are array leaves, so
@@ -147,17 +163,6 @@ class DiagonalPI(AbstractController):
     @property
     def zones(self) -> int:
         return int(self.kp.shape[0])
-
-    @property
-    def b(self) -> Array:
-        """The set-point weight $b = \\sin^2\\theta$."""
-        if self.b_angle is None:
-            return jnp.ones_like(self.kp)
-        return jnp.sin(self.b_angle) ** 2
-
-    def p_term(self, e, r, state):
-        """The proportional part's error: $e$, or $e - (1 - b)(r - y_{ref})$ with a weight."""
-        return e if self.b_angle is None else p_error(e, self.b, r, state.y_ref)
 
     def init(self, y0, r0=None) -> PIState:
         z = jnp.zeros_like(self.kp)

@@ -55,8 +55,8 @@ from jaxtyping import Array, Float
 
 from .._types import Input, Output, Setpoint
 from ..errors import ControlError
-from ._base import U_MAX, U_MIN, AbstractController
-from .pi import p_error, weight_angle
+from ._base import U_MAX, U_MIN
+from .pi import SetpointWeighted, weight_angle
 from .rules import as_array, as_state_space
 
 #: derivative filter: $T_f = T_d / N$
@@ -70,7 +70,7 @@ class PIDState(eqx.Module):
     y_ref: Float[Array, " zones"]        # measurement at the start, °C (set-point weight)
 
 
-class DiagonalPID(AbstractController):
+class DiagonalPID(SetpointWeighted):
     """One PID per zone, $u = u_0 + K_p e_b + I + D$ with $e = r - y$ and
     $e_b = e - (1 - b)(r - y_0)$ (set-point weight $b = \\sin^2\\theta$, $y_0$ the measurement
     at `init`; $b = 1$, the default, gives $e_b = e$):
@@ -110,17 +110,6 @@ class DiagonalPID(AbstractController):
     @property
     def zones(self) -> int:
         return int(self.kp.shape[0])
-
-    @property
-    def b(self) -> Array:
-        """The set-point weight $b = \\sin^2\\theta$."""
-        if self.b_angle is None:
-            return jnp.ones_like(self.kp)
-        return jnp.sin(self.b_angle) ** 2
-
-    def p_term(self, e, r, state):
-        """The proportional part's error: $e$, or $e - (1 - b)(r - y_{ref})$ with a weight."""
-        return e if self.b_angle is None else p_error(e, self.b, r, state.y_ref)
 
     def init(self, y0: Output, r0: Setpoint) -> PIDState:
         z = jnp.zeros_like(self.kp)

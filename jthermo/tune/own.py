@@ -20,7 +20,7 @@ import numpy as np
 from ..closedloop import metrics, model_duration, model_scenario
 from ..closedloop import rollouts as run_rollouts
 from ..control.design import design
-from ..control.pi import with_setpoint_weight
+from ..control.pi import SetpointWeighted, with_setpoint_weight
 from ..errors import ConfigError, ControlError
 from ..models._base import AbstractModel
 from ..models.envelope import Envelope, check_reachable, equilibrium_input
@@ -259,7 +259,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     kw = {"envelope": env, "setpoint": r}
     if start is None:
         start = design(controller_family, model, setpoint=r)
-        if hasattr(start, "b_angle") and start.b_angle is None:   # PI / PID: tune the weight too
+        if isinstance(start, SetpointWeighted) and start.b_angle is None:   # tune the weight too
             start = with_setpoint_weight(start, START_SETPOINT_WEIGHT)
     designs = classical_at(model, r, classical)
     refs = [designs.get(f) or design(f, model, setpoint=r)
