@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jthermo.control import DiagonalPI, design, mimo_from, with_schedule
+from jthermo.control.relay import DiagonalPID
 from jthermo.control.export import tables, to_c, to_json
 from jthermo.errors import ControlError
 from tests.control.loop import bed_plant
@@ -67,7 +68,10 @@ def _controllers():
                               h_laser=jnp.full((8, N), -0.02))
     tustin = DiagonalPI(lam.kp, lam.ti, lam.u0, antiwindup="backcalc", method="tustin")
     weighted = DiagonalPI(lam.kp, lam.ti, lam.u0, b=0.4)    # set-point weight b < 1
+    pid = design("pid_relay", plant)
+    pid_b = DiagonalPID(pid.kp, pid.ti, pid.td, pid.u0, ts=pid.ts, b=0.4)
     return plant, {"lambda_pi": lam, "tustin_backcalc": tustin, "pi_b04": weighted,
+                   "pid_relay": pid, "pid_b04": pid_b,
                    "decoupled": design(
         "pi_decoupled", plant), "mimo_pi": mimo, "pi_ff": ff, "lqg": design("lqg", plant),
         "lqg_ff": lqg_ff}

@@ -11,7 +11,8 @@ a closed-loop replay matches to ~1e-15). `schedule` is the event row of
 `closedloop.Scenario.s` (`[recoat, exposure 1..N]`; may be NULL for controllers without a
 schedule feed-forward, and means no events for those with one).
 
-Exported families: `DiagonalPI` (every anti-windup and discretisation, set-point weight $b$), `DecoupledPI` and
+Exported families: `DiagonalPI` (every anti-windup and discretisation, set-point weight $b$),
+`DiagonalPID` (`pid_relay`: filtered derivative on the measurement, clamping, $b$), `DecoupledPI` and
 `MIMOPI` (as the MIMO PI law $u = u_0 + K_p e + I$, $I \\mathrel{+}= K_i e$, back-calculation),
 `LQG` (observer, integrators, reference model; the gains of its current weights), and
 `ScheduleFF` around a MIMO PI or an LQG.
@@ -33,6 +34,7 @@ from .decoupled import DecoupledPI
 from .lqg import LQG
 from .mimo_pi import MIMOPI, mimo_from
 from .pi import DiagonalPI
+from .relay import DiagonalPID
 from .schedule_ff import ScheduleFF
 
 FORMAT = "jthermo-controller-tables/1"
@@ -57,6 +59,11 @@ def _feedback_tables(ctrl) -> dict:
         return {"kind": "diagonal_pi", "ts": ctrl.ts, "n": ctrl.zones, "tables": t,
                 "antiwindup": ctrl.antiwindup, "method": ctrl.method,
                 "u_min": ctrl.u_min, "u_max": ctrl.u_max}
+    if isinstance(ctrl, DiagonalPID):
+        t = {"kp": _arr(ctrl.kp), "ti": _arr(ctrl.ti), "td": _arr(ctrl.td), "u0": _arr(ctrl.u0),
+             "b": _arr(ctrl.b)}
+        return {"kind": "diagonal_pid", "ts": ctrl.ts, "n": ctrl.zones, "tables": t,
+                "n_filter": ctrl.n_filter, "u_min": ctrl.u_min, "u_max": ctrl.u_max}
     if isinstance(ctrl, LQG):
         g = ctrl.gains()
         A, B = _arr(ctrl.A), _arr(ctrl.B)
@@ -70,7 +77,8 @@ def _feedback_tables(ctrl) -> dict:
                            "L0": _arr(g.L0), "M": _arr(g.M), "P0": P0, "u_op": _arr(ctrl.u_op),
                            "y_op": _arr(ctrl.y_op), "b0": _arr(ctrl.b0), "alpha": alpha}}
     raise ControlError(f"export: no code export for {type(ctrl).__name__} (exported: "
-                       "DiagonalPI, DecoupledPI, MIMOPI, LQG, ScheduleFF around MIMOPI/LQG)")
+                       "DiagonalPI, DiagonalPID, DecoupledPI, MIMOPI, LQG, ScheduleFF around "
+                       "MIMOPI/LQG)")
 
 
 def tables(ctrl) -> dict:
@@ -166,6 +174,30 @@ def _pi_code(t: dict, p: str) -> tuple[str, str, str]:
     return fields, init, step
 
 
+def _pid_code(t: dict, p: str) -> tuple[str, str, str]:
+    """(state fields, init body, step body) of `DiagonalPID`: the same operations in the same
+    order as its `step` (the derivative filter, the set-point weight, clamping)."""
+    lo, hi, ts = _num(t["u_min"]), _num(t["u_max"]), _num(t["ts"])
+    fields = (f"double integ[{p}_NU]; double deriv[{p}_NU]; double yprev[{p}_NU]; "
+              f"double yref[{p}_NU];")
+    init = (f"for (int i = 0; i < {p}_NU; ++i) {{ s->integ[i] = 0.0; s->deriv[i] = 0.0; "
+            f"s->yprev[i] = y0[i]; s->yref[i] = y0[i]; }}")
+    step = f"""for (int i = 0; i < {p}_NU; ++i) {{
+        double e = r[i] - y[i];
+        double inc = kp[i] * ({ts} / ti[i]) * e;
+        double tf = td[i] / {_num(t['n_filter'])};
+        double d = (tf * s->deriv[i] - kp[i] * td[i] * (y[i] - s->yprev[i])) / (tf + {ts});
+        double itry = s->integ[i] + inc;
+        double v = u0[i] + uadd[i] + kp[i] * (e - (1.0 - b[i]) * (r[i] - s->yref[i])) + itry + d;
+        int wind = (v > {hi} && inc > 0.0) || (v < {lo} && inc < 0.0);
+        u[i] = clip(v, {lo}, {hi});
+        s->integ[i] = wind ? s->integ[i] : itry;
+        s->deriv[i] = d;
+        s->yprev[i] = y[i];
+    }}"""
+    return fields, init, step
+
+
 def _lqg_code(t: dict, p: str) -> tuple[str, str, str]:
     fields = f"double x[{p}_NX]; double xi[{p}_NY]; double rm[{p}_NY];"
     init = f"""double dy[{p}_NY];
@@ -217,7 +249,7 @@ def to_c(ctrl, out_dir, name: str = "jthermo_ctrl") -> tuple[Path, Path]:
             raise ControlError("export: the LQG must have as many outputs as inputs")
     else:
         dims = {"NU": t["n"], "NY": t["n"]}
-        fields, init, step = _pi_code(t, p)
+        fields, init, step = (_pid_code if t["kind"] == "diagonal_pid" else _pi_code)(t, p)
     dims["NS"] = ff["n_schedule"] if ff else 0
     if ff:
         dims["TAPS"] = ff["taps"]
