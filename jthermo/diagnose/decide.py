@@ -124,10 +124,74 @@ def confidence(z_base: float, z_runner: float | None) -> float:
     return float(np.clip(c, 0.0, 0.999))
 
 
+#: time constants (s) of a stored-heat body tried by `input_dependence` (Bonferroni over them)
+BODY_TAUS = (600.0, 1200.0, 2400.0, 4800.0)
+
+
+def lag_filter(x: np.ndarray, ts: float, tau: float) -> np.ndarray:
+    """Unit-gain first-order lag of `x (T,)` from a zero state, exact for a held input:
+    $z_k = \\phi z_{k-1} + (1 - \\phi) x_{k-1}$, $\\phi = e^{-t_s/\\tau}$."""
+    from scipy.signal import lfilter
+
+    phi = math.exp(-ts / tau)
+    return lfilter([0.0, 1.0 - phi], [1.0, -phi], np.asarray(x, float))
+
+
+#: circular shifts of the drive that make the reference distribution of `input_dependence`
+N_SHIFTS = 39
+
+
+def _lag_t(d, s, ts, idx, tau):
+    """One-sided $t$ of $\\gamma$ in $d_k = $ quadratic $+ \\beta e^{-t_k/\\tau} + \\gamma F_\\tau[s - s_0]_k$."""
+    K = idx.size
+    tk = idx * ts
+    x = tk / tk[-1] - 0.5
+    X = np.stack([np.ones(K), x, x ** 2, np.exp(-tk / tau), lag_filter(s - s[0], ts, tau)[idx]], axis=1)
+    X[:, -1] -= X[:, -1].mean()
+    if np.ptp(X[:, -1]) < 1e-9:
+        return -np.inf
+    coef, *_ = np.linalg.lstsq(X, d[idx], rcond=None)
+    r = d[idx] - X @ coef
+    cov = np.linalg.pinv(X.T @ X) * float(r @ r) / (K - X.shape[1])
+    return float(coef[-1] / math.sqrt(max(cov[-1, -1], 1e-300)))
+
+
+def input_dependence(drift: np.ndarray, drive: np.ndarray, ts: float, step: int,
+                     taus=BODY_TAUS, n_shifts: int = N_SHIFTS) -> float:
+    """$z$ that a slow surroundings-like signal follows an input-driven one through a body.
+
+    A stored-heat body warms with what drives it: its effect on the zones, seen as a drift of
+    the surroundings $d(t)$, follows the first-order lag $F_\\tau$ of the input-driven
+    temperature $s(t)$ (`drive`: the baseline's simulation, inputs only, never a measured
+    temperature, which an exogenous drift would reach too), plus the decay of the body's
+    initial state; an exogenous drift does not. At the drift's resolution (every `step`
+    samples) $d_k = c_0 + c_1 t_k + c_2 t_k^2 + \\beta e^{-t_k/\\tau} + \\gamma F_\\tau[s - s_0]_k$ is
+    fitted for each body time constant $\\tau$ in `taus`, and the statistic is the largest
+    one-sided $t$ of $\\gamma$. A smooth drift's residuals are far from white, so the $t$ is not
+    referred to Student's law but to the same statistic with the drive circularly shifted
+    (`n_shifts` shifts spread over the record: same spectrum, no alignment with the drift); the
+    rank p-value $(1 + \\#\\{t_m \\ge t\\})/(1 + M)$ is returned as a standard-normal $z$
+    (0 when the record has fewer than 8 points to test).
+    """
+    d = np.asarray(drift, float)
+    s = np.asarray(drive, float)
+    idx = np.arange(0, d.size, max(int(step), 1))
+    if idx.size < 8 or not (np.all(np.isfinite(d)) and np.all(np.isfinite(s))):
+        return 0.0
+    stat = lambda sig: max(_lag_t(d, sig, ts, idx, tau) for tau in taus)
+    t0 = stat(s)
+    if not np.isfinite(t0):
+        return 0.0
+    shifts = (np.arange(1, n_shifts + 1) * s.size) // (n_shifts + 1)
+    null = np.array([stat(np.roll(s, int(k))) for k in shifts])
+    p = (1.0 + np.sum(null >= t0)) / (1.0 + n_shifts)
+    return float(norm.isf(p))
+
+
 def is_rival(z_top_vs_other: float) -> bool:
     """The better explanation does not beat the other at `RIVAL_LEVEL`: they are tied."""
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
-__all__ = ["ALPHA", "ar_filter", "confidence", "is_rival", "likelihood_ratio", "p_value",
-           "predictive_z", "thresholds", "whiten"]
+__all__ = ["ALPHA", "BODY_TAUS", "ar_filter", "confidence", "input_dependence", "is_rival", "lag_filter",
+           "likelihood_ratio", "p_value", "predictive_z", "thresholds", "whiten"]

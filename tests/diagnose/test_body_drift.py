@@ -1,0 +1,49 @@
+"""Issue 14: a stored-heat body is told from an exogenous drift by its input dependence."""
+
+import numpy as np
+
+from jthermo.diagnose import decide as D
+
+TS, T, STEP = 1.0, 3600, 300
+
+
+def _drive(rng):
+    """Input-driven temperature: a PRBS around a level that steps every ~15 min, through a zone."""
+    level = rng.uniform(0.0, 0.3, 5)[np.minimum(np.arange(T) // 900, 4)]
+    u = level + 0.3 * (rng.random(T // 10).repeat(10) < 0.5)
+    return 40.0 + D.lag_filter(60.0 * u, TS, 300.0)
+
+
+def test_lag_filter_is_a_unit_gain_first_order_lag():
+    z = D.lag_filter(np.ones(4000), 2.0, 100.0)
+    assert z[0] == 0.0
+    np.testing.assert_allclose(z[1:4], 1 - np.exp(-2.0 * np.arange(1, 4) / 100.0))
+    assert abs(z[-1] - 1.0) < 1e-12
+
+
+def test_exogenous_drift_is_not_input_dependent():
+    """Null: ramps and slow sinusoids unrelated to the drive reach the 5 % level rarely."""
+    rng = np.random.default_rng(1)
+    t = np.arange(T) * TS
+    z = []
+    for _ in range(30):
+        s = _drive(rng)
+        drift = rng.uniform(1.5, 4.0) * (0.5 * (t / t[-1] - 0.5)
+                                         + 0.5 * np.sin(2 * np.pi * t / rng.uniform(2400, 7200)
+                                                        + rng.uniform(0, 6.3)))
+        z.append(D.input_dependence(drift + 0.05 * rng.normal(size=T), s, TS, STEP))
+    assert np.mean(np.asarray(z) >= 1.645) <= 0.1
+
+
+def test_body_driven_by_the_inputs_is_input_dependent():
+    """A warming body (lag of the drive plus its initial state's decay) is found most times."""
+    rng = np.random.default_rng(2)
+    t = np.arange(T) * TS
+    z = []
+    for _ in range(10):
+        s = _drive(rng)
+        tau = rng.uniform(1200.0, 3600.0)
+        w = D.lag_filter(s - s[0], TS, tau) - rng.uniform(0.0, 10.0) * np.exp(-t / tau)
+        z.append(D.input_dependence(0.4 * w + 0.05 * rng.normal(size=T), s, TS, STEP))
+    assert np.mean(np.asarray(z) >= 1.645) >= 0.5
+    assert D.input_dependence(np.zeros(50), np.ones(50), TS, STEP) == 0.0    # too short: no test
