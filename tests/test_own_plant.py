@@ -65,9 +65,17 @@ def test_scenarios_run_at_the_models_own_sample_time(fitted):
     model, env = fitted
     sc = model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=70.0)
     assert sc.ts == TS and sc.r.shape == (120, 1) and float(sc.y0[0]) == 70.0
-    # set-point changes around the operating point: +10 % of the range at 10 %, -10 % at 55 %
-    delta = 0.1 * (env.y_max[0] - env.y_min[0])
+    # set-point changes around the operating point, +delta at 10 %, -delta at 55 %: at most
+    # 10 % of the range, and small enough that a first-order loop ten times faster than the
+    # plant needs no input beyond [0, 1]: its input jumps by 10 times the equilibrium change,
+    # u* + 10 delta / K (up) and u* + delta / K - 20 delta / K (down, 2 delta from r + delta)
+    u_star = (70.0 - REST) / K
+    delta = min(0.1 * (env.y_max[0] - env.y_min[0]), K * (1.0 - u_star) / 10.0,
+                K * u_star / 19.0)
+    assert delta < 0.1 * (env.y_max[0] - env.y_min[0])           # the headroom binds here
     r = np.asarray(sc.r[:, 0])
+    assert r.max() - 70.0 == pytest.approx(delta, rel=0.03)      # the fit's gain, not K
+    delta = r.max() - 70.0
     assert np.allclose(r[:12], 70.0) and np.allclose(r[12:66], 70.0 + delta)
     assert np.allclose(r[66:], 70.0 - delta)
     near_top = model_scenario("tracking", model, 60.0, 0, envelope=env, setpoint=100.0)
@@ -104,6 +112,11 @@ def test_fit_design_tune_simulate_end_to_end(fitted):
     assert 0.0 < rep["startup_floor_mse"] <= rep["scenarios"]["tuned"]["preheat"]["mse"]
     assert 0.0 < rep["validation"]["startup_floor_mse"] <= min(
         v["preheat"]["mse"] for v in rep["validation"]["scenarios"].values())
+    # the set-point changes' bound: full-power floor plus the recording's noise variance
+    v = rep["validation"]
+    assert v["noise_mse"] == pytest.approx(env.noise_std[0] ** 2)
+    assert v["tracking_bound_mse"] == pytest.approx(v["tracking_floor_mse"] + v["noise_mse"])
+    assert v["best_pid_type_tracking"] == "pi_lambda" and isinstance(v["bang_bang"], list)
     assert rep["validation"]["startup_overshoot_C"] >= 0.0
     # the cost terms carry their weights' names; normalised, each weighs in at the start
     terms = rep["scenarios"]["start"]["tracking"]["terms"]
@@ -124,6 +137,11 @@ def test_judge_rejects_saturated_or_unsettled_loops():
     assert "input limit" in judge({"tracking": {**ok, "saturated_fraction": 1.0}}, 100.0)
     assert "does not settle" in judge({"preheat": {**ok, "settling_time_s": 100.0}}, 100.0)
     assert "non-finite" in judge({"load": {**ok, "mse": float("nan")}}, 100.0)
+    # a bang-bang loop: at a limit 30 % of the set-point changes or the load (at most 25 %);
+    # the start-up step is at full power by nature, so only 90 % fails there
+    assert "at most 25 %" in judge({"tracking": {**ok, "saturated_fraction": 0.3}}, 100.0)
+    assert "at most 25 %" in judge({"load": {**ok, "saturated_fraction": 0.3}}, 100.0)
+    assert judge({"preheat": {**ok, "saturated_fraction": 0.3}}, 100.0) is None
     with pytest.raises(ControlError):
         raise ControlError(judge({"tracking": {**ok, "saturated_fraction": 1.0}}, 100.0))
 
@@ -165,3 +183,33 @@ def test_tuning_moves_a_detuned_pid(fitted):
     for c in (zn, slow, res.controller):
         e = np.asarray(simulate(model, c, sc).y) - np.asarray(sc.r)
         assert 0.0 < floor <= float(np.mean(e ** 2))
+
+
+def test_tuning_start_bounds_the_noise_gain(fitted):
+    """A Ziegler–Nichols PID whose measurement noise alone would swing the input across its
+    limits starts tuning detuned (kp s, ti / s, td kept, filter >= one sample) until the input
+    noise is at most NOISE_SHARE of the headroom; on a quiet recording it is only given its
+    set-point weight."""
+    import dataclasses
+
+    from jthermo.tune.own import NOISE_SHARE, detuned, noise_gain, tuning_start
+
+    model, env = fitted
+    zn = design("pid_relay", model, setpoint=65.0)
+    u_star = (65.0 - REST) / K
+    room = min(u_star, 1.0 - u_star)
+    quiet = tuning_start(zn, model, env, 65.0)
+    assert float(noise_gain(zn)[0]) * env.noise_std[0] < NOISE_SHARE * room   # 0.05 C noise
+    assert np.allclose(quiet.kp, zn.kp) and np.allclose(quiet.ti, zn.ti)
+    assert float(quiet.b[0]) == pytest.approx(0.95)
+    noisy = dataclasses.replace(env, noise_std=(2.0,))
+    c = tuning_start(zn, model, noisy, 65.0)
+    s = float(c.kp[0] / zn.kp[0])
+    assert 0.0 < s < 1.0 and float(c.ti[0]) == pytest.approx(float(zn.ti[0]) / s)
+    assert float(c.td[0]) == pytest.approx(float(zn.td[0]))
+    assert float(c.td[0]) / c.n_filter >= c.ts - 1e-12                   # filter >= 1 sample
+    swing = float(noise_gain(c)[0]) * 2.0
+    assert swing == pytest.approx(NOISE_SHARE * room, rel=0.05)          # the largest such s
+    assert float(noise_gain(detuned(zn, 1.1 * s))[0]) * 2.0 > NOISE_SHARE * room
+    pi = design("pi_lambda", model, setpoint=65.0)
+    assert float(noise_gain(pi)[0]) == pytest.approx(float(pi.kp[0]))

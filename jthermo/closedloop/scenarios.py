@@ -17,7 +17,13 @@ from ..errors import ConfigError
 from ..families import MODEL_SCENARIO_KINDS as MODEL_KINDS
 from ..families import SCENARIO_KINDS as KINDS
 from ..models._base import AbstractModel
-from ..models.envelope import Envelope, check_reachable, equilibrium_input, steady_output
+from ..models.envelope import (
+    Envelope,
+    change_scale,
+    check_reachable,
+    equilibrium_input,
+    steady_output,
+)
 from ..printer import (
     Printer,
     PrinterDisturbance,
@@ -282,8 +288,10 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     - `kind`: `"tracking"` (set-point changes around the operating point: settled at the set
       point $r$, it moves to $r + \\delta$ at 10 % of the run and to $r - \\delta$ at 55 %;
       $\\delta$ = `step_c` °C per output, default `CHANGE_SHARE` of the recorded range, at most
-      `CHANGE_ROOM` of the way to the output the inputs hold at their limits, so that the step
-      is inside what the heaters can do), `"load"` (at the set point, an input-referred heat
+      `CHANGE_ROOM` of the way to the output the inputs hold at their limits, scaled down
+      (`models.envelope.change_scale`) until a first-order loop `CHANGE_SPEEDUP` times faster
+      than the plant follows both changes without an input leaving its limits: the changes
+      test the loop, not the heaters' power), `"load"` (at the set point, an input-referred heat
       sink of `load` per input — default `LOAD_SHARE` of the recorded input std, at most half
       the distance to the input limits — switched on at 20–30 % and off at 60–70 % of the
       run), `"preheat"` (the start-up step: from the model's equilibrium with the heaters off
@@ -318,6 +326,7 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     step = STEP_SHARE * env.span
     y_top = steady_output(model, hi, w)
     change = np.minimum(CHANGE_SHARE * env.span, CHANGE_ROOM * np.minimum(y_top - r, r - y_off))
+    change = change * change_scale(model, env, r, np.maximum(change, 0.0))
     if step_c is not None:
         step = change = np.broadcast_to(np.abs(np.asarray(step_c, np.float64)), r.shape)
     u_star = equilibrium_input(model, r, w)

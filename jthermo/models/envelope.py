@@ -24,6 +24,9 @@ from ._base import AbstractModel
 U_LIMITS = (0.0, 1.0)
 #: share of the input span kept free at a set point's equilibrium (control authority)
 HEADROOM = 0.02
+#: set-point changes are sized so that a first-order closed loop this many times faster than
+#: the model's slowest mode follows them without an input leaving its limits
+CHANGE_SPEEDUP = 10.0
 
 
 def _floats(x) -> tuple[float, ...]:
@@ -193,6 +196,29 @@ def equilibrium_input(model: AbstractModel, setpoint, w=None) -> np.ndarray:
     return u0 + np.linalg.lstsq(G1, r - steady_output(model, u0, w), rcond=None)[0]
 
 
+def change_scale(model: AbstractModel, env: Envelope, setpoint, delta,
+                 speedup: float = CHANGE_SPEEDUP) -> float:
+    """Largest $s \\in [0, 1]$ such that the set-point changes $r \\to r + s\\delta \\to r - s\\delta$
+    are followed without an input leaving its limits by a first-order closed loop `speedup`
+    ($K$) times faster than the open loop.
+
+    On a first-order plant such a loop's input jumps at a change from $u_a$ to
+    $u_a + K (u_b - u_a)$ ($u(0^+) = u_a + (\\tau/\\tau_{cl})(u_b - u_a)$, $u_a$, $u_b$ the
+    equilibrium inputs before and after); with $g = G(1)^{-1}\\delta$ the two jumps are
+    $u^* + sKg$ (up) and $u^* + s(1 - 2K)g$ (down), each kept within [`u_min`, `u_max`].
+    The limits then leave room for such a loop; what the plant's own lag still costs any
+    controller is `tune.own.tracking_floor`'s (`experiments/own_plant_limits.py`)."""
+    _, G1, _ = _gains(model)
+    u_star = equilibrium_input(model, setpoint, env.signals(model))
+    g = np.linalg.lstsq(G1, np.asarray(delta, np.float64) * np.ones(G1.shape[0]), rcond=None)[0]
+    lo, hi = np.asarray(env.u_min), np.asarray(env.u_max)
+    s = 1.0
+    for c in (speedup * g, (1.0 - 2.0 * speedup) * g):
+        up, down = c > 1e-12, c < -1e-12
+        s = min(s, *((hi - u_star)[up] / c[up]), *((u_star - lo)[down] / -c[down]))
+    return float(max(s, 0.0))
+
+
 def reach_problem(model: AbstractModel, env: Envelope, setpoint) -> str | None:
     """None when the model can hold `setpoint` within the input limits (keeping `HEADROOM`);
     else one line saying what the heaters can reach."""
@@ -228,5 +254,6 @@ def _fmt(x, digits: int = 1) -> str:
     return s[0] if len(set(s)) == 1 else "[" + ", ".join(s) + "]"
 
 
-__all__ = ["HEADROOM", "U_LIMITS", "Envelope", "check_reachable", "equilibrium_input",
+__all__ = ["CHANGE_SPEEDUP", "HEADROOM", "U_LIMITS", "Envelope", "change_scale",
+           "check_reachable", "equilibrium_input",
            "reach_problem", "steady_output"]

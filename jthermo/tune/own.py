@@ -15,12 +15,14 @@ from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..closedloop import metrics, model_duration, model_scenario
 from ..closedloop import rollouts as run_rollouts
 from ..control.design import design
-from ..control.pi import SetpointWeighted, with_setpoint_weight
+from ..control.pi import DiagonalPI, with_setpoint_weight
+from ..control.relay import DiagonalPID
 from ..errors import ConfigError, ControlError
 from ..models._base import AbstractModel
 from ..models.envelope import Envelope, check_reachable, equilibrium_input
@@ -48,6 +50,14 @@ OWN_WEIGHTS = {"tracking": 1.0, "uniformity": 0.0, "effort": 0.1, "window": 0.1,
 OVERSHOOT_FLOOR = 1e-3
 #: a loop at an input limit longer than this share of a scenario has failed
 MAX_SATURATED = 0.9
+#: ... and longer than this share of the set-point changes or the load (`OWN_SCENARIOS`), sized
+#: so that a loop ten times faster than the plant never needs a limit: a bang-bang loop there
+MAX_SATURATED_CHANGES = 0.25
+#: a PI / PID starts tuning with its measurement-noise gain bounded: the standard deviation of
+#: the input noise it makes is at most this share of the inputs' headroom at the set point
+NOISE_SHARE = 0.1
+#: the PI / PID-type classical designs (a firmware user's alternatives)
+PID_TYPE = ("pi_untuned", "pi_lambda", "pi_decoupled", "pid_relay")
 #: the quantities reported per scenario and controller
 REPORTED = ("mse", "overshoot_C", "settling_time_s", "time_to_ready_s", "saturated_fraction",
             "input_variation")
@@ -76,19 +86,80 @@ def classical_at(model, setpoint, families: Sequence[str] = CLASSICAL) -> dict:
 
 def judge(scenarios: dict, duration: float, who: str = "tuned") -> str | None:
     """None when every scenario's loop is finite, settles (tracking and start-up: inside the
-    window before the run ends) and is not at an input limit most of the time; else one line
-    saying what is wrong. `scenarios`: `{kind: metrics}`."""
+    window before the run ends) and is not at an input limit most of the time (`MAX_SATURATED`;
+    `MAX_SATURATED_CHANGES` in `OWN_SCENARIOS`: a bang-bang loop); else one line saying what
+    is wrong. `scenarios`: `{kind: metrics}`."""
     for kind, m in scenarios.items():
         values = [x for v in m.values() for x in (v.values() if isinstance(v, dict) else (v,))]
         if not all(np.isfinite(v) for v in values):
             return f"the {who} loop gives non-finite figures in `{kind}`"
-        if m["saturated_fraction"] > MAX_SATURATED:
+        limit = MAX_SATURATED_CHANGES if kind in OWN_SCENARIOS else MAX_SATURATED
+        if m["saturated_fraction"] > limit:
             return (f"the {who} loop sits at an input limit {100 * m['saturated_fraction']:.0f} % "
-                    f"of the time in `{kind}`")
+                    f"of the time in `{kind}` (at most {100 * limit:.0f} %)")
         if kind in ("tracking", "preheat") and m["settling_time_s"] >= duration - 1e-9:
             return (f"the {who} loop does not settle within ±window in `{kind}` "
                     f"({duration:g} s run, MSE {m['mse']:.3g} °C²)")
     return None
+
+
+def noise_gain(controller) -> np.ndarray:
+    """Per loop, the gain from measurement noise to the input at high frequency (power
+    fraction per °C): $K_p$ for a PI, $K_p (1 + T_d / (T_f + T_s))$ for a PID (its filtered
+    derivative on the measurement, $T_f = T_d / N$)."""
+    kp = np.abs(np.asarray(controller.kp, np.float64))
+    if isinstance(controller, DiagonalPID):
+        td = np.asarray(controller.td, np.float64)
+        return kp * (1.0 + td / (td / controller.n_filter + controller.ts))
+    return kp
+
+
+def detuned(controller, s):
+    """A PI / PID with its crossover about `s` times lower (per loop, $0 < s \\le 1$):
+    $K_p s$ and $T_i / s$ (on a lag-dominated plant the crossover scales with $K_p$, and
+    Ziegler–Nichols' $T_i$ with the crossover's period); $T_d$ kept (the relay test's fast lag)
+    with its filter at least one sample, $T_f = \\max(T_d/N, T_s)$ (one $N$ for all loops)."""
+    s = jnp.asarray(s, controller.kp.dtype)
+    if isinstance(controller, DiagonalPID):
+        n = min(controller.n_filter, float(np.min(np.asarray(controller.td))) / controller.ts)
+        return DiagonalPID(controller.kp * s, controller.ti / s, controller.td, controller.u0,
+                           ts=controller.ts, n_filter=n, u_min=controller.u_min,
+                           u_max=controller.u_max, b=None if controller.b_angle is None
+                           else controller.b)
+    return eqx.tree_at(lambda c: (c.kp, c.ti), controller, (controller.kp * s, controller.ti / s))
+
+
+def tuning_start(controller, model: AbstractModel, envelope: Envelope, setpoint):
+    """The PI / PID a tuning starts from: `controller` `detuned` by the largest $s \\le 1$ per
+    loop (bisection) that makes the input noise from the recording's measurement noise,
+    `noise_gain` × `noise_std` (std), at most `NOISE_SHARE` of the inputs' headroom at the set
+    point's equilibrium (a design whose noise alone swings the input across its limits is a
+    bang-bang loop: e.g. Ziegler–Nichols on a low-lag heater), its derivative filter at least
+    one sample; the set-point weight `START_SETPOINT_WEIGHT` added as a tuned leaf. Other
+    controllers come back unchanged."""
+    if not isinstance(controller, (DiagonalPI, DiagonalPID)):
+        return controller
+    z = controller.zones
+    u = equilibrium_input(model, setpoint, envelope.signals(model))[:z]
+    room = NOISE_SHARE * np.minimum(u - np.asarray(envelope.u_min)[:z],
+                                    np.asarray(envelope.u_max)[:z] - u)
+    sigma = np.asarray(envelope.noise_std)[:z]
+
+    def too_noisy(s):
+        return noise_gain(detuned(controller, s)) * sigma > room
+
+    s = np.ones(z)
+    if np.any(too_noisy(s)):
+        lo, hi = np.zeros(z), np.ones(z)
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            bad = too_noisy(mid)
+            hi, lo = np.where(bad, mid, hi), np.where(bad, lo, mid)
+        s = np.where(too_noisy(s), np.maximum(lo, 1e-6), 1.0)
+    c = detuned(controller, s)
+    if c.b_angle is None:          # tune the set-point weight too
+        c = with_setpoint_weight(c, START_SETPOINT_WEIGHT)
+    return c
 
 
 def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0,
@@ -128,6 +199,19 @@ def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: i
         before = np.cumsum((e if up else -e) >= 0.0, axis=0) == 0   # not yet at b
         total += float(np.sum(np.where(before, e, 0.0) ** 2))
     return total / ref.size
+
+
+def limits(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0) -> dict:
+    """What no controller within the input limits does better than, on `plant` (°C²):
+    `startup_floor_mse` and `tracking_floor_mse` (`tracking_floor` of the start-up and the
+    set-point changes), `noise_mse` = $\\overline{\\sigma^2}$ of the recording's measurement
+    noise (in every measured MSE: white noise is independent of the true error), and
+    `tracking_bound_mse`, their sum for the set-point changes (None where a floor is)."""
+    fl = tracking_floor(plant, envelope, setpoint, duration, seed, "tracking")
+    noise = float(np.mean(np.square(envelope.noise_std)))
+    return {"startup_floor_mse": tracking_floor(plant, envelope, setpoint, duration, seed),
+            "tracking_floor_mse": fl, "noise_mse": noise,
+            "tracking_bound_mse": None if fl is None else fl + noise}
 
 
 def term_scales(controller, plant, *, rollouts: int, duration: float, seed: int, kw,
@@ -178,12 +262,21 @@ def _verdicts(table, duration) -> str | None:
 
 
 def _comparison(table, designs, duration) -> dict:
-    """Best classical design by normalised cost and by tracking MSE, and the tuned
-    controller's improvement on each (percent, positive: below the design)."""
+    """Best classical design by normalised cost and by tracking MSE (of all, and of the PI /
+    PID type, `PID_TYPE`), the tuned controller's improvement on each (percent, positive:
+    below the design), and the designs that sit at an input limit more than
+    `MAX_SATURATED_CHANGES` of the set-point changes (`bang_bang`)."""
     best = _best(designs, table, lambda f: table[f]["cost"])
     best_t = _best(designs, table, lambda f: _tracking(table, f))
+    best_p = _best([f for f in designs if f in PID_TYPE], table, lambda f: _tracking(table, f))
     tuned = table["tuned"]
     return {
+        "best_pid_type_tracking": best_p,
+        "tracking_improvement_vs_best_pid_type_percent":
+            100.0 * (1.0 - _tracking(table, "tuned") / _tracking(table, best_p)) if best_p
+            else None,
+        "bang_bang": sorted(f for f in (*designs, "tuned")
+                            if table[f]["tracking"]["saturated_fraction"] > MAX_SATURATED_CHANGES),
         "best_classical": best,
         "best_classical_cost": table[best]["cost"] if best else None,
         "improvement_vs_best_classical_percent":
@@ -224,8 +317,9 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     - `kinds`: the scenarios tuned on (default `OWN_SCENARIOS`; add `STARTUP` to tune on the
       start-up step as well); the scales and the held-out cost use the same.
     - `start`: the controller tuning starts from (default `design(controller_family, ...)` at
-      the set point; a PI / PID there gets the set-point weight `START_SETPOINT_WEIGHT` as a
-      tuned leaf).
+      the set point, through `tuning_start`: a PI / PID gets its noise gain bounded, a
+      derivative filter of at least one sample and the set-point weight
+      `START_SETPOINT_WEIGHT` as a tuned leaf).
     - `classical`: the families `best_classical` is taken over (by held-out cost;
       `best_classical_tracking` by the tracking scenario's MSE).
 
@@ -234,7 +328,8 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     under their weights' names, the normalised cost — `improvement_percent` against the lambda
     PI, `best_classical`, `improvement_vs_best_classical_percent`,
     `tracking_improvement_vs_best_classical_percent`, `startup_overshoot_C`,
-    `startup_floor_mse` and `tracking_floor_mse` (`tracking_floor`), `validation` with the
+    `startup_floor_mse`, `tracking_floor_mse`, `noise_mse`, `tracking_bound_mse` (`limits`),
+    `best_pid_type_tracking`, `bang_bang`, `validation` with the
     same comparison on the validation plant) and
     the tuned controller under `"tuned"`. Raises `ControlError` when the tuned loop does not
     settle or sits at its input limits (`judge`), start-up included: such a result is never
@@ -258,9 +353,7 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     duration = model_duration(model) if duration is None else float(duration)
     kw = {"envelope": env, "setpoint": r}
     if start is None:
-        start = design(controller_family, model, setpoint=r)
-        if isinstance(start, SetpointWeighted) and start.b_angle is None:   # tune the weight too
-            start = with_setpoint_weight(start, START_SETPOINT_WEIGHT)
+        start = tuning_start(design(controller_family, model, setpoint=r), model, env, r)
     designs = classical_at(model, r, classical)
     refs = [designs.get(f) or design(f, model, setpoint=r)
             for f in references if f != controller_family]
@@ -297,21 +390,19 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
            "moved": not all(np.allclose(np.asarray(a), np.asarray(b)) for a, b in zip(
                jax.tree_util.tree_leaves(eqx.filter(start, eqx.is_inexact_array)),
                jax.tree_util.tree_leaves(eqx.filter(res.controller, eqx.is_inexact_array)))),
-           "startup_floor_mse": tracking_floor(plant, env, r, duration, seeds[0]),
-           "tracking_floor_mse": tracking_floor(plant, env, r, duration, seeds[0], "tracking"),
+           **limits(plant, env, r, duration, seeds[0]),
            "history": [float(h) for h in res.history], "rollouts": int(rollouts),
            "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds)}
     if validation_plant is not None:
         val = _held_out(ctrls, validation_plant, seeds[0], rollouts, duration, w, kw, kinds)
         out["validation"] = {"scenarios": val, **_comparison(val, designs, duration),
-                             "startup_floor_mse": tracking_floor(validation_plant, env, r,
-                                                                 duration, seeds[0]),
-                             "tracking_floor_mse": tracking_floor(validation_plant, env, r,
-                                                                  duration, seeds[0], "tracking")}
+                             **limits(validation_plant, env, r, duration, seeds[0])}
     out["seconds"] = time.perf_counter() - t0
     out["tuned"] = res.controller
     return out
 
 
-__all__ = ["MAX_SATURATED", "OVERSHOOT_FLOOR", "OWN_SCENARIOS", "OWN_WEIGHTS", "STARTUP", "classical_at", "judge",
-           "term_scales", "tracking_floor", "tune_own_plant"]
+__all__ = ["MAX_SATURATED", "MAX_SATURATED_CHANGES", "NOISE_SHARE", "OVERSHOOT_FLOOR",
+           "OWN_SCENARIOS", "OWN_WEIGHTS", "PID_TYPE", "STARTUP", "classical_at", "detuned", "judge",
+           "limits", "noise_gain", "term_scales", "tracking_floor", "tune_own_plant",
+           "tuning_start"]
