@@ -188,10 +188,27 @@ def input_dependence(drift: np.ndarray, drive: np.ndarray, ts: float, step: int,
     return float(norm.isf(p))
 
 
+def order_body_drift(rows: list, z_input: float) -> list:
+    """`rows` (dicts with `mechanism`, best first) with `heat_accumulation` moved ahead of
+    `ambient_variation` when the drift the latter fitted depends on the inputs
+    (`input_dependence` $z$ at the one-sided `RIVAL_LEVEL`): a body the heaters warm, not an
+    exogenous drift. Otherwise unchanged."""
+    names = [r["mechanism"] for r in rows]
+    if ("heat_accumulation" not in names or "ambient_variation" not in names
+            or not z_input >= norm.isf(RIVAL_LEVEL)):
+        return list(rows)
+    i, j = names.index("ambient_variation"), names.index("heat_accumulation")
+    if j < i:
+        return list(rows)
+    out = list(rows)
+    out.insert(i, out.pop(j))
+    return out
+
+
 def is_rival(z_top_vs_other: float) -> bool:
     """The better explanation does not beat the other at `RIVAL_LEVEL`: they are tied."""
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
 __all__ = ["ALPHA", "BODY_TAUS", "ar_filter", "confidence", "input_dependence", "is_rival", "lag_filter",
-           "likelihood_ratio", "p_value", "predictive_z", "thresholds", "whiten"]
+           "likelihood_ratio", "order_body_drift", "p_value", "predictive_z", "thresholds", "whiten"]

@@ -47,3 +47,12 @@ def test_body_driven_by_the_inputs_is_input_dependent():
         z.append(D.input_dependence(0.4 * w + 0.05 * rng.normal(size=T), s, TS, STEP))
     assert np.mean(np.asarray(z) >= 1.645) >= 0.5
     assert D.input_dependence(np.zeros(50), np.ones(50), TS, STEP) == 0.0    # too short: no test
+
+
+def test_body_goes_ahead_of_drift_only_when_input_dependent():
+    rows = [{"mechanism": m} for m in ("ambient_variation", "radiative_loss", "heat_accumulation")]
+    names = lambda rs: [r["mechanism"] for r in rs]
+    assert names(D.order_body_drift(rows, 1.96)) == ["heat_accumulation", "ambient_variation",
+                                                     "radiative_loss"]
+    assert names(D.order_body_drift(rows, 1.0)) == names(rows)
+    assert names(D.order_body_drift(rows[:2], 5.0)) == names(rows[:2])
