@@ -366,6 +366,14 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                 "validation_z": r["validation_z"], "parameters": r["parameters"]}
                for r in ranked if r["significant"] and r["mechanism"] in forbidden]
     sig = [r for r in ranked if r["significant"] and r["mechanism"] not in forbidden]
+    if "ambient_variation" in cands:
+        # a slow body or a drift: the drift fitted on estimation follows the input-driven
+        # (baseline-simulated) temperature through a lag only if it is a body (decide.py)
+        dr = np.median(thc[cands.index("ambient_variation")][:, lay.sl("drift")], axis=0)
+        loc["drift_input_dependence_z"] = D.input_dependence(rec_e["Phi"] @ (dr - dr.mean()),
+                                                             yb_e.mean(axis=1), ts,
+                                                             round(M.DRIFT_SPACING / ts))
+        sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
     added = []
