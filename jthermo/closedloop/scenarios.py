@@ -4,6 +4,7 @@ printer or, through a reference printer, on a fitted model (`make_scenario`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -125,6 +126,18 @@ def event_schedule(printer: Printer, d: PrinterDisturbance, key, *, preview_s: f
 
 
 
+def unlabelled(x):
+    """`x` without its label: a `Printer`'s powder name (read by no simulation) or a
+    `Scenario`'s kind (read by no scenario builder, nor by the lean loop of `tune.terms`), so
+    that printers of other powders, and scenarios of every kind on the lean loop, share one
+    compiled program (`make_scenario`, `tune.group_batch`)."""
+    if isinstance(x, Printer):
+        return dataclasses.replace(x, powder="")
+    if isinstance(x, Scenario):
+        return dataclasses.replace(x, kind="")
+    return x
+
+
 def _as_key(key):
     if isinstance(key, (int, np.integer)):
         return jax.random.key(int(key))
@@ -219,8 +232,9 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
         raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
 
     keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
-    r, d, v, y0, s = _build_scenario(kind, printer, model, T, keys, float(noise_std),
-                                     float(step_c), n_rollouts is not None)
+    # one compiled builder per kind for printers of every powder (the name is only a label)
+    r, d, v, y0, s = _build_scenario(kind, unlabelled(printer), model, T, keys,
+                                     float(noise_std), float(step_c), n_rollouts is not None)
     return Scenario(r=r, d=d, v=v, y0=y0, s=s, kind=kind, window=float(window),
                     edges=grid_edges(printer.zones), ts=printer.ts,
                     cold_start=(kind == "preheat"))

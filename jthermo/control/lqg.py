@@ -159,6 +159,13 @@ class LQG(AbstractController):
         return u, LQGState(x=x_next, xi=xi, rm=rm, gains=g)
 
 
+@eqx.filter_jit
+def compiled_gains(ctrl: LQG) -> LQGGains:
+    """`ctrl.gains()` as one compiled program, for use outside jit (eager, the Riccati
+    iterations and solves compiled about 50 small programs)."""
+    return ctrl.gains()
+
+
 def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
                iters: int = 40) -> LQG:
     """LQG with integral action from a model.
@@ -189,7 +196,7 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
     ctrl = LQG(q1=f(q1), q2=f(q2), qi=f(qi), qw=f(qw), b0=f(np.zeros(ny)), tau_r=f(tau),
                A=f(ss.A), B=f(ss.B), C=f(ss.C), u_op=f(ss.u0), y_op=f(ss.y0), ts=ss.ts,
                iters=iters)
-    g = ctrl.gains()
+    g = compiled_gains(ctrl)
     if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(g)):
         raise ControlError("design_lqg: the Riccati solution is not finite for these weights")
     return ctrl

@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import ControlError
 from .decoupled import DecoupledPI
 from .feedforward import FeedForward
-from .lqg import LQG
+from .lqg import LQG, compiled_gains
 from .mimo_pi import MIMOPI
 from .pi import DiagonalPI
 from .rules import as_state_space
@@ -41,7 +41,7 @@ def _pi_matrices(ctrl):
 
 def _lqg_state_space(ctrl: LQG):
     """$(A_c, B_c, C_c, D_c)$ from y (deviation) to u (deviation) of the LQG with integrators."""
-    g = ctrl.gains()
+    g = compiled_gains(ctrl)
     A, B, C = (np.asarray(m, np.float64) for m in (ctrl.A, ctrl.B, ctrl.C))
     Lx, Li, M = (np.asarray(m, np.float64) for m in (g.Lx, g.Li, g.M))
     nx, ny = A.shape[0], C.shape[0]

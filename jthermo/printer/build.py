@@ -131,5 +131,5 @@ def make_printer(zones: int = 4, effects: Mapping[str, Mapping] | Iterable[str] 
                    gain=jnp.asarray(gain, dtype), surroundings=jnp.asarray(surroundings, dtype),
                    effects=leaves, area=area, static=tuple(static), zones=n, delay=delay,
                    substeps=substeps, ts=float(overrides.get("ts", 1.0)), powder=powder,
-                   window=tuple(pw.window), has_areas=bool(areas))
+                   window=jnp.asarray(pw.window, dtype), has_areas=bool(areas))
 

@@ -72,7 +72,7 @@ class Printer(eqx.Module):
     substeps: int = eqx.field(static=True)    # sub-steps per sample for the nonlinear effects
     ts: float = eqx.field(static=True)        # s
     powder: str = eqx.field(static=True)
-    window: tuple = eqx.field(static=True)    # °C print window
+    window: Float[Array, " 2"]                # °C print window (a leaf: powders share programs)
     has_areas: bool = eqx.field(static=True)
 
     def __check_init__(self):
@@ -246,7 +246,7 @@ class Printer(eqx.Module):
         return f
 
     @property
-    def window_centre(self) -> float:
+    def window_centre(self) -> Float[Array, ""]:
         return 0.5 * (self.window[0] + self.window[1])
 
     def _power(self, u):

@@ -83,6 +83,10 @@ def _design_point(printer):
     return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0), u0, printer.output(x0)
 
 
+#: `printer_model` as one compiled program (eager, its conversions compiled a dozen small ones)
+_printer_model = eqx.filter_jit(printer_model)
+
+
 def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
     if isinstance(plant, str):
         if plant != "printer":
@@ -254,7 +258,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     if changed_powder == "auto":
         changed_powder = "PA11" if powder != "PA11" else "PA12"
     if model is None:
-        model = pl if isinstance(pl, AbstractModel) else printer_model(pl)
+        model = pl if isinstance(pl, AbstractModel) else _printer_model(pl)
     start = design(controller_family, model)
     if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
         # schedule feed-forward taps from the printer's response to each event (`ff_init`)

@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..closedloop import DEFAULT_WEIGHTS, initial_state
+from ..closedloop.scenarios import unlabelled
 from ..closedloop.scoring import is_static_zero
 from ..control._base import AbstractController
 from ..errors import ControlError
@@ -170,14 +171,15 @@ def _same_structure(a, b) -> bool:
 
 def group_batch(batch) -> tuple[_Group, ...]:
     """Stack the items `(plant, kind, scenarios)` of a batch that can share one vmapped
-    simulation (same kind and same plant structure, e.g. a `plant_ensemble`): one trace and
-    one compilation per group instead of per item."""
+    simulation: same plant and scenario structure up to their labels (`unlabelled`), e.g. a
+    `plant_ensemble` or printers of other powders in every scenario kind. One trace and one
+    compilation per group instead of per item (a whole study is usually one group)."""
+    batch = [(unlabelled(it[0]), it[1], unlabelled(it[2])) for it in batch]
     groups: list[list[int]] = []
     for i, it in enumerate(batch):
         for g in groups:
             j = g[0]
-            if batch[j][1] == it[1] and _same_structure(batch[j][0], it[0]) and \
-                    _same_structure(batch[j][2], it[2]):
+            if _same_structure(batch[j][0], it[0]) and _same_structure(batch[j][2], it[2]):
                 g.append(i)
                 break
         else:
