@@ -82,9 +82,15 @@ class _LinearPlant(eqx.Module):
         return y, y
 
 
-def _prepare(plant):
+#: the printer scenarios `make_scenario` draws without any recoat (tests/closedloop/
+#: test_substeps.py checks it): their runs integrate the printer without the recoat sweep, in
+#: fewer sub-steps (`Printer.discretise(recoat=False)`)
+RECOAT_FREE_KINDS = ("tracking", "preheat")
+
+
+def _prepare(plant, kind: str = ""):
     if isinstance(plant, Printer):
-        return _PrinterPlant(plant.discretise())
+        return _PrinterPlant(plant.discretise(recoat=kind not in RECOAT_FREE_KINDS))
     if isinstance(plant, DiscretePrinter):
         return _PrinterPlant(plant)
     if isinstance(plant, AbstractModel):
@@ -144,7 +150,7 @@ def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, 
     if scenario.r.ndim != 2:
         raise ConfigError("simulate: a batched scenario needs `rollouts`, not `simulate`")
     check_loop("simulate", plant, controller, scenario, x0)
-    p = _prepare(plant)
+    p = _prepare(plant, scenario.kind)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
     y_first = p.measure(x0, d0)[0] + scenario.v[0]

@@ -53,6 +53,7 @@ from .effects import EFFECTS as EFFECTS
 from .plant import (
     DiscretePrinter as DiscretePrinter, Printer as Printer,
     PrinterDisturbance as PrinterDisturbance, PrinterState as PrinterState,
+    SMOOTH_SUBSTEPS as SMOOTH_SUBSTEPS,
     steady_state as steady_state,
 )
 from .build import make_printer as make_printer

@@ -14,6 +14,11 @@ from .effects import EFFECTS
 from .geometry import KELVIN, NOMINAL_INPUT, SIGMA, grid_edges, grid_positions, grid_shape
 from .integration import PhiMatrices, phi_matrices
 
+#: sub-steps per sample for radiation alone (no recoat sweep): its T^4 term changes little over
+#: a sample, so one ETD2RK step stays within 1e-3 °C of 100 sub-steps in closed loop
+#: (benchmarks/results/simulate_substeps.md; the sensor noise is 0.05-0.1 °C)
+SMOOTH_SUBSTEPS = 1
+
 # ----------------------------------------------------------------------------- state & disturbance
 
 
@@ -222,8 +227,9 @@ class Printer(eqx.Module):
         q = p["emissivity"] * SIGMA * p["area_m2"] * ((Tc + KELVIN) ** 4 - (Ts + KELVIN) ** 4)
         return q / (Tc - Ts)
 
-    def _nonlinear(self, z, t, ambient):
-        """Radiation and recoat terms on the zone rows at time `t` s since the recoat start."""
+    def _nonlinear(self, z, t, ambient, recoat: bool = True):
+        """Radiation and recoat terms on the zone rows at time `t` s since the recoat start
+        (`recoat=False`: radiation only, for runs without a recoat sweep)."""
         n = self.zones
         T = z[:n]
         f = jnp.zeros_like(z)
@@ -231,7 +237,7 @@ class Printer(eqx.Module):
             p = self.effects["radiative_loss"]
             q = p["emissivity"] * SIGMA * p["area_m2"] * ((T + KELVIN) ** 4 - (ambient + KELVIN) ** 4)
             f = f.at[:n].add(-q / self.capacity)
-        if self.has("recoat_cooling"):
+        if recoat and self.has("recoat_cooling"):
             p = self.effects["recoat_cooling"]
             rows, cols = self.grid
             col = jnp.asarray(grid_positions(n)[:, 1], z.dtype)
@@ -258,12 +264,22 @@ class Printer(eqx.Module):
             return u.at[:n].set(NOMINAL_INPUT ** (1.0 - e) * _safe_power(u[:n], e))
         return u
 
-    def discretise(self) -> DiscretePrinter:
-        """Precompute the sample-time matrices once (what `closedloop.simulate` calls)."""
+    def discretise(self, recoat: bool = True) -> DiscretePrinter:
+        """Precompute the sample-time matrices once (what `closedloop.simulate` calls).
+
+        `recoat=False` is for a run in which no recoat sweep acts (no recoat flag and none in
+        progress, as in the tracking and preheat scenarios): the sweep term is left out, and
+        radiation, smooth over a sample, takes `SMOOTH_SUBSTEPS` sub-step(s) instead of
+        `substeps` (the sweep's columns switch within a sample and need them)."""
         A, Bp, bs, Bl = self.linear_system()
-        m = self.substeps if self.nonlinear else 1
+        if not self.nonlinear:
+            m = 1
+        elif recoat:
+            m = self.substeps
+        else:
+            m = min(self.substeps, SMOOTH_SUBSTEPS) if self.has("radiative_loss") else 1
         return DiscretePrinter(printer=self, disc=phi_matrices(A, self.ts / m), Bp=Bp, bs=bs,
-                               Bl=Bl, m=m)
+                               Bl=Bl, m=m, recoat=recoat)
 
     # -- plant interface -----------------------------------------------------------------
     def default_disturbance(self) -> PrinterDisturbance:
@@ -412,6 +428,7 @@ class DiscretePrinter(eqx.Module):
     bs: Array
     Bl: Array
     m: int = eqx.field(static=True)
+    recoat: bool = eqx.field(static=True, default=True)   # False: no sweep term (see discretise)
 
     def step(self, x: PrinterState, u, d: PrinterDisturbance | None = None) -> PrinterState:
         pr = self.printer
@@ -427,7 +444,7 @@ class DiscretePrinter(eqx.Module):
         b = self.Bp @ p + self.bs * d.ambient + self.Bl @ d.laser
         since = jnp.where(d.recoat > 0.5, 0.0, x.since)
         E, P1, P2 = self.disc.E, self.disc.P1, self.disc.P2
-        if self.m == 1 and not pr.nonlinear:
+        if not (pr.has("radiative_loss") or (self.recoat and pr.has("recoat_cooling"))):
             z = E @ x.z + P1 @ b
         else:
             h, n = pr.ts / self.m, pr.zones
@@ -437,9 +454,9 @@ class DiscretePrinter(eqx.Module):
 
             def sub(z, j):
                 t = since + j * h
-                f0 = pr._nonlinear(z, t, d.ambient)[:n]
+                f0 = pr._nonlinear(z, t, d.ambient, self.recoat)[:n]
                 a = E @ z + P1b + P1n @ f0
-                f1 = pr._nonlinear(a, t + h, d.ambient)[:n]
+                f1 = pr._nonlinear(a, t + h, d.ambient, self.recoat)[:n]
                 return a + P2n @ (f1 - f0), None
 
             z, _ = jax.lax.scan(sub, x.z, jnp.arange(self.m, dtype=x.z.dtype))

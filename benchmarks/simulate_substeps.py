@@ -1,0 +1,117 @@
+"""Sub-steps of the printer in the recoat-free scenarios (issue 13): the integration error of
+`Printer.discretise(recoat=False)` (radiation alone, `SMOOTH_SUBSTEPS` sub-steps) and of the
+earlier path (`substeps` = 10, the recoat term evaluated though no recoat happens) against a
+fine-step reference (100 sub-steps), and what the run program costs with each.
+
+Error: the true zone temperatures of B closed-loop rollouts of `pi_lambda` on the 16-zone
+realistic printer, max and rms of |T - T_ref| over every sample, zone and rollout, and the
+MSE figure `jthermo simulate` reports. Time: the lean program of `closedloop.run` (scenarios
+drawn and metrics accumulated in one compiled call) at the command's size, second call
+(compiled), CPU seconds of the process (user + system, all threads) beside the wall seconds
+and the 1-minute load (2 shared cores).
+
+    python benchmarks/simulate_substeps.py                       # B = 8 errors, B = 256 timing
+    python benchmarks/simulate_substeps.py --time-rollouts 32 --duration 900 --out -   # quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+HERE = Path(__file__).resolve().parent
+NOISE = "sensor noise: white 0.05 °C (scenario) + 0.05 °C and AR(1) 0.1 °C (`sensor_noise`)"
+
+
+def _load() -> str:
+    return Path("/proc/loadavg").read_text().split()[0]
+
+
+def _timed(fn):
+    jax.block_until_ready(fn())
+    w, c = time.perf_counter(), time.process_time()
+    out = jax.block_until_ready(fn())
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--zones", type=int, default=16)
+    ap.add_argument("--rollouts", type=int, default=8, help="rollouts for the error")
+    ap.add_argument("--time-rollouts", type=int, default=256, help="rollouts for the timing")
+    ap.add_argument("--duration", type=float, default=3600.0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--out", default=str(HERE / "results" / "simulate_substeps.md"))
+    args = ap.parse_args()
+    jax.config.update("jax_enable_x64", True)
+    from jthermo import closedloop as cl
+    from jthermo.closedloop import engine
+    from jthermo.control.design import design
+    from jthermo.printer import SMOOTH_SUBSTEPS, make_printer
+    from jthermo.tune import printer_model
+
+    def printer(m=10):
+        return make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0, substeps=m)
+
+    base = printer()
+    ctrl = design("pi_lambda", eqx.filter_jit(printer_model)(base))
+    dense = eqx.filter_jit(lambda p, s: cl.rollouts(p, ctrl, s))
+    load0 = _load()
+    lines = [f"# Printer sub-steps in the recoat-free scenarios: N = {args.zones}, "
+             f"T = {args.duration:g} s", "",
+             (f"`python benchmarks/simulate_substeps.py --rollouts {args.rollouts} "
+              f"--time-rollouts {args.time_rollouts} --duration {args.duration:g} --seed "
+              f"{args.seed}`; controller pi_lambda on the realistic printer; {NOISE}."), "",
+             "## Integration error against 100 sub-steps", "",
+             (f"{args.rollouts} rollouts; `custom` = the scenario relabelled so that the run "
+              "takes the earlier path (recoat term kept, `substeps` sub-steps)."), "",
+             "| scenario | integration | sub-steps | max abs dT °C | rms dT °C | mse | rel. mse change |",
+             "|---|---|---|---|---|---|---|"]
+    for kind in engine.RECOAT_FREE_KINDS:
+        sc = cl.make_scenario(kind, base, args.duration, jax.random.key(args.seed),
+                              n_rollouts=args.rollouts)
+        full = dataclasses.replace(sc, kind="custom")
+        ref = dense(printer(100), full)
+        mse_ref = float(jnp.mean((ref.y - ref.r) ** 2))
+        lines.append(f"| {kind} | reference (earlier path) | 100 | 0 | 0 | {mse_ref:.8f} | 0 |")
+        for label, p, s, m in (("earlier path", base, full, base.substeps),
+                               ("recoat=False (now)", base, sc, SMOOTH_SUBSTEPS)):
+            tr = dense(p, s)
+            err = jnp.abs(tr.temperature - ref.temperature)
+            mse = float(jnp.mean((tr.y - tr.r) ** 2))
+            lines.append(f"| {kind} | {label} | {m} | {float(err.max()):.2e} | "
+                         f"{float(jnp.sqrt(jnp.mean(err ** 2))):.2e} | {mse:.8f} | "
+                         f"{abs(mse - mse_ref) / mse_ref:.1e} |")
+            print(lines[-1], flush=True)
+    B = args.time_rollouts
+    lines += ["", f"## The run program at B = {B} (second call, compiled)", "",
+              "| path | sub-steps | wall s | CPU s | load | mse |", "|---|---|---|---|---|---|"]
+    relabel = eqx.filter_jit(lambda p, c, k: engine._run_metrics(p, c, dataclasses.replace(
+        cl.make_scenario("tracking", p, args.duration, k, n_rollouts=B), kind="custom")))
+    key = jax.random.key(0)
+    for label, fn, m in (
+            ("earlier (recoat term, 10 sub-steps)", lambda: relabel(base, ctrl, key),
+             base.substeps),
+            ("now (recoat=False)", lambda: engine._scenario_metrics(
+                "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
+        load = _load()
+        out, wall, cpu = _timed(fn)
+        lines.append(f"| {label} | {m} | {wall:.2f} | {cpu:.2f} | {load} | "
+                     f"{float(out[0]['mse']):.8f} |")
+        print(lines[-1], flush=True)
+    lines += ["", f"1-minute load {load0} at the start, {_load()} at the end."]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out != "-":
+        Path(args.out).write_text(text)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
