@@ -163,7 +163,7 @@ def tuning_start(controller, model: AbstractModel, envelope: Envelope, setpoint)
 
 
 def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: int = 0,
-                   kind: str = STARTUP) -> float | None:
+                   kind: str = STARTUP, step_c=None) -> float | None:
     """Full-power floor of a scenario's MSE (°C²) on `plant` (`kind`: `STARTUP`, default, or
     the set-point changes of `tracking`): after each set-point change from level $a$ to $b$,
     every input at its limit towards $b$ (`u_max` up, `u_min` down) from the equilibrium at
@@ -175,10 +175,12 @@ def tracking_floor(plant, envelope: Envelope, setpoint, duration: float, seed: i
     has); for a sequence of changes it is an estimate that assumes each change starts from
     steady state. A step that full power does not complete within the run counts in full.
     None for a non-square plant. No tuning brings the MSE much below it: an acceptance
-    asking for less is out of reach of the heaters, not of the tuner."""
+    asking for less is out of reach of the heaters, not of the tuner. `step_c`: the
+    set-point changes' size (°C, `model_scenario`'s; default its own)."""
     if int(plant.n_inputs) != int(plant.n_outputs):
         return None
-    sc = model_scenario(kind, plant, duration, seed, envelope=envelope, setpoint=setpoint)
+    sc = model_scenario(kind, plant, duration, seed, envelope=envelope, setpoint=setpoint,
+                        step_c=step_c)
     ref = np.asarray(sc.r, np.float64)
     T = ref.shape[0]
     S = np.asarray(plant.step_response(T), np.float64)             # (T, ny, nu)
