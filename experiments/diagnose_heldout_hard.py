@@ -30,11 +30,14 @@ the slow kinds), validation half of that, at most `MAX_EST` estimation samples. 
 steps of at most 0.05 s.
 
     .venv/bin/python experiments/diagnose_heldout_hard.py [--cases 19] [--first 0] [--max-zones 9]
-    .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 30      # false alarms only
+    .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 12 --max-zones 3 --tag nulls
+    .venv/bin/python experiments/diagnose_heldout_hard.py --pooled   # pool every study's JSON
 
 Writes `experiments/results/diagnose_heldout_hard[_TAG].{md,json}` (after every case): top-1,
 nulls, fit gain, parameters against the truth, confidence calibration, wall and CPU seconds and
-the load.
+the load; `--pooled` writes `diagnose_calibration.{md,json}`: the null records and top findings of
+every diagnosis study in the results folder pooled (measured against stated false-alarm rate,
+confidence calibration).
 """
 
 from __future__ import annotations
@@ -332,6 +335,51 @@ def write(rows, meta, out, tag):
     atomic_write_text(out / f"diagnose_heldout_hard{tag}.md", "\n".join(lines) + "\n")
 
 
+def pooled(res_dir: Path) -> dict:
+    """Nulls and top findings of every diagnosis study whose JSON is in `res_dir`: the measured
+    false-alarm rate against the stated one, and the confidence calibration, pooled."""
+    nulls, found, sources = [], [], []
+    old = res_dir / "diagnose_heldout.json"                       # printer held-out study
+    if old.is_file():
+        rows = json.loads(old.read_text())
+        sources.append(f"{old.name} ({len(rows)} records)")
+        nulls += [r["top"] is not None for r in rows if r["kind"] == "null"]
+        found += [(r["confidence"], r["correct"]) for r in rows if r["top"] is not None]
+    fa = res_dir / "diagnose_false_alarm.json"                    # nulls only: no confidence kept
+    if fa.is_file():
+        rows = json.loads(fa.read_text())["records"]
+        sources.append(f"{fa.name} (nulls of {len(rows)} records)")
+        nulls += [r["alarm"] for r in rows if r["effect"] is None]
+    for f in sorted(res_dir.glob("diagnose_heldout_hard*.json")):
+        rows = json.loads(f.read_text())["records"]
+        sources.append(f"{f.name} ({len(rows)} records)")
+        nulls += [r["top"] is not None for r in rows if r["kind"] == "null"]
+        found += [(r["confidence"], r["correct"]) for r in rows if r["top"] is not None]
+    rows = [{"top": "x", "confidence": c, "correct": ok} for c, ok in found]
+    return {"sources": sources, "nulls": len(nulls), "false_alarms": int(sum(nulls)),
+            "calibration": calibration(rows)}
+
+
+def write_pooled(res_dir: Path, out: Path):
+    p = pooled(res_dir)
+    lo, hi = clopper_pearson(p["false_alarms"], p["nulls"]) if p["nulls"] else (float("nan"),) * 2
+    lines = ["# Diagnosis: stated against measured false alarms, and confidence calibration (issue 14)", "",
+             "Made by `python experiments/diagnose_heldout_hard.py --pooled`, from the studies' JSON files",
+             "in `experiments/results/`: " + "; ".join(p["sources"]) + ".", "",
+             (f"- Null records (nothing missing): {p['nulls']}, with a finding: {p['false_alarms']} "
+              f"({100 * p['false_alarms'] / max(p['nulls'], 1):.1f} %, 95 % Clopper-Pearson {100 * lo:.1f}-"
+              f"{100 * hi:.1f} %); stated family-wise rate {100 * ALPHA:g} %."), "",
+             "Confidence of the top finding against the share of those findings that were right:", "",
+             "| reported confidence | findings | correct | share correct | mean confidence |",
+             "|---|---|---|---|---|"]
+    for b in p["calibration"]:
+        lines.append(f"| [{b['bin'][0]:g}, {b['bin'][1]:g}{']' if b['bin'][1] == 1.0 else ')'} | "
+                     f"{b['findings']} | {b['correct']} | {b['correct'] / b['findings']:.2f} | "
+                     f"{b['mean_confidence']:.3f} |")
+    atomic_write_text(out / "diagnose_calibration.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "diagnose_calibration.json", json.dumps(p, indent=1, default=float))
+
+
 def cpu_s():
     t = os.times()
     return t.user + t.system
@@ -346,9 +394,14 @@ def main(argv=None):
     ap.add_argument("--max-zones", type=int, default=9)
     ap.add_argument("--tag", default="")
     ap.add_argument("--out", default="experiments/results")
+    ap.add_argument("--pooled", action="store_true",
+                    help="only pool the studies' JSON in --out: false alarms and confidence calibration")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.pooled:
+        write_pooled(out, out)
+        return 0
     meta = {"args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                              if k != "out" and v not in (None, "", 0) and not (k == "max_zones" and v == 9)
                              and not (k == "cases" and v == len(KINDS)))}
