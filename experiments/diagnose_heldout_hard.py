@@ -350,14 +350,26 @@ def pooled(res_dir: Path) -> dict:
         rows = json.loads(fa.read_text())["records"]
         sources.append(f"{fa.name} (nulls of {len(rows)} records)")
         nulls += [r["alarm"] for r in rows if r["effect"] is None]
+    hard = []
     for f in sorted(res_dir.glob("diagnose_heldout_hard*.json")):
         rows = json.loads(f.read_text())["records"]
         sources.append(f"{f.name} ({len(rows)} records)")
         nulls += [r["top"] is not None for r in rows if r["kind"] == "null"]
         found += [(r["confidence"], r["correct"]) for r in rows if r["top"] is not None]
+        hard += [r for r in rows if r["kind"] != "null"]
+    by_kind = {}
+    for r in hard:
+        k = by_kind.setdefault(r["kind"], {"cases": 0, "top1": 0, "named": []})
+        k["cases"] += 1
+        k["top1"] += bool(r["correct"])
+        k["named"].append(r["top"] or "-")
+    gains = [r["gain"] for r in hard if r["correct"]]
+    rec = [v["rel_error"] for r in hard if r["recovered"] for v in r["recovered"].values()]
     rows = [{"top": "x", "confidence": c, "correct": ok} for c, ok in found]
     return {"sources": sources, "nulls": len(nulls), "false_alarms": int(sum(nulls)),
-            "calibration": calibration(rows)}
+            "calibration": calibration(rows), "hard_top1": [sum(r["correct"] for r in hard), len(hard)],
+            "hard_median_gain": float(np.median(gains)) if gains else float("nan"),
+            "hard_params_within_25": [int(sum(e <= 0.25 for e in rec)), len(rec)], "hard_by_kind": by_kind}
 
 
 def write_pooled(res_dir: Path, out: Path):
@@ -372,6 +384,14 @@ def write_pooled(res_dir: Path, out: Path):
              "Confidence of the top finding against the share of those findings that were right:", "",
              "| reported confidence | findings | correct | share correct | mean confidence |",
              "|---|---|---|---|---|"]
+    if p["hard_by_kind"]:
+        lines = [*lines[:-5], (f"- Harder held-out study, mechanism cases pooled over its files: top-1 "
+                               f"{p['hard_top1'][0]}/{p['hard_top1'][1]}, median fit gain of the correct ones "
+                               f"{p['hard_median_gain']:.2f} pts, parameters within 25 % "
+                               f"{p['hard_params_within_25'][0]}/{p['hard_params_within_25'][1]}."), "",
+                 "| kind | cases | top-1 right | named first |", "|---|---|---|---|",
+                 *[f"| {k} | {v['cases']} | {v['top1']} | {', '.join(v['named'])} |"
+                   for k, v in sorted(p["hard_by_kind"].items())], *lines[-5:]]
     for b in p["calibration"]:
         lines.append(f"| [{b['bin'][0]:g}, {b['bin'][1]:g}{']' if b['bin'][1] == 1.0 else ')'} | "
                      f"{b['findings']} | {b['correct']} | {b['correct'] / b['findings']:.2f} | "
