@@ -39,7 +39,7 @@ from jthermo.data import load_csv  # noqa: E402
 from jthermo.errors import ControlError  # noqa: E402
 from jthermo.identify import fit  # noqa: E402
 from jthermo.tune import tune_own_plant  # noqa: E402
-from jthermo.tune.own import OWN_SCENARIOS  # noqa: E402
+from jthermo.tune.own import MAX_SATURATED_CHANGES, OWN_SCENARIOS, PID_TYPE  # noqa: E402
 from jthermo.validate import compare  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -57,8 +57,6 @@ DEVICES = {
 #: label: (start family, extra scenarios tuned on besides the defaults)
 TUNED = {"tuned PI": ("pi_lambda", ()), "tuned PID": ("pid_relay", ()),
          "tuned PID (+start-up)": ("pid_relay", ("preheat",))}
-#: the classical designs a firmware user would otherwise have: PI rules and the relay PID
-PID_TYPE = ("pi_untuned", "pi_lambda", "pi_decoupled", "pid_relay")
 
 
 def load(path):
@@ -104,6 +102,10 @@ def device_study(name, spec, steps, rollouts, seed):
     gain_pid = None if best_pid is None else 100.0 * (
         1.0 - table[tuned]["tracking_mse"] / table[best_pid]["tracking_mse"])
     ctrls = {label: res["tuned"] for label, res in runs.items()}
+    sc = model_scenario("tracking", fe.model, first["duration"], seed, envelope=fd.envelope,
+                        setpoint=first["setpoints"])
+    change = (np.max(np.asarray(sc.r), axis=0) - np.asarray(first["setpoints"])).tolist()
+    v = first["validation"]
     figure(name, fe.model, fd.envelope, first["setpoints"], first["duration"],
            {**ctrls, best: classical_controller(fd.model, best, first["setpoints"])}, seed)
     return {"device": name, "design": str(spec["design"].relative_to(REAL)),
@@ -115,8 +117,11 @@ def device_study(name, spec, steps, rollouts, seed):
             "accept_20_percent": bool(gain >= 20.0),
             "startup_overshoot_C": table[tuned]["startup_overshoot_C"],
             "accept_overshoot_2C": bool(table[tuned]["startup_overshoot_C"] <= 2.0),
-            "startup_floor_mse": first["validation"]["startup_floor_mse"],
-            "tracking_floor_mse": first["validation"]["tracking_floor_mse"],
+            "change_C": change,
+            **{k: v[k] for k in ("startup_floor_mse", "tracking_floor_mse", "noise_mse",
+                                 "tracking_bound_mse")},
+            "bang_bang": sorted(f for f in table
+                                if table[f]["tracking_saturated"] > MAX_SATURATED_CHANGES),
             "best_pid_type": best_pid, "improvement_vs_best_pid_type_percent": gain_pid,
             "weights": first["weights"], "term_scales": {k: r["term_scales"] for k, r in runs.items()},
             "tuning": {label: {"moved": res["moved"], "guard": res["guard"],
@@ -127,7 +132,7 @@ def device_study(name, spec, steps, rollouts, seed):
                                "history_min": min(res["history"]) if res["history"] else None}
                        for label, res in runs.items()},
             "tuned_gains": {label: {k: np.asarray(getattr(c, k)).tolist()
-                                    for k in ("kp", "ti", "td") if hasattr(c, k)}
+                                    for k in ("kp", "ti", "td", "b") if hasattr(c, k)}
                             for label, c in ctrls.items()},
             "seconds": time.perf_counter() - t0}
 
@@ -163,11 +168,16 @@ def markdown(results, args) -> str:
              f"`python experiments/own_plant.py --steps {args.steps} --rollouts {args.rollouts}"
              f" --seed {args.seed}` (issue 18). Design model fitted to one record, every "
              "controller designed/tuned on it and run on a model fitted to another record "
-             "(held-out seed). Set-point changes: settled at the set point, +10 % of the "
-             "recorded range at 10 % of the run, -10 % at 55 % (closedloop.model_scenario "
-             "`tracking`); start-up: heaters off to the set point (`preheat`). Figures: "
-             "`own_plant_<device>_<controller>.png` (set-point changes on the evaluation plant).",
-             ""]
+             "(held-out seed). Set-point changes: settled at the set point, +δ at 10 % of the "
+             "run, -δ at 55 % (closedloop.model_scenario `tracking`), δ at most 10 % of the "
+             "recorded range, scaled down until a first-order loop ten times faster than the "
+             "plant follows both changes without an input at a limit "
+             "(`models.envelope.change_scale`); load: input-referred heat sink of 25 % of the "
+             "recorded input std; start-up: heaters off to the set point (`preheat`), judged "
+             "on its own. A loop at an input limit more than "
+             f"{100 * MAX_SATURATED_CHANGES:.0f} % of the set-point changes is marked bang-bang "
+             "(a tuned one is refused). Figures: `own_plant_<device>_<controller>.png` "
+             "(set-point changes on the evaluation plant).", ""]
     for r in results:
         if "table" not in r:
             lines += [f"## {r['device']}", "", f"- every tuning failed: {r['failed']}", ""]
@@ -177,12 +187,14 @@ def markdown(results, args) -> str:
                   f"Ts {r['ts']:g} s, {r['family']} orders {r['orders']}; fits (%): design "
                   f"model on the evaluation record {np.round(r['fits']['design_on_evaluation_record'], 1).tolist()}, "
                   f"evaluation model on the design record {np.round(r['fits']['evaluation_on_design_record'], 1).tolist()}",
-                  f"- set points {np.round(r['setpoints'], 2).tolist()} °C, scenarios of "
+                  f"- set points {np.round(r['setpoints'], 2).tolist()} °C, set-point changes "
+                  f"δ = {np.round(r['change_C'], 3).tolist()} °C, scenarios of "
                   f"{r['duration']:g} s", "",
                   "| controller | set-point changes MSE (°C²) | overshoot (°C) | saturated | mean abs Δu | load MSE (°C²) | start-up MSE (°C²) | start-up overshoot (°C) | start-up settling (s) | cost |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for f, m in sorted(r["table"].items(), key=lambda kv: kv[1]["tracking_mse"]):
-            lines.append(f"| {f} | {m['tracking_mse']:.4g} | {m['tracking_overshoot_C']:.3g} | "
+            tag = " (bang-bang)" if f in r["bang_bang"] else ""
+            lines.append(f"| {f}{tag} | {m['tracking_mse']:.4g} | {m['tracking_overshoot_C']:.3g} | "
                          f"{m['tracking_saturated']:.2f} | {m['input_variation']:.3g} | "
                          f"{m['load_mse']:.4g} | {m['startup_mse']:.4g} | "
                          f"{m['startup_overshoot_C']:.3g} | {m['startup_settling_s']:.4g} | "
@@ -203,6 +215,13 @@ def markdown(results, args) -> str:
                        f"{r['tracking_floor_mse']:.4g} °C², "
                        f"{100 * (1 - r['tracking_floor_mse'] / r['table'][r['best_classical']]['tracking_mse']):.1f}"
                        f" % below {r['best_classical']}"), ""]
+        if r.get("tracking_bound_mse") is not None:
+            best_mse = r["table"][r["best_classical"]]["tracking_mse"]
+            lines += [(f"- measurement noise (the recording's, in every measured MSE): "
+                       f"{r['noise_mse']:.4g} °C²; floor + noise = {r['tracking_bound_mse']:.4g}"
+                       f" °C²: no controller within the input limits is more than "
+                       f"{100 * (1 - r['tracking_bound_mse'] / best_mse):.1f} % below "
+                       f"{r['best_classical']} on these set-point changes"), ""]
         if r.get("startup_floor_mse") is not None:
             lines += [(f"- start-up MSE floor on the evaluation plant (every heater at full "
                        f"power until the set point, zero error after; `tune.own.tracking_floor`):"
