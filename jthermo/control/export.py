@@ -245,6 +245,11 @@ def to_c(ctrl, out_dir, name: str = "jthermo_ctrl") -> tuple[Path, Path]:
     if t["kind"] == "lqg":
         dims = {"NU": t["n"], "NY": t["ny"], "NX": t["nx"]}
         fields, init, step = _lqg_code(t, p)
+        if ff:   # the observer predicts with the feedback's part of u (`schedule_ff`)
+            step += f"""
+    double bff[{p}_NX];
+    {_matvec("bff", "B", f"{p}_NX", f"{p}_NU", "uadd")}
+    for (int i = 0; i < {p}_NX; ++i) s->x[i] = s->x[i] - bff[i];"""
         if t["ny"] != t["n"]:
             raise ControlError("export: the LQG must have as many outputs as inputs")
     else:
