@@ -220,7 +220,9 @@ def run(N: int, families: list[str], seed: int = 0) -> list[dict]:
                    "peak_rss_mb": rss / 1024, "load": [l0, load()]}
             if p.returncode == 0:
                 row["profile"] = json.loads(prof.read_text())
-                row["report"] = json.loads((tmp / f"{fam}.json").read_text())
+                rep = json.loads((tmp / f"{fam}.json").read_text())
+                row["report"] = {k: rep.get(k) for k in ("orders", "mean_fit_percent",
+                                                          "fit_percent", "converged", "seconds")}
             else:
                 row["error"] = p.stderr[-400:]
             rows.append(row)
