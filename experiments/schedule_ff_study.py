@@ -3,7 +3,8 @@ with it (`lqg_ff`) on the realistic virtual printer and report them on held-out 
 every classical design (`best_classical`), lambda PI, the unseen powder, Ms and ±20 % gain.
 
     .venv/bin/python experiments/schedule_ff_study.py [--families pi_ff,lqg_ff] [--steps 40]
-        [--rollouts 4] [--eval-rollouts 4] [--duration 300] [--ensemble 0] [--ff-init 1] [--out PATH]
+        [--rollouts 4] [--eval-rollouts 4] [--duration 300] [--ensemble 0] [--ff-init 1]
+        [--params auto|all|FIELD,...] [--out PATH]
 
 Writes experiments/results/schedule_ff_study.json (one `jthermo tune`-style report per family,
 without the tuned controller) and a Markdown table beside it. Settings are recorded in the
@@ -12,6 +13,7 @@ output; the defaults are a reduced run (2-core machine), not the CLI's 150 steps
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -37,6 +39,9 @@ def main(argv=None):
     ap.add_argument("--ff-init", type=int, default=1,
                     help="1: feed-forward taps start at the model-based inverse of each event "
                          "(tune.ff_init); 0: at zero")
+    ap.add_argument("--params", default="auto",
+                    help="fields tuned: auto (tune_report's default: the feed-forward taps, "
+                         "feedback frozen), all (every array leaf), or a comma list")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--table-only", action="store_true",
                     help="only rewrite the Markdown table from the JSON at --out")
@@ -45,15 +50,19 @@ def main(argv=None):
     out = Path(args.out)
     results = json.loads(out.read_text()) if out.exists() else {}
     for fam in ([] if args.table_only else args.families.split(",")):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         rep = tune_report(fam, steps=args.steps, rollouts=args.rollouts, duration=args.duration,
                           ensemble=args.ensemble, seed=args.seed,
-                          eval_rollouts=args.eval_rollouts, ff_init=bool(args.ff_init))
+                          eval_rollouts=args.eval_rollouts, ff_init=bool(args.ff_init),
+                          params={"auto": "auto", "all": None}.get(
+                              args.params, tuple(args.params.split(","))))
         rep.pop("tuned")
         rep["settings"] = vars(args)
         rep["command"] = " ".join([".venv/bin/python", "experiments/schedule_ff_study.py",
                                    *(argv if argv is not None else sys.argv[1:])])
         rep["wall_s"] = time.perf_counter() - t0
+        rep["cpu_s"] = time.process_time() - c0
+        rep["load"] = os.getloadavg()
         results[fam] = jsonable(rep)
         out.write_text(json.dumps(results, indent=1) + "\n")
         print(fam, {k: rep.get(k) for k in ("tuned_cost", "best_classical", "best_classical_cost",
@@ -61,8 +70,9 @@ def main(argv=None):
                                             "improvement_percent")}, flush=True)
     rows = [("| family | FF start | start | tuned | lambda PI | best classical | vs lambda PI % "
              "| vs best classical % | unseen powder vs best classical % | Ms tuned "
-             "| cost +20 % gain | cost −20 % gain |"),
-            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| cost +20 % gain | cost −20 % gain | tuned fields | guard's iterate "
+             "| wall s / CPU s (load) |"),
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for fam, r in results.items():
         ch = r.get("changed_powder") or {}
         rb = r.get("robustness") or {}
@@ -75,7 +85,11 @@ def main(argv=None):
                     f"{ch.get('improvement_vs_best_classical_percent', float('nan')):.1f} | "
                     f"{(rb.get('ms') or {}).get('tuned') or float('nan'):.2f} | "
                     f"{(rb.get('gain_plus_20_cost') or {}).get('tuned', float('nan')):.4f} | "
-                    f"{(rb.get('gain_minus_20_cost') or {}).get('tuned', float('nan')):.4f} |")
+                    f"{(rb.get('gain_minus_20_cost') or {}).get('tuned', float('nan')):.4f} | "
+                    f"{r.get('settings', {}).get('params', 'all (before --params)')} | "
+                    f"{(r.get('guard') or {}).get('chosen')} | "
+                    f"{r.get('wall_s', float('nan')):.0f} / {r.get('cpu_s', float('nan')):.0f} "
+                    f"({'/'.join(f'{x:.1f}' for x in r.get('load', ())) or '?'}) |")
     s = {k: v for k, v in results[next(iter(results))]["settings"].items()
          if k not in ("families", "table_only")}
     cmds = sorted({r.get("command", "?") for r in results.values()})

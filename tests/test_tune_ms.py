@@ -4,6 +4,7 @@ candidates are built by hand with known $M_s$ and their validation costs replace
 numbers (fast: the selection logic, with the real `peak_sensitivity`)."""
 
 import equinox as eqx
+import jax
 import numpy as np
 
 import jthermo.tune.training as training
@@ -60,3 +61,33 @@ def test_families_without_a_linear_form_stay_unconstrained(monkeypatch):
                               ms_max=2.0, ms_model=plant)
     ms = info["ms_constraint"]
     assert c is imc and ms["computable"] is False and ms["satisfied"] is None
+
+
+def test_guard_does_not_judge_items_a_candidate_leaves_unchanged(monkeypatch):
+    """A schedule feed-forward tuned alone cannot change a scenario without events: its mse
+    there is the start's exactly, which is not judged (it would never beat the start there)."""
+    plant = bed_plant(2, seed=1)
+    start = design("pi_lambda", plant)
+    ff_only, worse = (eqx.tree_at(lambda c: c.u0, start, start.u0 + d) for d in (0.0, 0.01))
+    terms = {id(start): [[1.0, 1.0], [1.0, 1.0]], id(ff_only): [[1.0, 1.0], [0.7, 0.6]],
+             id(worse): [[1.0, 1.0 + 1e-9], [0.7, 0.6]]}
+    monkeypatch.setattr(training, "batch_terms", lambda c, b, w: np.asarray(terms[id(c)]))
+    c, info = training._guard([(0, 1.0, start), (4, 0.8, ff_only)], [start], start, None,
+                              None, 0.01, 0.02)
+    assert c is ff_only and info["chosen"] == 4 and info["margin"] == 0.01
+    # the start itself is never a passing candidate; a hair worse in the first item fails
+    c, info = training._guard([(0, 1.0, start), (4, 0.8, worse)], [start], start, None, None,
+                              0.01, 0.02)
+    assert c is start and info["passed"] is False
+
+
+def test_schedule_feedforward_tunes_its_taps_alone():
+    from jthermo.tune.ff_init import FF_FIELDS, tuned_fields
+
+    plant = bed_plant(2, seed=1)
+    ff = design("pi_ff", plant)
+    assert tuned_fields(ff) == FF_FIELDS and tuned_fields(design("lqg_ff", plant)) == FF_FIELDS
+    assert tuned_fields(design("pi_lambda", plant)) is None
+    spec = training._field_filter(ff, tuned_fields(ff))
+    chosen = [leaf for leaf in jax.tree_util.tree_leaves(spec) if leaf]
+    assert len(chosen) == 2 and not any(jax.tree_util.tree_leaves(spec.feedback))

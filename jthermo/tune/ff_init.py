@@ -126,3 +126,21 @@ def init_schedule_ff(ctrl: ScheduleFF, printer: Printer, *, preview_s: float = P
     dt = ctrl.h_recoat.dtype
     to = lambda h: jnp.asarray(h / ctrl.scale, dt)
     return eqx.tree_at(lambda c: (c.h_recoat, c.h_laser), ctrl, (to(h_rec), to(h_las)))
+
+
+#: the fields of a `ScheduleFF` that tuning moves by default: the taps only
+FF_FIELDS = ("h_recoat", "h_laser")
+
+
+def tuned_fields(ctrl) -> tuple[str, ...] | None:
+    """The fields `tune` moves by default for `ctrl` (`params`; None: every array leaf).
+
+    A schedule feed-forward tunes its taps with the feedback (MIMO PI or LQG) frozen at its
+    design: the feed-forward does not enter the sensitivity $S = (I - G K)^{-1}$, so the loop
+    keeps the design's $M_s$ (on the printer 1.94 for the MIMO PI, 1.84 for the LQG, within
+    the limit 2) by construction, and the set-point tracking of the design (no events there);
+    the feed-forward does the disturbance work. Tuned jointly, the PI gains left $M_s \\le 2$
+    after the second iterate (experiments/results/schedule_ff_study_ms.md)."""
+    if isinstance(ctrl, ScheduleFF):
+        return FF_FIELDS
+    return None

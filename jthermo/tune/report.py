@@ -20,7 +20,7 @@ from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
-from .ff_init import init_schedule_ff
+from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
 from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, loop_ms, plant_ensemble, tune
 
@@ -220,6 +220,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
                 check_robustness: bool = True, ff_init: bool = True,
                 ms_max: float | None = 2.0, optimiser: str = "adam", ms_weight: float = 0.0,
+                params: Sequence[str] | str | None = "auto",
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -241,7 +242,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     covers; others are tuned unconstrained and reported with `computable: False`.
     `optimiser`: `"adam"` or `"lbfgs"` (`minimise`; `steps` is then the most iterations).
     `ms_weight` > 0 also penalises the soft peak sensitivity above `ms_max` inside the tuning
-    objective (`tune`, `sensitivity.ms_penalty`).
+    objective (`tune`, `sensitivity.ms_penalty`). `params`: the fields tuned (`tune`; None:
+    every array leaf; `"auto"`: `ff_init.tuned_fields`, the taps alone for `pi_ff`, `lqg_ff`).
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -270,7 +272,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         ensemble else [pl]
     res = tune(start, pl, plants=plants, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
                duration=duration, weights=weights, references=refs, progress=progress,
-               ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight)
+               ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
+               params=tuned_fields(start) if params == "auto" else params)
     ms_c = (res.guard or {}).get("ms_constraint")
     if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
         ms = loop_ms(model, res.controller)

@@ -138,7 +138,8 @@ def loop_ms(model, controller) -> float | None:
 def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms_model=None):
     """Pick among `candidates` the one with the lowest robust objective on the validation
     `batch` that beats every reference on mse (by `margin`) in every item (plant × scenario)
-    and does not raise the total cost above the start's; relax the margin to 0, then fall back
+    it changes (an item whose mse equals the start's exactly is not judged) and does not raise
+    the total cost above the start's; relax the margin to 0, then fall back
     to `start`. With `ms_max` and `ms_model`, a candidate must also keep its peak sensitivity
     on `ms_model` at or below `ms_max` (`loop_ms`; unconstrained where it cannot be computed),
     reported as `ms_constraint`."""
@@ -149,8 +150,12 @@ def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms
         v = np.asarray(batch_terms(c, batch, weights))
         ok = bool(np.all(np.isfinite(v)))
         obj = float(robust_objective(jnp.asarray(v), jnp.asarray(best), tau)) if ok else np.inf
+        # items where the candidate's mse is the start's exactly are ones the tuned parameters
+        # do not act on (a schedule feed-forward in a scenario without events): not judged
+        moved = v[:, 1] != start_vals[:, 1]
         rows.append({"iteration": int(it), "objective": obj,
-                     "mse_ratio_worst": float(np.max(v[:, 1] / best[:, 1])) if ok else np.inf,
+                     "mse_ratio_worst": float(np.max(v[moved, 1] / best[moved, 1]))
+                     if ok and moved.any() else np.inf,
                      "cost_ratio": float(np.sum(v[:, 0]) / np.sum(start_vals[:, 0])) if ok
                      else np.inf,
                      "ms": loop_ms(ms_model, c) if ok and ms_max is not None
