@@ -382,13 +382,15 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> lis
                 print(f"[default path] N={N} {fam} ...", file=sys.stderr, flush=True)
                 js, tm = tmp / f"{fam}.json", tmp / f"{fam}.time"
                 env = {**os.environ, "JTHERMO_CACHE_DIR": str(tmp / f"cache_{fam}")}
-                cmd = ["/usr/bin/time", "-f", "%e %M", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
+                cmd = ["/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
                        "fit", str(tmp / "est.csv"), "--model", fam, "--validation",
                        str(tmp / "val.csv"), "--json", str(js)]
+                load0 = os.getloadavg()[0]
                 p = subprocess.run(cmd, env=env, capture_output=True, text=True)
-                wall, rss = (float(v) for v in tm.read_text().split()[-2:])
+                wall, rss, user, system = (float(v) for v in tm.read_text().split()[-4:])
                 row = {"family": fam, "N": N, "exit": p.returncode, "wall_s": wall,
-                       "peak_rss_mb": rss / 1024, "true_fit": truth, "load": os.getloadavg()[0]}
+                       "cpu_s": user + system, "peak_rss_mb": rss / 1024, "true_fit": truth,
+                       "load": os.getloadavg()[0], "load_before": load0}
                 if p.returncode == 0:
                     r = json.loads(js.read_text())
                     row.update(orders=r["orders"], fit=r["mean_fit_percent"],
@@ -406,17 +408,19 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> lis
 def default_markdown(rows: list[dict]) -> str:
     lines = ["# Default path: `jthermo fit` with automatic orders, cold, from the shell", "",
              "W1 records in absolute °C (6000 + 3000 samples, Ts = 1 s), fresh process and empty "
-             "compilation cache per row; wall and peak RSS by /usr/bin/time; gap = validation fit "
-             "(MATLAB compare, initial state estimated) minus the true model's fit; load = "
-             "1-minute load average (2-core machine shared with other jobs).", "",
-             "| family | N | orders | fit % | true % | gap | converged | wall s | peak RSS MB | load | note |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "compilation cache per row; wall, CPU (user + system) and peak RSS by /usr/bin/time; "
+             "gap = validation fit (MATLAB compare, initial state estimated) minus the true "
+             "model's fit; load = 1-minute load average before / after the row (2-core machine "
+             "shared with other jobs: wall times grow with the load, CPU seconds much less).", "",
+             "| family | N | orders | fit % | true % | gap | converged | wall s | CPU s | peak RSS MB | load | note |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())
         note = r.get("error") or r.get("repaired") or ""
         lines.append(f"| {r['family']} | {r['N']} | {o} | {_fmt(r.get('fit'))} | {_fmt(r['true_fit'])} | "
                      f"{_fmt(r.get('gap'))} | {r.get('converged', '—')} | {_fmt(r['wall_s'], 1)} | "
-                     f"{_fmt(r['peak_rss_mb'], 0)} | {_fmt(r['load'], 1)} | {note} |")
+                     f"{_fmt(r.get('cpu_s'), 1)} | {_fmt(r['peak_rss_mb'], 0)} | "
+                     f"{_fmt(r.get('load_before'), 1)} / {_fmt(r['load'], 1)} | {note} |")
     return "\n".join(lines) + "\n"
 
 

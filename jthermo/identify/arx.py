@@ -14,8 +14,6 @@ $\\kappa = A(1) y_0$.
 
 from __future__ import annotations
 
-from functools import partial
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import DataError, ModelError
-from ..models.polynomial import Polynomial, as_nk, delay_onehot, lagged
+from ..models.polynomial import Polynomial, as_nk
 
 
 class ARXResult(eqx.Module):
@@ -37,28 +35,33 @@ class ARXResult(eqx.Module):
 
 
 def arx_regressors(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int,
-                   nk=1, *, full_a: bool = False) -> Float[Array, "ny T p"]:
-    """Regressor matrices $\\Phi_i$ of every output row, `(ny, T, m·na + nu·nb)`."""
-    y = jnp.asarray(y)
-    u = jnp.asarray(u)
-    ny, nu = y.shape[1], u.shape[1]
+                   nk=1, *, full_a: bool = False) -> np.ndarray:
+    """Regressor matrices $\\Phi_i$ of every output row, `(ny, T, m·na + nu·nb)` (NumPy:
+    copies of lagged samples, exact, and nothing to compile once per candidate order)."""
+    y = np.asarray(y)
+    u = np.asarray(u)
+    T, ny = y.shape
+    nu = u.shape[1]
     nkt = as_nk(nk, ny, nu)
     L = max(max(r) for r in nkt) + max(nb, 1) - 1
-    sel = jnp.asarray(delay_onehot(nkt, nb, L), y.dtype)               # (ny, nu, nb, L+1)
-    return _regressors(y, u, sel, na, bool(full_a))
-
-
-@partial(jax.jit, static_argnums=(3, 4))
-def _regressors(y, u, sel, na, full_a):
-    T, ny = y.shape
-    Yl = -lagged(y, na)[:, :, 1:]                                        # (T, ny, na)
-    Ul = lagged(u, sel.shape[-1] - 1)                                    # (T, nu, L+1)
-    Ub = jnp.einsum("tjl,ijkl->itjk", Ul, sel).reshape(ny, T, -1)        # (ny, T, nu*nb)
+    Yl = -_lagged(y, na)[:, :, 1:]                                       # (T, ny, na)
+    Ul = _lagged(u, L)                                                   # (T, nu, L+1)
+    Ub = np.empty((ny, T, nu, nb), np.result_type(u, y))
+    for i in range(ny):
+        for j in range(nu):
+            Ub[i, :, j, :] = Ul[:, j, nkt[i][j]:nkt[i][j] + nb]
     if full_a or ny == 1:
-        Ya = jnp.broadcast_to(Yl.reshape(T, ny * na)[None], (ny, T, ny * na))
+        Ya = np.broadcast_to(Yl.reshape(T, ny * na)[None], (ny, T, ny * na))
     else:
-        Ya = jnp.moveaxis(Yl, 1, 0)                                      # (ny, T, na)
-    return jnp.concatenate([Ya, Ub], axis=2)
+        Ya = np.moveaxis(Yl, 1, 0)                                       # (ny, T, na)
+    return np.concatenate([Ya, Ub.reshape(ny, T, nu * nb)], axis=2)
+
+
+def _lagged(x: np.ndarray, L: int) -> np.ndarray:
+    """`out[t, j, l] = x[t - l, j]` for `l = 0..L`, zero before `t = 0` (`filters.lagged`)."""
+    T = x.shape[0]
+    xp = np.concatenate([np.zeros((L,) + x.shape[1:], x.dtype), x], axis=0)
+    return np.stack([xp[L - l:L - l + T] for l in range(L + 1)], axis=-1)
 
 
 def _solve(Phi, Y, n0, offset):

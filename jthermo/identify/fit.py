@@ -20,12 +20,15 @@ import numpy as np
 
 from ..data import IOData, require_excitation
 from ..errors import ConfigError, DataError, ModelError
+from ..models import polynomial_numpy
 from ..models.envelope import Envelope
 
 # the fitters register themselves in `FITTERS` when their modules load
 from .greybox import fit_greybox
 from .orders import CRITERIA, DEFAULT_GRIDS, select_orders
-from .polynomial import fit_polynomial, n_params_per_output, poly_cost, poly_residual
+from .polynomial import (
+    fit_polynomial, n_params_per_output, poly_cost, poly_residual, polynomial_orders,
+)
 from .screening import screen_orders
 from .result import FAMILIES, FITTERS, ORDER_NAMES, FitResult
 from .statespace import fit_statespace
@@ -114,13 +117,18 @@ def _confirm(data: IOData, family: str, fitter, candidates: list[dict], table: l
     from .orders import information_criterion
 
     results, failures = [], []
+    if len(candidates) > 1 and family != "arx":     # one compiled PEM shape for all of them
+        full = [polynomial_orders(family, o) for o in candidates]
+        kw = {**kw, "shape_orders": {n: max(f[n] for f in full)
+                                     for n in ("na", "nb", "nc", "nd", "nf")}}
     for o in candidates:
         try:
             r = fitter.run(data, family, o, **kw)
         except FitError as exc:
             failures.append(exc)
             continue
-        eps = r.model.residuals(data.y, data.u)
+        eps = polynomial_numpy.residuals(r.model, data.y, data.u) if \
+            polynomial_numpy.supported(r.model) else r.model.residuals(data.y, data.u)
         p = n_params_per_output(family, o, data.n_inputs, data.n_outputs) * data.n_outputs
         value = information_criterion(eps, p, criterion)
         table.append({**o, "stage": "pem", "n_params": p, criterion: value, "chosen": False})

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..data import IOData
+from ..models import polynomial_numpy
 
 #: how far (fit %, estimation data) a model may lie below its ARX reference
 REFERENCE_MARGIN = 10.0
@@ -34,8 +35,11 @@ def _simulate(model, u, w):
 def simulation_fit(model, data: IOData) -> float:
     """Mean simulation fit % of `model` on `data`, from the model's rest (no initial-state
     estimate); `-inf` when the simulation is not finite."""
-    w = data.w[:, :model.n_signals] if model.n_signals else None
-    yhat = np.asarray(_simulate(model, jnp.asarray(data.u), None if w is None else jnp.asarray(w)))
+    if polynomial_numpy.supported(model):     # NumPy filters: nothing to compile
+        yhat = polynomial_numpy.simulate(model, data.u)
+    else:
+        w = data.w[:, :model.n_signals] if model.n_signals else None
+        yhat = np.asarray(_simulate(model, jnp.asarray(data.u), None if w is None else jnp.asarray(w)))
     if not np.all(np.isfinite(yhat)):
         return float("-inf")
     y = np.asarray(data.y)
@@ -46,7 +50,10 @@ def simulation_fit(model, data: IOData) -> float:
 
 def spectral_radius(model) -> float:
     """Largest pole magnitude of the model's state-space realisation (0 without states,
-    `inf` when the realisation is not finite)."""
+    `inf` when the realisation is not finite; for a diagonal-A polynomial model the largest
+    root of its denominators, the same poles without building the realisation)."""
+    if polynomial_numpy.supported(model):
+        return polynomial_numpy.spectral_radius(model)
     A = np.asarray(model.to_statespace().A)
     if A.size == 0:
         return 0.0

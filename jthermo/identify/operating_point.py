@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
+from ..models import polynomial_numpy
 from ..models.polynomial import Polynomial
 from .arx import arx_ls
 
@@ -69,29 +70,37 @@ def estimate_rest_level(y, u, nb, nkt, n_den, full_a, ts):
     in `tests/identify/test_coverage.py`'s slow study); a higher-order ARX approximates any
     linear system better.
     """
-    M = rest_window(y.shape[0])
+    yn, un = np.asarray(y, np.float64), np.asarray(u, np.float64)
+    M = rest_window(yn.shape[0])
     if M == 1:
         return y[0]
-    u0 = jnp.zeros(u.shape[1], u.dtype)
-    m = arx_ls(y - y[0], u, max(n_den, 1) + REST_ARX_EXTRA, nb + REST_ARX_EXTRA, nkt,
-               full_a=full_a, ts=ts, u0=u0, y0=y[0]).model
-    level = jnp.mean(y[:M] - (m.simulate(u[:M]) - m.y0), axis=0)
-    return jnp.where(jnp.all(jnp.isfinite(level)), level, y[0])
+    m = arx_ls(yn - yn[0], un, max(n_den, 1) + REST_ARX_EXTRA, nb + REST_ARX_EXTRA, nkt,
+               full_a=full_a, ts=ts, u0=np.zeros(un.shape[1]), y0=yn[0]).model
+    level = np.mean(yn[:M] - (_simulate_np(m, un[:M]) - yn[0]), axis=0)
+    return jnp.asarray(level if np.all(np.isfinite(level)) else yn[0], y.dtype)
+
+
+def _simulate_np(model: Polynomial, u: np.ndarray) -> np.ndarray:
+    """`model.simulate(u)` as a NumPy array: NumPy filters where they apply (no compile)."""
+    if polynomial_numpy.supported(model):
+        return polynomial_numpy.simulate(model, u)
+    return np.asarray(_simulate(model, jnp.asarray(u)))
 
 
 def operating_point(mode: str, y, u, rest_level=None):
     """`(y0, u0, estimate_constant)` of an operating-point mode of `OFFSETS` other than
     `"auto"` (see `fit_polynomial`); `rest_level` is the output level at rest of `"rest"`
     (None: the first sample)."""
+    y, u = np.asarray(y), np.asarray(u)       # host arrays: nothing to compile
     if mode == "mean":
-        return jnp.mean(y, axis=0), jnp.mean(u, axis=0), False
-    y0 = rest_level if (mode == "rest" and rest_level is not None) else y[0]
-    return y0, jnp.zeros(u.shape[1], u.dtype), mode == "estimate"
+        return np.mean(y, axis=0), np.mean(u, axis=0), False
+    y0 = np.asarray(rest_level) if (mode == "rest" and rest_level is not None) else y[0]
+    return y0, np.zeros(u.shape[1], u.dtype), mode == "estimate"
 
 
 @eqx.filter_jit
-def _simulation_mse(model: Polynomial, y, u):
-    return jnp.mean((y - model.simulate(u)) ** 2)
+def _simulate(model: Polynomial, u):
+    return model.simulate(u)
 
 
 def offset_mode(y, u, nb, nkt, n_den, full_a, ts, rest_level=None):
@@ -101,12 +110,13 @@ def offset_mode(y, u, nb, nkt, n_den, full_a, ts, rest_level=None):
     mean operating point, or at rest with zero input (a cold machine, heaters off) at the first
     sample's temperature, that temperature either fixed or estimated with the rest.
     """
+    y, u = np.asarray(y), np.asarray(u)
     errs = {}
     for mode in OFFSETS[1:]:
         yref, u0, est = operating_point(mode, y, u, rest_level)
         m = arx_ls(y - yref, u - u0, max(n_den, 1), nb, nkt, full_a=full_a,
                    offset=est, ts=ts, u0=u0, y0=yref).model
-        errs[mode] = float(_simulation_mse(m, y, u))
+        errs[mode] = float(np.mean((y - _simulate_np(m, u)) ** 2))
     ok = {k: v for k, v in errs.items() if np.isfinite(v)}
     return min(ok, key=ok.get) if ok else "mean"
 

@@ -13,6 +13,7 @@ reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable, NamedTuple
 
 import equinox as eqx
@@ -92,9 +93,14 @@ def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
     \\sum_j \\frac{B_{ij}}{F_{ij}} u_j\\big)$ for `args = (y_i, y_src, u, sel, spec)`.
 
     `y_i (T,)` this output, `y_src (T, m)` the outputs in its A row, `u (T, nu)` inputs (all
-    deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `PolySpec`.
+    deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `PolySpec`; an optional
+    sixth entry `mask (p,)` of 0/1 gives the residual of $\\theta \\odot \\mathrm{mask}$: a smaller
+    structure embedded in `spec` (`_embedding`, zeros for its missing coefficients) then shares
+    `spec`'s compiled solve, its masked parameters with a zero Jacobian column (no step).
     """
-    yi, ysrc, u, sel, s = args
+    yi, ysrc, u, sel, s = args[:5]
+    if len(args) > 5:
+        theta = theta * args[5]
     a, b, c, d, f = _unpack(theta, s)
     bl = jnp.einsum("jkl,jk->jl", sel, b)
     w = rational_sum(lagged(u, s.L), bl, f)
@@ -116,14 +122,12 @@ def _atanh_reflection(a: np.ndarray) -> np.ndarray:
 def poly_args(dy, du, spec: PolySpec, nk, full_a: bool):
     T, ny = dy.shape
     nkt = as_nk(nk, ny, du.shape[1])
-    sel = jnp.asarray(delay_onehot(nkt, spec.nb, spec.L), dy.dtype)
-    yi = jnp.moveaxis(dy, 1, 0)                                       # (ny, T)
-    if spec.m > 1:
-        ysrc = jnp.broadcast_to(dy[None], (ny,) + dy.shape)
-    else:
-        ysrc = yi[:, :, None]
-    ub = jnp.broadcast_to(du[None], (ny,) + du.shape)
-    return (yi, ysrc, ub, sel, spec)
+    dy, du = np.asarray(dy), np.asarray(du)        # laid out in NumPy: nothing to compile
+    sel = delay_onehot(nkt, spec.nb, spec.L).astype(dy.dtype)
+    yi = np.moveaxis(dy, 1, 0)                                        # (ny, T)
+    ysrc = np.broadcast_to(dy[None], (ny,) + dy.shape) if spec.m > 1 else yi[:, :, None]
+    ub = np.broadcast_to(du[None], (ny,) + du.shape)
+    return tuple(jnp.asarray(x) for x in (yi, ysrc, ub, sel)) + (spec,)
 
 
 def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
@@ -132,7 +136,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
                    screen_steps: int = 10, batch: str = "map", common_f: bool = False,
-                   rest_level=None):
+                   rest_level=None, shape_orders: dict | None = None):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -156,7 +160,10 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     `benchmarks/results/identification_default_batch_n16_true.md`; same fits). `common_f`:
     OE/BJ with one denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
     (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
-    MATLAB's $F_{ij}$ per input–output pair.
+    MATLAB's $F_{ij}$ per input–output pair. `shape_orders`: orders (`na`, `nb`, `nc`, `nd`,
+    `nf`) of a larger structure whose compiled PEM solve this fit shares (the fit is that of
+    its own orders, the missing coefficients held at zero by a mask: `fit`'s candidates then
+    compile once).
 
     **Returns:** `(model, info)` where `info` has `converged` (every output row), `cost`,
     `covariance`, `std`, `start_costs`, `start_steps`, `n_steps`, `offset`, and per output row
@@ -182,7 +189,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     if offset == "auto":
         offset = offset_mode(y, u, nb, nkt, n_den, arx_full, ts, rest_level)
     yref, u0, est = operating_point(offset, y, u, rest_level)
-    dy, du = y - yref, u - u0
+    dy, du = np.asarray(y) - yref, np.asarray(u) - u0       # host arrays: nothing to compile
     if nc == 0 and nd == 0 and nf == 0:
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
         return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
@@ -208,48 +215,122 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         rho = _atanh_reflection(own)                                     # (ny, nf)
         parts.append(rho if spec.common_f else np.repeat(rho[:, None, :], nu, axis=1).reshape(ny, -1))
     if est:
-        dy0 = np.asarray(start.y0 - yref)
+        dy0 = np.asarray(start.y0) - yref
         if na and nf == 0:      # kappa = A(1) (y0 - yref) for the A kept from ARX
-            A1 = np.eye(ny) + np.asarray(jnp.sum(start.a_matrices()[:na], axis=0))
-            parts.append((A1 @ dy0)[:, None])
+            parts.append((_a_at_one(a_arx[:, :, :na]) @ dy0)[:, None])
         else:
             parts.append(dy0[:, None])
     theta0 = np.concatenate(parts, axis=1)
     starts = perturb_starts(theta0, n_starts, seed)                   # (ny, K, p)
-    args = poly_args(dy, du, spec, nkt, m > 1)
+    big = spec if shape_orders is None else _padded_spec(spec, shape_orders, nkt)
+    args = poly_args(dy, du, big, nkt, m > 1)
+    dt = y.dtype
+    idx = _embedding(spec, big)
+    if shape_orders is not None:    # the shared compiled shape, missing coefficients masked
+        padded = np.zeros(starts.shape[:2] + (big.n_params,))
+        padded[..., idx] = starts
+        starts = padded
+        mask = np.zeros((ny, big.n_params))
+        mask[:, idx] = 1.0
+        args = args + (jnp.asarray(mask, dt),)
     if progress:
         progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
-    res = minimize_many(poly_residual, jnp.asarray(starts, y.dtype), args, solver=solver,
+    res = minimize_many(poly_residual, jnp.asarray(starts, dt), args, solver=solver,
                         max_steps=max_steps, rtol=rtol, atol=atol, covariance=covariance,
                         throw=False, screen_steps=screen_steps, batch=batch)
-    if not bool(jnp.all(jnp.isfinite(res.cost))):
-        bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
+    if shape_orders is not None:
+        # back to the structure's own parameters; the covariance's noise variance divides by
+        # T - p: rescaled from the shared shape's p to the structure's own
+        T = dy.shape[0]
+        scale = max(T - big.n_params, 1) / max(T - spec.n_params, 1)
+        cov_own = np.asarray(res.covariance)[:, idx][:, :, idx] * scale
+        own = (np.asarray(res.theta)[:, idx], cov_own, np.asarray(res.std)[:, idx] * np.sqrt(scale))
+        res = eqx.tree_at(lambda r: (r.theta, r.covariance, r.std), res, own)
+    cost = np.asarray(res.cost)
+    if not np.all(np.isfinite(cost)):
+        bad = int(np.argmax(~np.isfinite(cost)))
         raise FitError(f"fit: output {bad + 1}: no start point gave a finite prediction error")
-    model = _model_from_theta(res.theta, spec, nkt, ts, u0, yref)
+    model = _model_from_theta(np.asarray(res.theta), spec, nkt, ts, u0, yref, dt)
     cov = std = None
     if covariance:
-        Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(res.theta)
-        cov = jnp.einsum("iab,ibc,idc->iad", Jt, res.covariance, Jt)
-        std = jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
-    return model, dict(converged=bool(jnp.all(res.converged)), cost=float(jnp.mean(res.cost)),
+        cov, std = _coefficient_covariance(res.theta, res.covariance, spec)
+    return model, dict(converged=bool(np.all(np.asarray(res.converged))), cost=float(np.mean(cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
                        n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
                        row_converged=np.asarray(res.converged),
                        expected_improvement=np.asarray(res.expected_improvement),
                        offset=offset, reference=start,
-                       start_model=_model_from_theta(jnp.asarray(theta0, y.dtype), spec, nkt, ts,
-                                                     u0, yref))
+                       start_model=_model_from_theta(theta0, spec, nkt, ts, u0, yref, dt))
 
 
-def _model_from_theta(theta, spec: PolySpec, nkt, ts: float, u0, yref) -> Polynomial:
-    """The `Polynomial` of per-output parameter vectors `theta (ny, p)`."""
-    a, b, c, d, f = jax.vmap(lambda th: _unpack(th, spec))(theta)
-    model = Polynomial(a=a, b=b, c=c, d=d, f=f, nk=nkt, ts=ts, u0=u0, y0=yref)
-    if spec.offset:
-        kappa = jax.vmap(lambda th: _kappa(th, spec))(theta)
-        A1 = jnp.eye(theta.shape[0], dtype=theta.dtype) + jnp.sum(model.a_matrices(), axis=0)
-        model = eqx.tree_at(lambda mm: mm.y0, model, yref + jnp.linalg.solve(A1, kappa))
-    return model
+def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
+    """The structure `spec` enlarged to the orders `orders` (`na`, `nb`, `nc`, `nd`, `nf`; each
+    the larger of the two): a compiled shape that `spec` and smaller structures share."""
+    o = {n: max(getattr(spec, n), int(orders.get(n, 0))) for n in ("na", "nb", "nc", "nd", "nf")}
+    L = max(max(r) for r in nkt) + max(o["nb"], 1) - 1
+    return spec._replace(**o, L=max(L, spec.L))
+
+
+def _embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
+    """Positions of the parameters of `s` in the parameter vector of the larger `big` (same
+    m, nu, offset, common_f): each coefficient block `(rows, n)` sits in the first `n`
+    columns of `big`'s `(rows, n_big)` block."""
+    def block(rows, n, n_big, start):
+        return start + (np.arange(rows)[:, None] * n_big + np.arange(n)[None, :]).ravel()
+
+    f_rows = 1 if s.common_f else s.nu
+    starts = np.cumsum([0, big.m * big.na, big.nu * big.nb, big.nc, big.nd])
+    idx = [block(s.m, s.na, big.na, starts[0]), block(s.nu, s.nb, big.nb, starts[1]),
+           block(1, s.nc, big.nc, starts[2]), block(1, s.nd, big.nd, starts[3]),
+           block(f_rows, s.nf, big.nf, starts[4])]
+    if s.offset:
+        idx.append(np.array([big.n_coef]))
+    return np.concatenate(idx).astype(int)
+
+
+@partial(jax.jit, static_argnums=2)
+def _coefficient_covariance(theta, cov_theta, spec: PolySpec):
+    """Covariance and standard deviations of the model coefficients `[a, b, c, d, f]` per
+    output row, $J \\Sigma_\\theta J^\\top$ with $J$ the Jacobian of `_coefficients`."""
+    Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(theta)
+    cov = jnp.einsum("iab,ibc,idc->iad", Jt, cov_theta, Jt)
+    return cov, jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
+
+
+def _step_up(kappa: np.ndarray) -> np.ndarray:
+    """`poly_from_reflection` in NumPy (last axis)."""
+    a = np.zeros(kappa.shape[:-1] + (0,))
+    for m in range(kappa.shape[-1]):
+        k = kappa[..., m:m + 1]
+        a = np.concatenate([a + k * a[..., ::-1], k], axis=-1)
+    return a
+
+
+def _a_at_one(a: np.ndarray) -> np.ndarray:
+    """$A(1) = I + \\sum_k A_k$ of the A coefficients `a (ny, m, na)` (diagonal when m = 1)."""
+    ny = a.shape[0]
+    s = a.sum(axis=2)
+    return np.eye(ny) + (np.diag(s[:, 0]) if a.shape[1] == 1 and ny > 1 else s)
+
+
+def _model_from_theta(theta, spec: PolySpec, nkt, ts: float, u0, yref, dtype) -> Polynomial:
+    """The `Polynomial` of per-output parameter vectors `theta (ny, p)` (`_unpack` of every
+    row, in NumPy: nothing to compile)."""
+    theta = np.asarray(theta, np.float64)
+    ny, s = theta.shape[0], spec
+    k = np.cumsum([0, s.m * s.na, s.nu * s.nb, s.nc, s.nd, s.n_f])
+    a = theta[:, k[0]:k[1]].reshape(ny, s.m, s.na)
+    b = theta[:, k[1]:k[2]].reshape(ny, s.nu, s.nb)
+    c = _step_up(np.tanh(theta[:, k[2]:k[3]]))
+    d = _step_up(np.tanh(theta[:, k[3]:k[4]]))
+    rho_f = theta[:, k[4]:k[5]].reshape(ny, 1 if s.common_f else s.nu, s.nf)
+    f = _step_up(np.tanh(np.broadcast_to(rho_f, (ny, s.nu, s.nf))))
+    y0 = np.asarray(yref, np.float64)
+    if s.offset:
+        y0 = y0 + np.linalg.solve(_a_at_one(a), theta[:, s.n_coef])
+    as_dt = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    return Polynomial(a=as_dt(a), b=as_dt(b), c=as_dt(c), d=as_dt(d), f=as_dt(f), nk=nkt, ts=ts,
+                      u0=as_dt(u0), y0=as_dt(y0))
 
 
 def polynomial_orders(family: str, o: dict) -> dict:
