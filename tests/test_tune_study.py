@@ -31,3 +31,22 @@ def test_a_study_of_two_powders_and_three_kinds_is_one_group_equal_to_its_items(
     np.testing.assert_allclose(together, alone, rtol=1e-10)
     # the powders differ: the same controller does not score the same on both
     assert not np.allclose(together[:3], together[3:], rtol=1e-3)
+
+
+def test_lqg_design_and_its_margins_compile_one_gains_program():
+    """The LQG's Riccati gains, at design (the finiteness check) and for its peak sensitivity,
+    run as one compiled program: eagerly they compiled about 50 small ones per shape."""
+    from jax import monitoring
+
+    from jthermo.control.margins import peak_sensitivity
+    from tests.control.loop import bed_plant
+
+    plant = bed_plant(7, seed=3)             # a state size no other test designs for
+    events = []
+    monitoring.register_event_duration_secs_listener(
+        lambda ev, dur, **_: events.append(ev) if "backend_compile" in ev else None)
+    ctrl = design("lqg", plant)
+    n_design = len(events)
+    ms = peak_sensitivity(plant, ctrl)
+    assert 1 <= n_design <= 3 and len(events) - n_design <= 1
+    assert ms["stable"] and 1.0 <= ms["ms"] < 3.0

@@ -197,6 +197,6 @@ def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
                A=f(ss.A), B=f(ss.B), C=f(ss.C), u_op=f(ss.u0), y_op=f(ss.y0), ts=ss.ts,
                iters=iters)
     g = compiled_gains(ctrl)
-    if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(g)):
+    if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in jax.tree_util.tree_leaves(g)):
         raise ControlError("design_lqg: the Riccati solution is not finite for these weights")
     return ctrl
