@@ -213,3 +213,24 @@ def test_tuning_start_bounds_the_noise_gain(fitted):
     assert float(noise_gain(detuned(zn, 1.1 * s))[0]) * 2.0 > NOISE_SHARE * room
     pi = design("pi_lambda", model, setpoint=65.0)
     assert float(noise_gain(pi)[0]) == pytest.approx(float(pi.kp[0]))
+
+
+def test_change_scale_keeps_a_ten_times_faster_loop_inside_the_limits():
+    """Two decoupled unit-gain heaters at r = (0.3, 0.5) °C (u* = r): changes of 0.1 °C need
+    u* + 10 g going up and u* + 0.1 - 2 (10 g) going down, g = 0.1 the equilibrium change; the
+    down step of loop 1 binds at s = 0.3 / 1.9. Coupling moves g to G(1)^-1 delta."""
+    from jthermo.models import StateSpace
+    from jthermo.models.envelope import change_scale
+
+    env = Envelope(ts=1.0, y_min=(0.0, 0.0), y_max=(1.0, 1.0), u_min=(0.0, 0.0),
+                   u_max=(1.0, 1.0), u_mean=(0.3, 0.5), u_std=(0.1, 0.1), rest=(0.0, 0.0),
+                   noise_std=(0.0, 0.0))
+    plant = StateSpace(0.9 * np.eye(2), 0.1 * np.eye(2), np.eye(2))
+    assert change_scale(plant, env, (0.3, 0.5), 0.1) == pytest.approx(0.3 / 1.9)
+    assert change_scale(plant, env, (0.3, 0.5), 0.001) == 1.0              # small enough
+    assert change_scale(plant, env, (0.3, 0.5), 0.1, speedup=1.0) == pytest.approx(1.0)
+    coupled = StateSpace(0.9 * np.eye(2), 0.1 * np.array([[1.0, 0.5], [0.0, 1.0]]), np.eye(2))
+    g = np.linalg.solve([[1.0, 0.5], [0.0, 1.0]], [0.1, 0.1])              # [0.05, 0.1]
+    u = np.linalg.solve([[1.0, 0.5], [0.0, 1.0]], [0.3, 0.5])              # [0.05, 0.5]
+    assert change_scale(coupled, env, (0.3, 0.5), 0.1) == pytest.approx(
+        min(u / (19 * g)))
