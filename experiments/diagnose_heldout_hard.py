@@ -448,6 +448,7 @@ def main(argv=None):
                      "correct": ok, "rivals": res["findings"][0]["rivals"] if named else [],
                      "confidence": res["findings"][0]["confidence"] if named else None,
                      "flagged": [f["mechanism"] for f in res.get("flagged", [])],
+                     "drift_input_dependence_z": res["localisation"].get("drift_input_dependence_z"),
                      "baseline_fit": res["baseline"]["mean_fit_percent"],
                      "augmented_fit": res["augmented"]["mean_fit_percent"],
                      "gain": res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"],
