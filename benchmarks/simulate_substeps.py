@@ -25,13 +25,10 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from simulate_common import finish, load
 
 HERE = Path(__file__).resolve().parent
 NOISE = "sensor noise: white 0.05 °C (scenario) + 0.05 °C and AR(1) 0.1 °C (`sensor_noise`)"
-
-
-def _load() -> str:
-    return Path("/proc/loadavg").read_text().split()[0]
 
 
 def _timed(fn):
@@ -63,9 +60,9 @@ def main() -> None:
     base = printer()
     ctrl = design("pi_lambda", eqx.filter_jit(printer_model)(base))
     dense = eqx.filter_jit(lambda p, s: cl.rollouts(p, ctrl, s))
-    load0 = _load()
-    lines = [f"# Printer sub-steps in the recoat-free scenarios: N = {args.zones}, "
-             f"T = {args.duration:g} s", "",
+    load0 = load()
+    lines = [(f"# Printer sub-steps in the recoat-free scenarios: N = {args.zones}, "
+              f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_substeps.py --rollouts {args.rollouts} "
               f"--time-rollouts {args.time_rollouts} --duration {args.duration:g} --seed "
               f"{args.seed}`; controller pi_lambda on the realistic printer; {NOISE}."), "",
@@ -101,16 +98,12 @@ def main() -> None:
              base.substeps),
             ("now (recoat=False)", lambda: engine._scenario_metrics(
                 "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
-        load = _load()
+        load_now = load()
         out, wall, cpu = _timed(fn)
-        lines.append(f"| {label} | {m} | {wall:.2f} | {cpu:.2f} | {load} | "
+        lines.append(f"| {label} | {m} | {wall:.2f} | {cpu:.2f} | {load_now} | "
                      f"{float(out[0]['mse']):.8f} |")
         print(lines[-1], flush=True)
-    lines += ["", f"1-minute load {load0} at the start, {_load()} at the end."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out != "-":
-        Path(args.out).write_text(text)
+    finish(lines, load0, args.out)
 
 
 if __name__ == "__main__":

@@ -97,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                 runtime.disable_cache("--no-cache")
             else:
                 runtime.enable_cache()
+            runtime.unroll_threefry()   # the same random bits, fewer CPU seconds
             if getattr(args, "verbose", False):
                 print(f"jthermo: {runtime.cache_info()}", file=sys.stderr)
             import jax

@@ -239,7 +239,7 @@ class Printer(eqx.Module):
             f = f.at[:n].add(-q / self.capacity)
         if recoat and self.has("recoat_cooling"):
             p = self.effects["recoat_cooling"]
-            rows, cols = self.grid
+            _, cols = self.grid
             col = jnp.asarray(grid_positions(n)[:, 1], z.dtype)
             passing = self.param("recoat_cooling", "duration_s") / cols
             fresh = p["temperature_C"]
