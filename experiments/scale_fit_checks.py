@@ -1,7 +1,8 @@
 """Issue 12 checks on the records of `benchmarks/identification_scale.py` (seed 0).
 
 `ss`: is the state-space gap at N = 16 (default: simulation focus; operating point "mean" as in
-`ss_focus_scale.py`) optimisation or variance? Simulation error (sum of squares, initial state
+`ss_focus_scale.py`) optimisation or variance? Full A (`coupling="full"`, the earlier default)
+and the true structure, diagonal A (`coupling="diagonal"`), at the true order. Simulation error (sum of squares, initial state
 by least squares) of the fit and of the true model on the estimation and the validation record,
 and the static gains' largest relative error. A fit whose estimation error is *below* the true
 model's while its validation error is above it has fitted the noise (the variance of its free
@@ -12,7 +13,7 @@ parameters); it has not stopped early.
 expected relative gain of a Gauss–Newton step, the smallest heater gain relative to its zone's
 largest (log-parametrised, so it can only approach 0) and the validation fit.
 
-Writes `experiments/results/scale_fit_checks_<what>.md`.
+Writes `experiments/results/scale_fit_checks_<what>.md` (`_n<N...>` appended for other `--n`).
 
 Usage: python experiments/scale_fit_checks.py ss|greybox [--n 16] [--steps 100 400]
 """
@@ -38,16 +39,27 @@ def _dcgain(ss) -> np.ndarray:
 
 def ss_rows(N: int, est, val, truth_model, steps) -> list[str]:
     from jthermo.identify.statespace import fit_statespace, simulation_error
+    from jthermo.validate import compare
 
     del steps
-    t = time.perf_counter()
-    r = fit_statespace(est, N, operating_point="mean")
-    sec = time.perf_counter() - t
-    G, Gt = _dcgain(r.model), _dcgain(truth_model)
-    return [(f"| {N} | {r.extra['parametrised'].n_params()} | {sec:.1f} | {r.converged} | "
-            f"{simulation_error(r.model, est):.0f} / {simulation_error(truth_model, est):.0f} | "
-            f"{simulation_error(r.model, val):.0f} / {simulation_error(truth_model, val):.0f} | "
-            f"{np.max(np.abs(G - Gt)) / np.max(np.abs(Gt)):.3f} |")]
+    rows = []
+    for coupling in ("full", "diagonal"):
+        t = time.perf_counter()
+        r = fit_statespace(est, N, operating_point="mean", coupling=coupling)
+        sec = time.perf_counter() - t
+        G, Gt = _dcgain(r.model), _dcgain(truth_model)
+        m = r.extra["parametrised"]
+        free = m.n_params() - (m.A.shape[0] ** 2 - m.A.shape[0] if coupling == "diagonal" else 0)
+        rows.append(f"| {N} | {coupling} | {free} | {sec:.1f} | {r.converged} | "
+                    f"{simulation_error(r.model, est):.0f} / "
+                    f"{simulation_error(truth_model, est):.0f} | "
+                    f"{simulation_error(r.model, val):.0f} / "
+                    f"{simulation_error(truth_model, val):.0f} | "
+                    f"{np.max(np.abs(G - Gt)) / np.max(np.abs(Gt)):.3f} | "
+                    f"{compare(r.model, val)['mean_fit_percent']:.2f} | "
+                    f"{compare(truth_model, val)['mean_fit_percent']:.2f} |")
+        print(rows[-1], flush=True)
+    return rows
 
 
 def greybox_rows(N: int, est, val, truth_model, steps) -> list[str]:
@@ -71,9 +83,9 @@ def greybox_rows(N: int, est, val, truth_model, steps) -> list[str]:
 
 
 HEADERS = {
-    "ss": [("| N | free parameters | seconds | converged | est. sim. error fit / true | "
-           "val. sim. error fit / true | static gain max rel. error |"),
-           "|---|---|---|---|---|---|---|"],
+    "ss": [("| N | A | free parameters | seconds | converged | est. sim. error fit / true | "
+           "val. sim. error fit / true | static gain max rel. error | val fit % | true fit % |"),
+           "|---|---|---|---|---|---|---|---|---|---|"],
     "greybox": [("| N | max_steps | seconds | converged | zones not converged | max expected gain "
                 "| min relative heater gain | val fit % | true fit % |"),
                 "|---|---|---|---|---|---|---|---|---|"],
@@ -108,7 +120,8 @@ def main(argv=None) -> int:
     up = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
     lines += ["", (f"uptime at the end: `{up}` (shared 2-core machine: wall times are inflated "
               "by the load)")]
-    out = ROOT / "experiments" / "results" / f"scale_fit_checks_{args.what}.md"
+    tag = "" if args.n == [16] else "_n" + "_".join(map(str, args.n))
+    out = ROOT / "experiments" / "results" / f"scale_fit_checks_{args.what}{tag}.md"
     out.write_text("\n".join(lines) + "\n")
     return 0
 

@@ -1,0 +1,88 @@
+"""State space with one state per output: the diagonal-A structure and the coupling hold-out."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jthermo.data import from_arrays
+from jthermo.errors import ModelError
+from jthermo.identify.statespace import (
+    diagonal_residual,
+    diagonal_theta,
+    fit_statespace,
+)
+from jthermo.identify.subspace import n4sid
+from jthermo.inputs import prbs
+from jthermo.models.statespace import InnovationsSS
+
+from ..helpers import central_difference
+
+
+def _bed(A, T=1500, seed=0):
+    """3 outputs, states = outputs, dense heater gains, AR(1) sensor noise and slow drift."""
+    rng = np.random.default_rng(seed)
+    B = np.array([[0.3, 0.1, 0.02], [0.1, 0.3, 0.1], [0.02, 0.1, 0.3]])
+    u = np.asarray(prbs(seed, T, 3, levels=(0.2, 0.8), hold=(5, 30)))
+    x = np.zeros(3)
+    y = np.empty((T, 3))
+    v = np.zeros(3)
+    for k in range(T):
+        v = 0.7 * v + 0.05 * rng.standard_normal(3)
+        y[k] = 30.0 + x + v
+        x = A @ x + B @ (u[k] - 0.5) + 0.01 * rng.standard_normal(3)
+    return from_arrays(u, y)
+
+
+DIAGONAL = np.diag([0.95, 0.96, 0.94])
+COUPLED = np.array([[0.90, 0.05, 0.0], [0.05, 0.88, 0.05], [0.0, 0.05, 0.90]])
+
+
+def test_diagonal_residual_gradient_matches_central_difference():
+    rng = np.random.default_rng(1)
+    args = {"y": jnp.asarray(rng.standard_normal(80)),
+            "du": jnp.asarray(rng.standard_normal((80, 2))),
+            "dw": jnp.asarray(rng.standard_normal((80, 1)))}
+    theta = jnp.array([0.9, 0.2, -0.1, 0.05, 0.3, -0.2])
+
+    def cost(th):
+        return jnp.mean(diagonal_residual(th, args) ** 2)
+
+    g = np.asarray(jax.grad(cost)(theta))
+    g_fd = central_difference(jax.jit(cost), np.asarray(theta))
+    assert np.linalg.norm(g - g_fd) / np.linalg.norm(g_fd) < 1e-6
+
+
+def test_diagonal_theta_layout_and_covariance():
+    data = _bed(DIAGONAL, T=800)
+    tpl = InnovationsSS.from_statespace(n4sid(data, 3)[0], output_error=True)
+    y, du, dw = (jnp.asarray(data.y), jnp.asarray(data.u) - tpl.u0,
+                 jnp.asarray(data.w) - tpl.w0)
+    theta, res, cov = diagonal_theta(tpl, y, du, dw)
+    A = np.asarray(theta[:9]).reshape(3, 3)
+    np.testing.assert_allclose(np.diag(A), np.asarray(res.theta[:, 0]))
+    assert np.all(A[~np.eye(3, dtype=bool)] == 0.0)
+    np.testing.assert_allclose(np.diag(A), np.diag(DIAGONAL), atol=0.02)
+    var = np.diag(cov)
+    assert np.all(var[:9][~np.eye(3, dtype=bool).ravel()] == 0.0)   # fixed off-diagonal A
+    assert np.all(var[:9][np.eye(3, dtype=bool).ravel()] > 0.0)
+    assert cov.shape == (theta.size, theta.size) and np.all(var[9:] > 0.0)
+
+
+@pytest.mark.parametrize("A, chosen", [(DIAGONAL, "diagonal"), (COUPLED, "full")])
+def test_auto_coupling_follows_the_data(A, chosen):
+    r = fit_statespace(_bed(A), 3, max_steps=60)
+    assert r.extra["coupling"] == chosen
+    hold = r.extra["coupling_holdout"]
+    assert (hold["full"] < hold["diagonal"]) == (chosen == "full")
+    fitted = np.asarray(r.extra["parametrised"].A)
+    if chosen == "full":   # the coupling is found, not just allowed
+        assert np.min(fitted[[0, 1, 1, 2], [1, 0, 2, 1]]) > 0.02
+
+
+def test_coupling_option_errors_and_full_is_the_earlier_path():
+    data = _bed(DIAGONAL, T=600)
+    with pytest.raises(ModelError, match="coupling"):
+        fit_statespace(data, 3, coupling="sparse")
+    r = fit_statespace(data, 3, coupling="full", n_starts=1, max_steps=30)
+    assert r.extra["coupling"] == "full" and "coupling_holdout" not in r.extra
