@@ -81,7 +81,7 @@ def test_ss_large_problem_is_matrix_free(monkeypatch):
     is never called; the matrix-free solve reaches the dense solve's cost."""
     data = _ss_data()
     dense = ss_mod.fit_statespace(data, 3, operating_point="mean", n_starts=1,
-                                  focus="simulation")
+                                  focus="simulation", coupling="full")
     monkeypatch.setattr(ss_mod, "DENSE_JACOBIAN_BYTES", 0)
 
     def forbidden(*a, **k):
@@ -89,7 +89,7 @@ def test_ss_large_problem_is_matrix_free(monkeypatch):
 
     monkeypatch.setattr(ss_mod, "minimize", forbidden)
     free = ss_mod.fit_statespace(data, 3, operating_point="mean", n_starts=4,
-                                 focus="simulation")
+                                 focus="simulation", coupling="full")
     assert free.cost <= dense.cost * (1 + 1e-3)
     assert free.converged
     assert np.all(np.isnan(np.asarray(free.std)))      # no covariance without the Jacobian
