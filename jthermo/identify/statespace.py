@@ -127,17 +127,17 @@ def diagonal_start(ydev: np.ndarray, du: np.ndarray, dw: np.ndarray) -> np.ndarr
 
 
 def fit_diagonal(ydev, du, dw, max_steps: int = 100):
-    """Simulation-error PEM of the diagonal-A model, all outputs solved together under vmap
-    (`minimize_many`: N blocks of `(T, 3 + nu + nw)`, never the joint Jacobian).
+    """Simulation-error PEM of the diagonal-A model from `diagonal_start`: the outputs' problems
+    one after another in one compiled call (`minimize_many`, `batch="map"`: Jacobians of
+    `(T, 3 + nu + nw)`, never the joint one).
     Returns `(PEMResult, theta (ny, 3 + nu + nw))`."""
     ydev, du, dw = (jnp.asarray(a) for a in (ydev, du, dw))
-    ny, T = ydev.shape[1], ydev.shape[0]
+    ny = ydev.shape[1]
     start = diagonal_start(np.asarray(ydev), np.asarray(du), np.asarray(dw))
     args = {"y": ydev.T, "du": jnp.broadcast_to(du, (ny,) + du.shape),
             "dw": jnp.broadcast_to(dw, (ny,) + dw.shape)}
     res = minimize_many(diagonal_residual, jnp.asarray(start, ydev.dtype), args,
                         max_steps=max_steps, throw=False, batch="map")
-    del T
     return res, res.theta
 
 
@@ -278,6 +278,10 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
       `"rest"` (the record starts at rest with zero input: u0 = 0, x0 = 0, the output level
       estimated with the other parameters, starting from y(0)), or
       `"auto"` (whichever N4SID estimate simulates the estimation data better).
+    - `coupling`: with one state per output (n = ny, C = I; simulation focus, x0 estimated):
+      `"auto"` (diagonal A unless `coupling_holdout` favours full A, see the module notes),
+      `"diagonal"` or `"full"` (N4SID starts, full A: the path for any other structure).
+      `extra["coupling"]` says which was fitted, `extra["coupling_holdout"]` the hold-out errors.
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
@@ -435,8 +439,14 @@ def fit_statespace_family(data: IOData, family: str, orders: dict | None, *, see
 
 
 __all__ = [
+    "COUPLING",
     "FOCUS",
     "choose_operating_point",
+    "coupling_holdout",
+    "diagonal_residual",
+    "diagonal_start",
+    "diagonal_theta",
+    "fit_diagonal",
     "fit_statespace",
     "fit_statespace_family",
     "simulation_error",
