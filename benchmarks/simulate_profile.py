@@ -75,6 +75,21 @@ def stage(rows: list, name: str, fn):
     return out
 
 
+def hlo_ops(fn, *args, top: int = 12) -> list[str]:
+    """Markdown rows: the most frequent HLO opcodes of the optimised program of `fn(*args)`
+    (an `eqx.filter_jit` function), with the fused computations counted inside."""
+    import re
+
+    text = fn.lower(*args).compile().compiled.as_text()   # equinox wraps jax's Compiled
+    ops = collections.Counter(re.findall(r"^\s*(?:ROOT )?%?[\w.-]+ = .*? ([a-z][a-z0-9-]*)\(",
+                                         text, re.MULTILINE))
+    rows = [f"| {op} | {n} |" for op, n in ops.most_common(top)]
+    return [(f"HLO of the run program after XLA's optimisation: {sum(ops.values())} "
+             f"instructions, {ops['fusion']} fusions, {ops['while']} while loops."), "",
+            "| opcode | count |",
+            "|---|---|", *rows]
+
+
 IMPORTS = {"jthermo": "import jthermo", "jthermo.cli (the command's parser)": "import jthermo.cli",
            "jax": "import jax",
            "simulate's stack (closedloop, control.design, tune)":
@@ -119,6 +134,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_profile.md"),
                     help="Markdown file to write ('-': print only)")
     ap.add_argument("--imports", action="store_true", help="time the imports only")
+    ap.add_argument("--hlo", action="store_true",
+                    help="add the HLO opcode counts of the run program")
     args = ap.parse_args()
     if args.imports:
         imports(args.out if args.out != str(HERE / "results" / "simulate_profile.md")
@@ -131,6 +148,7 @@ def main() -> None:
     from jthermo import runtime
 
     runtime.enable_cache()
+    runtime.unroll_threefry()   # as the command does
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -159,6 +177,11 @@ def main() -> None:
         lean = stage(rows, f"scenarios + lean metrics, one program as in `run` ({rep} call)",
                      lambda: engine._scenario_metrics("tracking", plant, ctrl, args.duration,
                                                       key, args.rollouts))
+    noise = eqx.filter_jit(lambda k: jax.vmap(lambda kk: plant.sample_noise(
+        kk, round(args.duration / plant.ts), 0.05))(jax.random.split(k, args.rollouts)))
+    for rep in ("first", "second"):
+        stage(rows, f"measurement noise alone (sample_noise of every rollout, {rep} call)",
+              lambda: noise(key))
     if args.dense:
         sc = stage(rows, "make_scenario (dense path)", lambda: cl.make_scenario(
             "tracking", plant, args.duration, key, n_rollouts=args.rollouts))
@@ -177,7 +200,9 @@ def main() -> None:
     lines = [(f"# `jthermo simulate` profile: N = {args.zones}, B = {args.rollouts}, "
               f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_profile.py --zones {args.zones} --rollouts "
-              f"{args.rollouts} --duration {args.duration:g}`, compilation cache entries "
+              f"{args.rollouts} --duration {args.duration:g}"
+              f"{'' if args.dense else ' --no-dense'}{' --hlo' if args.hlo else ''}`, "
+              "compilation cache entries "
               f"{n_cache0} at the start, {_cache_entries()} at the end; "
               f"1-minute load {load0} at the start, {load1} at the end (2 shared cores: wall "
               "seconds scale with the load, CPU seconds less so)."), "",
@@ -186,6 +211,9 @@ def main() -> None:
     for r in rows:
         lines.append(f"| {r['stage']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {r['trace']} | "
                      f"{r['lower']} | {r['compile']} | {r['compile_events_s']:.2f} |")
+    if args.hlo:
+        lines += ["", *hlo_ops(engine._scenario_metrics, "tracking", plant, ctrl, args.duration,
+                               key, args.rollouts)]
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out != "-":
