@@ -12,6 +12,7 @@ from __future__ import annotations
 from functools import partial
 
 import jax
+import jax.numpy as jnp
 
 from ..identify.lm import masked_lm
 from .mechanisms import simulate_full, simulate_zone
@@ -39,18 +40,42 @@ def sim_zones(theta, on, per, shared, lay):
     return jax.vmap(lambda t, o, p: simulate_zone(t, o, {**shared, **p}, lay))(theta, on, per)
 
 
-@partial(jax.jit, static_argnames=("lay", "n_iter"))
+def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_active):
+    """Masked LM on one coupled model's vector $[\\mathrm{vec}\\,\\Theta;\\ r]$ (zone parameters,
+    record parameters): residual $w_k (y_k - \\hat y_k(\\Theta, r))$, $w$ the per-sample weight."""
+    f = {**f_shared, **fp}
+    nP = Theta.size
+    split = lambda v: (v[:nP].reshape(Theta.shape), v[nP:])
+
+    def res(v):
+        Th, r = split(v)
+        return (weight[:, None] * (y - simulate_full(Th, on, f, lay, r))).reshape(-1)
+
+    v, c, _ = masked_lm(res, jnp.concatenate([Theta.reshape(-1), rec0]), mask, n_iter, n_active)
+    Th, r = split(v)
+    return Th, r, simulate_full(Th, on, f, lay, r), c
+
+
+@partial(jax.jit, static_argnames=("lay", "n_iter", "n_active"))
+def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
+    """Fit M coupled models jointly over all zones by simulation error (output error): the zones'
+    parameters `Theta0 (M, n, P)` and the record parameters `rec0 (M, R)` (initial states, drift,
+    surroundings level offset; see `simulate_full`), `mask (M, n P + R)` 1 where free, `on (M, 8)`,
+    `y (T, n)`, `weight (T,)` per-sample weights (0 for padding), `f_per` per-model entries of the
+    simulation's dict. Returns
+    (Θ (M, n, P), rec (M, R), yhat (M, T, n), cost (M,))."""
+    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active))(
+        Theta0, on, rec0, mask, f_per)
+
+
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     """Estimate each model's record parameters (initial states, drift) on a record by masked LM
     on the coupled simulation, then simulate it: `Theta (M, n, P)`, `on (M, 8)`,
     `rec0, mask (M, R)`; returns (rec, yhat (M, T, n), cost (M,))."""
-    def one(Th, o, r0, m, fp):
-        f = {**f_shared, **fp}
-        res = lambda r: (y - simulate_full(Th, o, f, lay, r)).reshape(-1)
-        r, c, _ = masked_lm(res, r0, m, n_iter)
-        return r, simulate_full(Th, o, f, lay, r), c
-
-    return jax.vmap(one)(Theta, on, rec0, mask, f_per)
+    full = jnp.concatenate([jnp.zeros((Theta.shape[0], Theta[0].size), mask.dtype), mask], axis=1)
+    _, r, yh, c = fit_joint(Theta, on, rec0, full, y, jnp.ones(y.shape[0], y.dtype), f_per, f_shared,
+                            lay, n_iter, rec0.shape[1])
+    return r, yh, c
 
 
-__all__ = ["fit_records", "fit_zones", "sim_zones"]
+__all__ = ["fit_joint", "fit_records", "fit_zones", "sim_zones"]

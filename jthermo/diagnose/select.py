@@ -24,11 +24,13 @@ zones coupled.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.stats import chi2
 
 from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
@@ -36,7 +38,7 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .fitting import fit_records, fit_zones, sim_zones
+from .fitting import fit_joint, fit_records, fit_zones, sim_zones
 from .localise import detect_periodic, event_matrix, localise
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
@@ -53,6 +55,8 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
                                                      "in the duty cycle"},
              "any": {}}
 N_ITER = 25
+#: Levenberg–Marquardt iterations of a joint fit (it starts from the per-zone fits)
+JOINT_ITER = 25
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
 
@@ -148,6 +152,175 @@ def _grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
         if ts_free:
             ts0[i] = coef[nu + 1] - level
     return log_a, b, x0, ts0
+
+
+#: parameter groups of the joint fit's zone models (a zone's initial state, wall state and drift
+#: are the record's, in `simulate_full`'s record vector; the level offset too)
+JOINT_BASE = ("log_a", "log_b")
+RECORD_GROUPS = ("x0", "xw0", "ts0", "drift")
+
+
+def _joint_groups(mechs) -> tuple:
+    return JOINT_BASE + tuple(g for m in mechs for g in M.MECH_PARAMS[m] if g not in RECORD_GROUPS)
+
+
+@dataclasses.dataclass
+class _JointFits:
+    """What the joint fits of one diagnosis share: records, layout, surroundings, starts.
+
+    A joint fit estimates every zone's parameters at once by the coupled simulation error
+    (`fitting.fit_joint`): zones interact through their simulated, not measured, temperatures.
+    The surroundings are measured, or at the record's rest level (its first sample's mean zone
+    temperature: the heaters were off before it) or that level plus a fitted offset (`free`)."""
+
+    n: int
+    lay: M.Layout
+    y: np.ndarray
+    yv: np.ndarray
+    sh: dict
+    ev: np.ndarray
+    delay: float
+    measured: bool
+    measured_var: bool
+    level: float
+    neutral: np.ndarray
+    u_pad_v: np.ndarray
+    n_iter: int
+    slots: int
+    n_active: int
+
+    def setup(self, free: bool, validation: bool = False) -> dict:
+        """How a record enters a joint model: surroundings level `ts_level` (°C) and whether an
+        offset is fitted (`ts_free`), the input before the record `u_pad`. Measured surroundings:
+        as the per-zone fits. At rest (the default): the heaters were off before the record and
+        the zones sat at the surroundings, so the level is the first sample's mean zone
+        temperature. Free: the rest level plus a fitted offset, the input before the record its
+        mean."""
+        y = self.yv if validation else self.y
+        u_mean = self.u_pad_v if validation else np.asarray(self.sh["u_pad"])
+        if self.measured:
+            return {"ts_level": self.level, "ts_free": 0.0, "u_pad": u_mean}
+        rest = float(y[0].mean())
+        if free:
+            return {"ts_level": rest, "ts_free": 1.0, "u_pad": u_mean}
+        return {"ts_level": rest, "ts_free": 0.0, "u_pad": np.zeros_like(u_mean)}
+
+    def start(self, theta, add=None) -> np.ndarray:
+        """`theta` with the record groups cleared and the groups of mechanism `add` at their
+        neutral values (`neutral`: the per-zone fits start the zones at another surroundings
+        level, from where the coupled fit falls into worse minima)."""
+        th = np.array(theta, float)
+        th[:, self.lay.sl("ts0")] = 0.0
+        for grp in M.MECH_PARAMS.get(add, ()):
+            th[:, self.lay.sl(grp)] = self.neutral[:, self.lay.sl(grp)]
+        return th
+
+    def fit(self, models, validate) -> list[dict]:
+        """Fit `(θ start, mechanism set, free level)` models jointly on the estimation record
+        (padded to `slots`: one compiled shape for every round), then validate them."""
+        n, lay, T = self.n, self.lay, self.y.shape[0]
+        nd = lay.n_drift
+        S = self.slots
+        models = list(models) + [models[-1]] * (S - len(models))
+        R = 2 * n + nd + 1
+        size = n * lay.size
+        rec0, mask = np.zeros((S, R)), np.zeros((S, size + R))
+        setups = [self.setup(m[2]) for m in models]
+        for j, ((th, st, fr), su) in enumerate(zip(models, setups)):
+            _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
+            rec0[j, :n] = self.y[0]
+            rec0[j, n:2 * n] = su["ts_level"] + (rec0[j, :n].mean() - su["ts_level"]) / (1.0 + gam)
+            mask[j, :size] = np.tile(lay.mask(_joint_groups(st)), n)
+            mask[j, size:size + n] = 1.0
+            mask[j, size + n:size + 2 * n] = float("heat_accumulation" in st)
+            mask[j, size + 2 * n:size + 2 * n + nd] = float("ambient_variation" in st and not self.measured_var)
+            mask[j, -1] = su["ts_free"]
+        fper = {"events": jnp.asarray(np.stack([self.ev] * S)),
+                "delay": jnp.asarray([self.delay if "input_delay" in m[1] else 0.0 for m in models]),
+                **{k: jnp.asarray(np.stack([su[k] for su in setups])) for k in setups[0]}}
+        free = np.array([su["ts_free"] for su in setups])
+        th, rec, yh, _ = fit_joint(jnp.asarray(np.stack([m[0] for m in models])),
+                                   jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
+                                   jnp.asarray(rec0), jnp.asarray(mask), jnp.asarray(self.y),
+                                   jnp.ones(T), fper, self.sh, lay, self.n_iter, self.n_active)
+        th, rec, yh = np.array(th), np.asarray(rec), np.asarray(yh)
+        # the record parameters, written where the per-zone models keep them (for the report)
+        th[:, :, lay.sl("x0")] = rec[:, :n, None]
+        th[:, :, lay.sl("ts0")] = rec[:, -1:, None] * free[:, None, None]
+        th[:, :, lay.sl("drift")] = rec[:, None, 2 * n:2 * n + nd]
+        yhv = validate([(th[j], st, self.setup(fr, True)) for j, (_, st, fr) in enumerate(models)])
+        return [{"theta": th[j], "set": st, "free": bool(free[j]), "res": self.y - yh[j],
+                 "e": self.yv - yhv[j], "yhat": yhv[j]} for j, (_, st, _) in enumerate(models)]
+
+
+def _joint_start(y, u, ts, level, lay) -> np.ndarray:
+    """Joint fits' start `(n, P)`: each zone's loss and heater gains by the separable grid
+    (`_grid_start`) with the surroundings at `level`, every mechanism at its neutral value."""
+    ga, gb, gx, _ = _grid_start(y, u, ts, level, 0.0)
+    return np.stack([M.initial_theta(lay, log_a=ga[i], log_b=np.log(gb[i]), x0=gx[i])
+                     for i in range(y.shape[1])])
+
+
+def _joint_active(n, lay, first, pool) -> int:
+    """Static bound on the free parameters of a joint fit of `first` plus two of `pool`."""
+    size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in _joint_groups((m,))[len(JOINT_BASE):])
+    adds = sorted((size(m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
+    per_zone = 1 + lay.nu + size(first) + sum(adds)
+    return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
+
+
+def _judge(cur, cand, n_tests, dof, k_extra) -> dict:
+    """Both tests of `cand` against the smaller model `cur` (joint fits' residuals)."""
+    zc, lc = D.thresholds(n_tests, dof)
+    zv = D.predictive_z(cur["e"], cand["e"], k_extra)
+    lr = D.likelihood_ratio(cur["res"], cand["res"])
+    ok = bool(zv >= zc and lr >= lc and np.mean(cand["e"] ** 2) < np.mean(cur["e"] ** 2))
+    return {"validation_z": zv, "validation_z_critical": zc, "estimation_lr": lr,
+            "estimation_lr_critical": lc, "passed": ok}
+
+
+def _forward_select(js, validate, k_val, top, pool, fit_of):
+    """Forward selection in the joint structure: fit the top mechanism jointly (surroundings at
+    the rest level; a fitted level only if both tests demand it), then add, one round at a time,
+    of the pool's mechanisms that pass both tests given the chosen ones the one with the smallest
+    χ² tail probability of its likelihood ratio, up to `MAX_COMBINED`. Returns (augmented model, tried combinations, chosen)."""
+    n, lay = js.n, js.lay
+    th0 = js.start(js.neutral, top)
+    chosen = (top,)
+    models = [(th0, chosen, False)] + ([] if js.measured else [(th0, chosen, True)])
+    out = js.fit(models + [(js.start(th0, m), chosen + (m,), False) for m in pool], validate)
+    cur, free, level_test = out[0], False, None
+    adds = out[len(models):len(models) + len(pool)]
+    if not js.measured:
+        level_test = _judge(out[0], out[1], 1, 1, 1.0)
+        if level_test["passed"]:
+            cur, free = out[1], True
+            adds = js.fit([(js.start(cur["theta"], m), chosen + (m,), True) for m in pool], validate)
+    tried = []
+    pool = list(pool)
+    while adds:
+        best = None
+        for m, a in zip(pool, adds):
+            t = _judge(cur, a, len(pool), M.n_added_per_zone(m, lay) * n, k_val(a["set"]) - k_val(chosen))
+            tried.append({"mechanisms": list(a["set"]), **t, "accepted": False,
+                          "mean_fit_percent": float(np.mean(fit_of(a["e"])))})
+            # among those that pass both tests, the strongest evidence on the estimation record
+            # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
+            # parameters are re-estimated on the validation record itself (a drift)
+            ev = chi2.logsf(t["estimation_lr"], max(M.n_added_per_zone(m, lay) * n, 1))
+            if t["passed"] and (best is None or ev < best[3]):
+                best = (tried[-1], a, m, ev)
+        if best is None:
+            break
+        best[0]["accepted"] = True
+        cur, chosen = best[1], best[1]["set"]
+        pool.remove(best[2])
+        if len(chosen) >= MAX_COMBINED or not pool:
+            break
+        adds = js.fit([(js.start(cur["theta"], m), chosen + (m,), free) for m in pool], validate)
+    cur = {**cur, "level_mode": "measured" if js.measured else ("fitted" if free else "rest"),
+           "level_test": level_test}
+    return cur, tried, list(chosen)
 
 
 def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
@@ -309,22 +482,30 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         ev_v = event_matrix(Tv, P, dv["zone_phase"])
 
     def validate(models):
-        """Coupled simulations `(M, Tv, n)` of (θ, mechanism set) pairs on the validation record."""
+        """Coupled simulations `(M, Tv, n)` of models on the validation record: (θ, mechanism set)
+        pairs fitted per zone (surroundings as the baseline's), or (θ, set, setup) for the joint
+        fits (`_JointFits.setup` of the validation record)."""
         Mn = len(models)
         R = 2 * n + kv + 1              # + the record's own surroundings level (when not measured)
         rec0, rmask = np.zeros((Mn, R)), np.zeros((Mn, R))
-        rmask[:, -1] = ts_free
-        for j, (th, st) in enumerate(models):
+        per_zone = {"ts_level": level, "ts_free": ts_free, "u_pad": rec_v["u_pad"]}
+        setups = [m[2] if len(m) == 3 else per_zone for m in models]
+        lev_m = np.array([su["ts_level"] for su in setups])
+        free_m = np.array([su["ts_free"] for su in setups])
+        for j, (m, su) in enumerate(zip(models, setups)):
+            th, st = m[0], m[1]
             rec0[j, :n] = yv[0]
             _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
-            tsl = level + ts_free * float(np.median(th[:, lay.sl("ts0")][:, 0]))
-            rec0[j, n:2 * n] = tsl + (yv[0].mean() - tsl) / (1.0 + gam)
+            tsl = lev_m[j] + free_m[j] * float(np.median(th[:, lay.sl("ts0")][:, 0]))
+            rec0[j, n:2 * n] = tsl + (rec0[j, :n].mean() - tsl) / (1.0 + gam)
             rmask[j, :n] = 1.0
             rmask[j, n:2 * n] = float("heat_accumulation" in st)
             rmask[j, 2 * n:2 * n + kv] = float("ambient_variation" in st and not measured_var)
+            rmask[j, -1] = free_m[j]
         fper = {"events": jnp.asarray(np.stack([ev_v] * Mn)),
-                "delay": jnp.asarray(np.array([best_delay if "input_delay" in st else 0.0
-                                               for _, st in models]))}
+                "delay": jnp.asarray(np.array([best_delay if "input_delay" in m[1] else 0.0
+                                               for m in models])),
+                **{k: jnp.asarray(np.stack([su[k] for su in setups], dtype=float)) for k in per_zone}}
         _, yh, _ = fit_records(jnp.asarray(np.stack([m[0] for m in models])),
                                jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
                                jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v, lay, 10)
@@ -376,7 +557,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
-    added = []
+    added, level_mode, aug = [], None, {}
     if sig:
         top = sig[0]
         kt = top["k"]
@@ -387,53 +568,20 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         z_run = D.predictive_z(e_c[others[0]["k"]], e_c[kt]) if others else None
         conf_top = D.confidence(top["validation_z"], z_run)
         chosen = [top["mechanism"]]
-        aug_theta, aug_yhat = thc[kt], yhat_v[kt + 1]
-        cur_res, cur_e = res_c[kt], e_c[kt]
-        # additions: every candidate that lowered the validation error on its own (an addition
-        # still has to pass both tests against the smaller model), not only the significant
-        # ones: a mechanism can show only beside another (a coupling behind a lag)
-        pool = [r["mechanism"] for r in others if r["mechanism"] not in forbidden][:4]
-        partner = {"input_delay": "heater_lag", "heater_lag": "input_delay"}.get(chosen[0])
-        if partner in cands and partner not in pool and partner not in forbidden:
-            pool.append(partner)
-        # ---- 6. combinations grown by validation ------------------------------------------------
-        # every round has the same shapes (sets padded by repeats, one bound on the free
-        # parameters), so the rounds share one compiled fit and one compiled validation
-        n_pool = len(pool)
-        per_zone = sorted((M.n_added_per_zone(m, lay) for m in pool), reverse=True)
-        n_act_c = 4 * math.ceil((base_mask.sum() + M.n_added_per_zone(chosen[0], lay)
-                                 + sum(per_zone[:MAX_COMBINED - 1])) / 4)
-        while pool and len(chosen) < MAX_COMBINED:
-            sets = [tuple(chosen) + (m,) for m in pool]
-            starts = []
-            for m in pool:
-                th = aug_theta.copy()
-                for grp in M.MECH_PARAMS[m]:
-                    th[:, lay.sl(grp)] = thc[cands.index(m)][:, lay.sl(grp)]
-                starts.append(th)
-            pad = n_pool - len(sets)
-            th_s, res_s = fit_sets(sets + [sets[-1]] * pad, np.stack(starts + [starts[-1]] * pad), n_act_c)
-            yh_s = validate([(th_s[i], st) for i, st in enumerate(sets + [sets[-1]] * pad)])
-            best = None
-            for i, st in enumerate(sets):
-                e_i = yv - yh_s[i]
-                zc, lc = D.thresholds(len(sets), M.n_added_per_zone(st[-1], lay) * n)
-                zv = D.predictive_z(cur_e, e_i, k_val(st) - k_val(tuple(chosen)))
-                lr = D.likelihood_ratio(cur_res, res_s[i])
-                ok = bool(zv >= zc and lr >= lc and np.mean(e_i ** 2) < np.mean(cur_e ** 2))
-                added.append({"mechanisms": list(st), "validation_z": zv, "validation_z_critical": zc,
-                              "estimation_lr": lr, "estimation_lr_critical": lc, "accepted": False,
-                              "mean_fit_percent": float(np.mean(fit_of(e_i)))})
-                gain = -np.mean(e_i ** 2)
-                if ok and (best is None or gain > best[0]):
-                    best = (gain, i, len(added) - 1)
-            if best is None:
-                break
-            _, i, a_i = best
-            added[a_i]["accepted"] = True
-            chosen = list(sets[i])
-            pool.remove(sets[i][-1])
-            aug_theta, aug_yhat, cur_res, cur_e = th_s[i], yh_s[i], res_s[i], yv - yh_s[i]
+        # ---- 6. the combination, fitted jointly over all zones, grown forward by the tests ------
+        # every candidate may join (one that helps only beside another, e.g. radiation once the
+        # surroundings sit at their level, or a coupling behind a lag), each addition judged
+        # given the others by both tests against the smaller joint model
+        pool = [r["mechanism"] for r in ranked if r is not top and r["mechanism"] not in forbidden
+                and (P or r["mechanism"] != "recoat_cooling")]
+        js = _JointFits(n=n, lay=lay, y=y, yv=yv, sh=sh_e, ev=ev_e, delay=best_delay,
+                        measured=amb is not None, measured_var=measured_var, level=level,
+                        neutral=_joint_start(y, u, ts, level if amb is not None else float(y[0].mean()), lay),
+                        u_pad_v=rec_v["u_pad"],
+                        n_iter=JOINT_ITER, slots=K + 1,
+                        n_active=_joint_active(n, lay, chosen[0], pool))
+        aug, added, chosen = _forward_select(js, validate, k_val, chosen[0], pool, fit_of)
+        aug_theta, aug_yhat, level_mode = aug["theta"], aug["yhat"], aug["level_mode"]
     tick({"stage": "combination"})
 
     e_aug = yv - aug_yhat
@@ -474,6 +622,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         "flagged": flagged,
         "inputs_left_out": [f"u_{nm}" for nm in dropped],
         "augmented": {"mechanisms": list(chosen),
+                      "fit": "joint (all zones, coupled simulation error)" if chosen else "baseline",
+                      "surroundings": level_mode,
+                      "surroundings_test": aug.get("level_test") if chosen else None,
                       "mean_fit_percent": float(np.mean(aug_fit)),
                       "fit_percent": [float(v) for v in aug_fit], "sum_abs_error": sae(e_aug),
                       "parameters": {m: M.physical_parameters(aug_theta, m, lay, ts, extra)
