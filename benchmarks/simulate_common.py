@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 
@@ -18,3 +19,13 @@ def finish(lines: list[str], load0: str, out: str) -> None:
     print(text)
     if out != "-":
         Path(out).write_text(text)
+
+
+def timed(fn):
+    """`(fn(), wall s, CPU s)` of a second call (the first compiles), blocking on the result."""
+    import jax
+
+    jax.block_until_ready(fn())
+    w, c = time.perf_counter(), time.process_time()
+    out = jax.block_until_ready(fn())
+    return out, time.perf_counter() - w, time.process_time() - c

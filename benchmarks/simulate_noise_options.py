@@ -25,10 +25,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
-from simulate_common import finish, load
+from simulate_common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 
@@ -82,11 +81,8 @@ def main() -> None:
     keys = jax.random.split(jax.random.key(0), args.rollouts)
     for label, fn in options.items():
         f = jax.jit(jax.vmap(fn))
-        jax.block_until_ready(f(keys))
         load_now = load()
-        w, c = time.perf_counter(), time.process_time()
-        v = jax.block_until_ready(f(keys))
-        wall, cpu = time.perf_counter() - w, time.process_time() - c
+        v, wall, cpu = timed(lambda f=f: f(keys))
         z = v[:, :, :n]
         r1 = jnp.mean(z[:, 1:] * z[:, :-1]) / jnp.mean(z ** 2)
         lines.append(f"| {label} | {wall:.2f} | {cpu:.2f} | {load_now} | "

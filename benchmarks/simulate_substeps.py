@@ -19,23 +19,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-import time
 from pathlib import Path
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from simulate_common import finish, load
+from simulate_common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 NOISE = "sensor noise: white 0.05 °C (scenario) + 0.05 °C and AR(1) 0.1 °C (`sensor_noise`)"
-
-
-def _timed(fn):
-    jax.block_until_ready(fn())
-    w, c = time.perf_counter(), time.process_time()
-    out = jax.block_until_ready(fn())
-    return out, time.perf_counter() - w, time.process_time() - c
 
 
 def main() -> None:
@@ -99,7 +91,7 @@ def main() -> None:
             ("now (recoat=False)", lambda: engine._scenario_metrics(
                 "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
         load_now = load()
-        out, wall, cpu = _timed(fn)
+        out, wall, cpu = timed(fn)
         lines.append(f"| {label} | {m} | {wall:.2f} | {cpu:.2f} | {load_now} | "
                      f"{float(out[0]['mse']):.8f} |")
         print(lines[-1], flush=True)
