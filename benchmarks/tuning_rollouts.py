@@ -1,9 +1,10 @@
-"""Training rollouts against the held-out result: `tune_report` at the CLI's other defaults
-(4 zones, PA12, seed 0, 60 Adam steps) with `rollouts` training rollouts per scenario and
-plant, always judged on 16 held-out rollouts (`eval_rollouts`), so the figures compare.
+"""Training size and Adam settings against the held-out result: `tune_report` at the CLI's
+other defaults (4 zones, PA12, seed 0) with `rollouts` training rollouts per scenario and
+plant, `steps` Adam steps of learning rate `lr`, always judged on 16 held-out rollouts
+(`eval_rollouts`), so the figures compare.
 
     python benchmarks/tuning_rollouts.py --controller pi --rollouts 8
-    python benchmarks/tuning_rollouts.py --controller lqg --rollouts 8 16
+    python benchmarks/tuning_rollouts.py --controller lqg --rollouts 16 --steps 30 --lr 0.1
 
 Appends one JSON line per run to benchmarks/results/tuning_rollouts.jsonl (wall and process
 CPU seconds, the 1-minute load at the start: wall times are inflated by the shared cores).
@@ -33,13 +34,15 @@ def main(argv=None) -> int:
     ap.add_argument("--rollouts", type=int, nargs="+", default=[8])
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--eval-rollouts", type=int, default=16)
+    ap.add_argument("--lr", type=float, default=0.05)
     args = ap.parse_args(argv)
     for r in args.rollouts:
         load = os.getloadavg()[0]
         t0, c0 = time.perf_counter(), time.process_time()
-        rep = tune_report(args.controller, rollouts=r, steps=args.steps,
+        rep = tune_report(args.controller, rollouts=r, steps=args.steps, lr=args.lr,
                           eval_rollouts=args.eval_rollouts)
         row = {"controller": rep["controller"], "rollouts": r, "steps": args.steps,
+               "lr": args.lr,
                "eval_rollouts": args.eval_rollouts,
                "improvement_percent": rep["improvement_percent"],
                "changed_powder_improvement_percent":
