@@ -4,6 +4,7 @@ import json
 
 import pytest
 
+import jthermo
 from jthermo import sweep
 from jthermo.errors import ConfigError
 
@@ -104,9 +105,11 @@ def test_failed_trial_recorded(tmp_path):
 
 def test_summary_format():
     cfg = sweep.parse_config(CFG)
+    salt = sweep.trial_salt()
     rows = [{"id": "a", "params": {"na": 1}, "status": "ok", "metrics": {"mean_fit_percent": 50.0}},
             {"id": "b", "params": {"na": 2}, "status": "ok", "metrics": {"mean_fit_percent": 70.0}},
             {"id": "c", "params": {"na": 3}, "status": "error", "error": "x"}]
+    rows = [{**r, "salt": salt} for r in rows]
     best = sweep.best_trials(rows, cfg, top=5)
     assert [b["id"] for b in best] == ["b", "a"]
     text = sweep.format_summary(best, cfg, total=3)
@@ -380,3 +383,40 @@ def test_cli_sweep_writes_a_csv_table(tmp_path):
     assert cli.main(["sweep", str(tmp_path / "s.toml"), "--results", str(res), "--summary",
                      "--csv", str(table), "--quiet"]) == 0
     assert pd.read_csv(table).id.tolist() == df.id.tolist()
+
+
+# ---------------------------------------------------------------- version salt (issue 18)
+
+
+def test_trial_ids_depend_on_the_salt_and_the_parameters(monkeypatch):
+    p = {"na": 1, "nb": 2}
+    assert sweep.trial_id(p) == sweep.trial_id({"nb": 2, "na": 1}) == sweep.trial_id(p, sweep.trial_salt())
+    assert sweep.trial_id(p, "jthermo 0.1.0 trial 1") != sweep.trial_id(p, "jthermo 0.2.0 trial 1")
+    assert sweep.trial_id(p) != sweep.trial_id({"na": 1, "nb": 3})
+    assert jthermo.__version__ in sweep.trial_salt() and str(sweep.TRIAL_FORMAT) in sweep.trial_salt()
+    old = sweep.trial_id(p)
+    monkeypatch.setattr(sweep.config, "TRIAL_FORMAT", sweep.TRIAL_FORMAT + 1)
+    assert sweep.trial_id(p) != old
+
+
+def test_resume_after_an_upgrade_reruns_and_ignores_stale_rows(tmp_path, monkeypatch):
+    cfg = sweep.parse_config(CFG)
+    res = tmp_path / "r.jsonl"
+    first = sweep.run_sweep(cfg, res)
+    assert (first["n_run"], first["n_skipped"]) == (4, 0)
+    rows = sweep.read_results(res)
+    assert all(r["salt"] == sweep.trial_salt() for r in rows)
+    again = sweep.run_sweep(cfg, res)
+    assert (again["n_run"], again["n_skipped"]) == (0, 4)          # same version: resumed
+    monkeypatch.setattr(jthermo, "__version__", jthermo.__version__ + ".post1")   # upgraded
+    ids_after = {t["id"] for t in sweep.trials(cfg)}
+    assert ids_after.isdisjoint(r["id"] for r in rows)
+    with res.open("a") as f:           # an old row that would otherwise win
+        f.write(json.dumps({**rows[0], "metrics": {"mean_fit_percent": 1e9}}) + "\n")
+    upgraded = sweep.run_sweep(cfg, res)
+    assert (upgraded["n_run"], upgraded["n_skipped"]) == (4, 0)    # nothing stale reused
+    assert {b["id"] for b in upgraded["best"]} == ids_after
+    assert all(b["score"] < 1e9 for b in upgraded["best"])
+    df = upgraded.to_dataframe()
+    assert set(df["id"]) == ids_after
+    assert len(sweep.results_frame(sweep.read_results(res), cfg, stale=True)) == 8

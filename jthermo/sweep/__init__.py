@@ -41,11 +41,13 @@ trial and outside the trial ids.
 
 In a random sweep a parameter may also be a range table `{low = 1e-3, high = 1.0, log = true}`
 (floats) or `{low = 1, high = 5}` (integers). Each trial has a stable id (a hash of its
-parameters), runs locally (in-process, or a process pool with `workers > 1`) or as a Ray task
+parameters, salted with the jthermo version and `TRIAL_FORMAT`: `trial_salt`), runs locally (in-process, or a process pool with `workers > 1`) or as a Ray task
 (`ray_address`), in float64 inside a scoped `jax.enable_x64` (the caller's JAX configuration
 is never changed), and its result is appended to a JSON-lines file as soon as it finishes
 (flushed and fsynced). Re-running the same sweep skips the trial ids already in the file, so a
-killed sweep resumes without redoing or losing finished trials.
+killed sweep resumes without redoing or losing finished trials; after an upgrade of jthermo
+the ids change, so the trials run again (the old rows stay in the file, each with its
+`jthermo_version`, and are left out of the best trials).
 
 `run_sweep(...).to_dataframe()` (or `results_frame(read_results(path), cfg)`) gives the trials
 as a pandas DataFrame, best first; `history_frame` a tuning run's cost per iteration.
@@ -55,7 +57,8 @@ from .config import (
     DEFAULT_CONFIG as DEFAULT_CONFIG, KINDS as KINDS, check_config as check_config,
     count_trials as count_trials, default_config as default_config, load_config as load_config,
     parse_config as parse_config, trial_id as trial_id, trials as trials, DATA_KEYS as DATA_KEYS,
-    SETTINGS as SETTINGS, trial_settings as trial_settings,
+    SETTINGS as SETTINGS, trial_settings as trial_settings, TRIAL_FORMAT as TRIAL_FORMAT,
+    trial_salt as trial_salt, current_rows as current_rows,
 )
 from .tasks import run_trial as run_trial
 from .runner import (

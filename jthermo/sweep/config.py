@@ -189,9 +189,31 @@ def count_trials(cfg: dict) -> int:
 # ---------------------------------------------------------------- trials
 
 
-def trial_id(params: dict) -> str:
-    """A stable id: the first 12 hex digits of the SHA-1 of the sorted JSON parameters."""
-    return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+#: bumped when what a trial computes changes within one jthermo version (part of every id)
+TRIAL_FORMAT = 2
+
+
+def trial_salt() -> str:
+    """What every trial id is salted with: the jthermo version and `TRIAL_FORMAT`, so a sweep
+    resumed after an upgrade reruns its trials instead of reusing stale results."""
+    from .. import __version__
+
+    return f"jthermo {__version__} trial {TRIAL_FORMAT}"
+
+
+def trial_id(params: dict, salt: str | None = None) -> str:
+    """A stable id: the first 12 hex digits of the SHA-1 of `salt` (default `trial_salt()`)
+    and the sorted JSON parameters."""
+    salt = trial_salt() if salt is None else salt
+    text = json.dumps({"salt": salt, "params": params}, sort_keys=True)
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def current_rows(rows: list[dict]) -> list[dict]:
+    """The result records written under the current `trial_salt` (an older jthermo's are
+    stale: their ids are not this version's, and they are never reused or ranked)."""
+    salt = trial_salt()
+    return [r for r in rows if r.get("salt") == salt]
 
 
 def trials(cfg: dict) -> list[dict]:

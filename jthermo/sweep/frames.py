@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from ..errors import ConfigError
+from .config import current_rows
 
 
 def _pandas():
@@ -35,7 +36,7 @@ def _flat(metrics: dict) -> dict:
     return out
 
 
-def results_frame(rows: list[dict], cfg: dict | None = None):
+def results_frame(rows: list[dict], cfg: dict | None = None, *, stale: bool = False):
     """A DataFrame of a sweep's trials: one row per trial id (its latest record), columns `id`,
     `status`, the parameters, `seconds`, `error` and the flattened metrics (a metric named
     like a parameter is left out: the column holds what was asked for).
@@ -44,9 +45,10 @@ def results_frame(rows: list[dict], cfg: dict | None = None):
     - `rows`: the records of a results file (`read_results(path)`).
     - `cfg`: the sweep's configuration; with it the rows are sorted best first by its
       objective, and failed trials come last.
+    - `stale`: keep the records of another jthermo version too (default: `current_rows`).
     """
     pd = _pandas()
-    latest = {r["id"]: r for r in rows}
+    latest = {r["id"]: r for r in (rows if stale else current_rows(rows))}
     table = []
     for r in latest.values():
         params = dict(r.get("params", {}))

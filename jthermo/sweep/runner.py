@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import ConfigError
-from .config import default_config, trials
+from .config import current_rows, default_config, trials
 from .frames import results_frame
 from .tasks import clean_json, run_trial
 
@@ -71,10 +71,11 @@ def _score(rec: dict, cfg: dict) -> float | None:
 
 
 def best_trials(rows: list[dict], cfg: dict | None, top: int = 10) -> list[dict]:
-    """The `top` finished trials by the objective (latest record per id)."""
+    """The `top` finished trials by the objective (latest record per id; this version's
+    trials only: `current_rows`)."""
     if cfg is None:
         cfg = default_config()
-    latest = {r["id"]: r for r in rows}
+    latest = {r["id"]: r for r in current_rows(rows)}
     scored = [(s, r) for r in latest.values() if (s := _score(r, cfg)) is not None]
     scored.sort(key=lambda sr: sr[0], reverse=cfg["direction"] == "max")
     return [{"id": r["id"], "params": r["params"], "score": s, "seconds": r.get("seconds")}

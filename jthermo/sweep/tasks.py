@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, JThermoError
-from .config import trial_settings
+from .config import trial_salt, trial_settings
 
 #: trial settings that `fit` takes as named arguments (the rest are family options)
 _FIT_ARGS = ("seed", "n_starts", "criterion")
@@ -172,7 +172,8 @@ def run_trial(kind: str, trial: dict, settings: dict) -> dict:
     """Run one trial in float64 (scoped); never raises: failures are recorded with their
     one-line reason."""
     t0 = time.perf_counter()
-    record: dict[str, Any] = {"id": trial["id"], "params": trial["params"], "kind": kind}
+    record: dict[str, Any] = {"id": trial["id"], "params": trial["params"], "kind": kind,
+                              "salt": trial_salt()}
     try:
         with float64():
             metrics = _TRIAL_FUNCS[kind](trial["params"], settings)
