@@ -449,6 +449,8 @@ def main(argv=None):
                      "confidence": res["findings"][0]["confidence"] if named else None,
                      "flagged": [f["mechanism"] for f in res.get("flagged", [])],
                      "drift_input_dependence_z": res["localisation"].get("drift_input_dependence_z"),
+                     "combinations": res.get("combinations", []),
+                     "fit_percent": [res["baseline"]["fit_percent"], res["augmented"]["fit_percent"]],
                      "baseline_fit": res["baseline"]["mean_fit_percent"],
                      "augmented_fit": res["augmented"]["mean_fit_percent"],
                      "gain": res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"],
