@@ -16,9 +16,16 @@
    the best classical design there) and the validation guard (seed + VALIDATION) against every
    classical design of the known model.
 5. Everything is repeated on a printer with another powder (PA11), which no design or tuning saw.
+6. The structured designs of issue 16 on the known model (`--structured`): the firmware relay
+   auto-tune PID (`pid_relay`), the full-matrix MIMO PI (`pi_mimo`), and the schedule
+   feed-forward around it (`pi_ff`) and around the LQG (`lqg_ff`), the taps from the printer's
+   response to each event (`tune.ff_init`); `--tune pi_ff,lqg_ff` tunes their taps (the
+   feedback frozen, `tune.ff_init.tuned_fields`).
 
     python experiments/control_study.py            # writes experiments/results/control_study.md
     python experiments/control_study.py --quick    # small sizes, for a smoke test
+    python experiments/control_study.py --resume --models known --tune pi_ff,lqg_ff --steps 20 \
+        --ensemble 0                                # add the issue-16 rows to the last results
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 from jthermo.closedloop import REALISTIC_EFFECTS
-from jthermo.control import design, rga
+from jthermo.control import ScheduleFF, design, rga
 from jthermo.data import atomic_write_text
 from jthermo.printer import generate, make_printer
 from jthermo.tune import (
@@ -50,12 +57,18 @@ from jthermo.tune import (
     printer_model,
     tune,
 )
+from jthermo.tune.ff_init import init_schedule_ff, tuned_fields
 
 HERE = Path(__file__).resolve().parent
 CLASSICAL = ("pi_untuned", "pi_lambda", "pi_decoupled", "feedforward", "imc", "lqg")
 LABELS = {"pi_untuned": "original PI (untuned)", "pi_lambda": "diagonal PI (lambda)",
           "pi_decoupled": "decoupled PI (CB)⁻¹", "feedforward": "feed-forward (neutral)",
-          "imc": "IMC", "lqg": "LQG + integral", "gated_pi": "gated PI"}
+          "imc": "IMC", "lqg": "LQG + integral", "gated_pi": "gated PI",
+          "pid_relay": "relay auto-tune PID (Z–N)", "pi_mimo": "MIMO PI (full matrices)",
+          "pi_ff": "MIMO PI + schedule feed-forward", "lqg_ff": "LQG + schedule feed-forward"}
+#: issue 16's structured designs, on the known model only (the feed-forward taps come from the
+#: printer's response to each event, `init_schedule_ff`)
+STRUCTURED = ("pid_relay", "pi_mimo", "pi_ff", "lqg_ff")
 #: the fields tuned per family (default: every array leaf); the LQG keeps its design model and
 #: operating point and tunes its Riccati weights with the set-point weight of its reference
 #: model (the second degree of freedom, for set-point steps)
@@ -99,6 +112,13 @@ def fit_models(printer, args):
     return models, notes
 
 
+def structured_design(fam, model, printer):
+    """`design(fam, model)`, a schedule feed-forward's taps set from `printer`'s response to
+    each event (as `tune_report` starts them)."""
+    c = design(fam, model)
+    return init_schedule_ff(c, printer) if isinstance(c, ScheduleFF) else c
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -118,6 +138,8 @@ def main(argv=None):
                     help="reuse the results in the JSON next to --out and compute only the rest")
     ap.add_argument("--fitted-pa12-only", action="store_true",
                     help="evaluate designs from fitted models on the PA12 printer only")
+    ap.add_argument("--structured", type=int, default=1,
+                    help="1: also evaluate the structured designs STRUCTURED on the known model")
     ap.add_argument("--seed-sets", type=int, default=3,
                     help="held-out seed sets (seed + HELD_OUT + j) on which the tuned "
                          "controllers are compared with every classical design of the known model")
@@ -142,6 +164,7 @@ def main(argv=None):
         atomic_write_text(args.out, text)
         js = {f"{p}|{m}|{c}": v for (p, m, c), v in results.items()}
         js["_tuning"] = tuned
+        js["_notes"] = notes
         atomic_write_text(Path(args.out).with_suffix(".json"), json.dumps(js, indent=1))
         return text
 
@@ -154,6 +177,7 @@ def main(argv=None):
             results[(pn, mn, cn)] = v
         for fam, t in prev.get("_tuning", {}).items():
             tuned[fam] = t
+        notes.update(prev.get("_notes", {}))
         for fam in args.tune.split(","):
             if ("PA12", "tuned", fam) in results and fam not in tuned:
                 tuned[fam] = {}
@@ -187,6 +211,10 @@ def main(argv=None):
                 ev = {f: results[(pname, design_model_name, f)] if j == 0 else
                       evaluate(design(f, dm), pl, SCENARIOS, (s,), rollouts=R, duration=D)
                       for f in CLASSICAL}
+                if fam not in ev:       # a structured start (STRUCTURED): its own row
+                    ev[fam] = results[(pname, design_model_name, fam)] if j == 0 else evaluate(
+                        structured_design(fam, dm, pa12), pl, SCENARIOS, (s,), rollouts=R,
+                        duration=D)
                 ev["tuned"] = results[(pname, "tuned", fam)] if j == 0 else \
                     evaluate(ctrl, pl, SCENARIOS, (s,), rollouts=R, duration=D)
                 row = {}
@@ -209,16 +237,25 @@ def main(argv=None):
     models[design_model_name] = dm
     notes[design_model_name] = "the printer's own parameters, linearised at the window centre"
     classical(design_model_name, dm)
+    for fam in STRUCTURED if args.structured else ():
+        c = structured_design(fam, dm, pa12)
+        for pname, pl in (("PA12", pa12), ("PA11", pa11)):
+            if (pname, design_model_name, fam) not in results:
+                results[(pname, design_model_name, fam)] = evaluate(c, pl, SCENARIOS, held,
+                                                                    rollouts=R, duration=D)
+        log(f"{design_model_name:28s} {fam:14s} PA12 cost "
+            f"{results[('PA12', design_model_name, fam)]['cost']:.4f}")
+    write()
     for fam in args.tune.split(","):
         if ("PA12", "tuned", fam) in results:
             continue
-        start = design(fam, dm)
+        start = structured_design(fam, dm, pa12)
         refs = [design(f, dm) for f in TUNE_REFERENCES.get(fam, CLASSICAL) if f != fam]
         t = time.perf_counter()
         res = tune(start, pa12, plants=plant_ensemble(pa12, args.ensemble, seed=args.seed),
                    rollouts=R, steps=K, lr=0.05, seed=args.seed, duration=D,
                    weights={"tracking": args.tracking_weight}, references=refs,
-                   params=TUNED_FIELDS.get(fam),
+                   params=TUNED_FIELDS.get(fam, tuned_fields(start)),
                    progress=lambda i, v: log(f"tune {fam} {i} {v:.4f}") if i % 25 == 0 else None)
         g = res.guard or {}
         tuned[fam] = {"start_cost": res.start_cost, "tuned_cost": res.tuned_cost,
@@ -276,10 +313,13 @@ def report(results, models, notes, rgas, tuned, dname, args, R, K, D, seconds):
                                         "Powder disturbance suppression (Table 5.2)",
                                         "Print disturbance suppression (Table 5.3)")):
             L += [f"### {tname}: MSE, °C²", ""]
-            mnames = list(models)
+            mnames = list(models) + sorted({m for (_, m, _) in results
+                                            if m not in models and m != "tuned"})
             L.append("| controller | " + " | ".join(mnames) + " |")
             L.append("|---|" + "---|" * len(mnames))
-            for fam in CLASSICAL:
+            for fam in CLASSICAL + STRUCTURED:
+                if not any((pname, m, fam) in results for m in mnames):
+                    continue
                 row = [f"{results[(pname, m, fam)]['scenarios'][k]['mse']:.4f}"
                        if (pname, m, fam) in results else "—" for m in mnames]
                 L.append(f"| {LABELS[fam]} | " + " | ".join(row) + " |")
