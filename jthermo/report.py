@@ -125,7 +125,7 @@ def fit_section(rep: Report, fits: Sequence[dict], *, level: int = 2) -> Report:
 
 def simulate_section(rep: Report, runs: Sequence[dict], *, level: int = 2,
                      metrics: Sequence[str] = ("mse", "max_neighbour_diff_C", "time_outside_window_s",
-                                               "overshoot_C", "settling_time_s", "effort")) -> Report:
+                                               "overshoot_C", "settling_time_s", "mean_input")) -> Report:
     """Rows of `jthermo simulate` reports: scenario, controller and the chosen metrics."""
     rep.heading("Closed loop", level)
     rows = [{"scenario": r.get("scenario"), "controller": r.get("controller"),

@@ -42,7 +42,8 @@ def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
         neigh = jnp.zeros((), T.dtype)
     else:
         neigh = jnp.max(jnp.abs(T[:, idx[0]] - T[:, idx[1]]))
-    return {
+    du = jnp.diff(traj.u, axis=0)
+    return with_deprecated({
         "mse": jnp.mean((traj.y - traj.r) ** 2),
         "mse_true": jnp.mean(e ** 2),
         "max_abs_error_C": jnp.max(jnp.abs(e)),
@@ -51,10 +52,11 @@ def _metrics_one(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
         "overshoot_C": jnp.maximum(jnp.max(sgn * (T - r_end)), 0.0),
         "settling_time_s": (last_out + 1) * ts,
         "time_to_ready_s": first_in * ts,
-        "effort": jnp.mean(traj.u),
-        "input_variation": jnp.mean(jnp.abs(jnp.diff(traj.u, axis=0))),
+        "mean_input": jnp.mean(traj.u),
+        "input_variation": jnp.mean(jnp.abs(du)),
+        "mean_sq_input_change": jnp.mean(du ** 2),
         "saturated_fraction": jnp.mean(saturated(traj.u).astype(traj.u.dtype)),
-    }
+    })
 
 
 def step_sign(r_end, y0):
@@ -73,9 +75,19 @@ def window_penalty(e, window: float, smoothing: float):
     return jax.nn.sigmoid((jnp.sqrt(e ** 2 + (0.1 * smoothing) ** 2) - window) / smoothing)
 
 
+#: renamed metrics still reported under their old name for one release: `{old: new}` (`effort`
+#: was the mean input, while the cost term `effort` is the mean squared input change)
+DEPRECATED_METRICS = {"effort": "mean_input"}
 METRICS = ("mse", "mse_true", "max_abs_error_C", "max_neighbour_diff_C", "time_outside_window_s",
-           "overshoot_C", "settling_time_s", "time_to_ready_s", "effort", "input_variation",
-           "saturated_fraction")
+           "overshoot_C", "settling_time_s", "time_to_ready_s", "mean_input", "input_variation",
+           "mean_sq_input_change", "saturated_fraction", *DEPRECATED_METRICS)
+
+
+def with_deprecated(vals: dict) -> dict:
+    """`vals` with each `DEPRECATED_METRICS` old name added as a copy of its new name."""
+    return {**vals, **{old: vals[new] for old, new in DEPRECATED_METRICS.items()}}
+
+
 #: an input this close to a limit (power fraction) counts as saturated
 SATURATED = 1e-6
 
@@ -90,8 +102,11 @@ def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) 
     largest excursion beyond the final set point in the direction of the step;
     `settling_time_s`: time after which every zone stays inside the window (the run length if
     it never settles); `time_to_ready_s`: first time every zone is inside the window (ready
-    to print; the run length if never); `effort`: mean input; `input_variation`: mean |Δu|;
-    `saturated_fraction`: share of samples (and inputs) at an input limit.
+    to print; the run length if never); `mean_input`: mean input (power fraction);
+    `input_variation`: mean $|\\Delta u|$; `mean_sq_input_change`: mean $\\Delta u^2$, the cost's
+    `effort` term before its weight; `saturated_fraction`: share of samples (and inputs) at an
+    input limit. `effort` is the old name of `mean_input`, kept for one release
+    (`DEPRECATED_METRICS`).
     """
     vals = _metrics_jit(traj, scenario)
     if per_rollout:
@@ -178,15 +193,17 @@ class RunningMetrics(eqx.Module):
             + w["window"] * acc["win"] / (T * ny)
         if self.edges:
             J = J + w["uniformity"] * acc["unif"] / (T * len(self.edges))
-        return {"mse": acc["sq_meas"] / (T * ny), "mse_true": mse_true,
+        vals = {"mse": acc["sq_meas"] / (T * ny), "mse_true": mse_true,
                 "max_abs_error_C": acc["max_abs"], "max_neighbour_diff_C": acc["max_neigh"],
                 "time_outside_window_s": acc["n_out"] * ts,
                 "overshoot_C": jnp.maximum(acc["overshoot"], 0.0),
                 "settling_time_s": (acc["last_out"] + 1) * ts,
                 "time_to_ready_s": acc["first_in"] * ts,
-                "effort": acc["u_sum"] / (T * nu),
+                "mean_input": acc["u_sum"] / (T * nu),
                 "input_variation": acc["du_abs"] / ((T - 1) * nu),
+                "mean_sq_input_change": acc["du_sq"] / ((T - 1) * nu),
                 "saturated_fraction": acc["n_sat"] / (T * nu), "cost": J}
+        return with_deprecated(vals)
 
 
 DEFAULT_WEIGHTS = {"tracking": 1.0, "uniformity": 1.0, "effort": 1.0, "window": 1.0}
