@@ -50,3 +50,24 @@ def test_lqg_design_and_its_margins_compile_one_gains_program():
     ms = peak_sensitivity(plant, ctrl)
     assert 1 <= n_design <= 3 and len(events) - n_design <= 1
     assert ms["stable"] and 1.0 <= ms["ms"] < 3.0
+
+
+def test_held_out_terms_simulates_equal_controllers_once(monkeypatch):
+    """The start design and the same classical design made again are one simulation."""
+    import jthermo.tune.report as report
+
+    plant = make_printer(2, REALISTIC_EFFECTS, seed=0)
+    model = printer_model(plant)
+    a, b, c = design("pi_lambda", model), design("pi_lambda", model), design("pi_untuned", model)
+    calls = []
+
+    def fake_terms(ctrl, batch, weights):
+        calls.append(ctrl)
+        n = sum(len(g.index) for g in batch)
+        return np.full((n, 2), 2.0 if ctrl is c else 1.0)
+
+    monkeypatch.setattr(report, "batch_terms", fake_terms)
+    r = report.held_out_terms({"start": a, "lambda": b, "untuned": c}, {"p": plant}, (7,),
+                              rollouts=1, duration=20.0)
+    assert len(calls) == 2 and calls[0] is a and calls[1] is c
+    assert r["start"] == r["lambda"] and r["untuned"]["p"]["cost"] == 2.0

@@ -128,6 +128,13 @@ def classical_designs(model, families: Sequence[str] = CLASSICAL) -> dict:
     return out
 
 
+def _same_controller(a, b) -> bool:
+    """Same type, structure and leaf values (compared in NumPy: no compile)."""
+    la, ta = jax.tree_util.tree_flatten(a)
+    lb, tb = jax.tree_util.tree_flatten(b)
+    return ta == tb and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
 def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration: float,
                    weights=None) -> dict:
     """Mean cost and measured MSE of each controller of `ctrls` (`{name: controller}`) on each
@@ -135,7 +142,8 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
     per seed of `seeds`, on the lean path (`batch_terms`: cost and mse accumulated in the scan,
     equal to `evaluate`'s `closedloop.cost` and `metrics` mse at weights without overshoot).
     Every plant, scenario and seed is one batch, simulated in one compiled program per
-    controller structure; each distinct controller is simulated once.
+    controller structure; each distinct controller is simulated once (equal leaves, e.g. the
+    start design and the same classical design made again, count as one).
 
     **Returns:** `{name: {label: {"cost": mean over scenarios, "scenarios": {kind: {"cost",
     "mse"}}}}}`.
@@ -145,10 +153,17 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
                                                          jax.random.key(int(s)),
                                                          n_rollouts=int(rollouts)))
                          for lab, k, s in items])
+    reps: list = []
+
+    def distinct(c):
+        r = next((r for r in reps if r is c or _same_controller(r, c)), None)
+        if r is None:
+            reps.append(c)
+        return c if r is None else r
+
+    which = {name: distinct(c) for name, c in ctrls.items()}
     done: dict[int, dict] = {}
-    for c in ctrls.values():
-        if id(c) in done:
-            continue
+    for c in reps:
         v = np.asarray(batch_terms(c, batch, weights))
         per = {lab: {k: {q: float(np.mean([v[i, j] for i, (l2, k2, _) in enumerate(items)
                                             if l2 == lab and k2 == k]))
@@ -156,7 +171,7 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
                for lab in plants}
         done[id(c)] = {lab: {"cost": float(np.mean([d["cost"] for d in sc.values()])),
                              "scenarios": sc} for lab, sc in per.items()}
-    return {name: done[id(c)] for name, c in ctrls.items()}
+    return {name: done[id(c)] for name, c in which.items()}
 
 
 def _held_out_comparison(res: dict, label: str, classical: Sequence[str] = ()) -> dict:
