@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 from ..errors import ConfigError
@@ -113,6 +114,9 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     seconds = time.perf_counter() - t0
     target = val if val is not None else est
     cmp = validate.compare(res.model, target)
+    plausible = require("jthermo.validate.plausibility", "validation").check_fit(
+        res.model, getattr(res, "envelope", None), input_names=est.input_names,
+        output_names=est.output_names)
     report = {
         "model": family,
         "orders": dict(getattr(res, "orders", None) or orders or {}),
@@ -125,6 +129,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "criterion_table": getattr(res, "criterion_table", None),
         "checks": (getattr(res, "extra", None) or {}).get("check"),
         "repaired": (getattr(res, "extra", None) or {}).get("repaired"),
+        "warnings": plausible["warnings"],
         "data": str(args.data),
         "validation": args.validation,
         "n_samples": est.n_samples,
@@ -149,6 +154,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
                                          if getattr(res, "envelope", None) else {})})
         report["out"] = str(out)
     report = write_report(args, js, report)
+    for w in report["warnings"]:     # physically implausible, not fatal: the fit stands
+        print(f"warning: {w}", file=sys.stderr)
     info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
                f"(mean {cmp['mean_fit_percent']:.2f} % on {report['fit_on']} data), "
                f"{report['seconds']:.1f} s")

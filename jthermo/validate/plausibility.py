@@ -1,0 +1,140 @@
+"""Physical plausibility of a fitted thermal model: does a heater step move each sensor the way
+heat does?
+
+A fit can score well and still be a model no heater has: the Klipper hot-end's second-order
+state-space fits (`experiments/own_plant.py`) fall by 4–10 °C in the first seconds after the
+heater switches on, then rise. `plausibility` looks at the step response of each output to each
+input and reports, per pair:
+
+- an *inverse response*: the response first moves against its final direction,
+  $\\max_k(-\\operatorname{sign}(G_{ij})\\,s_{ij}(k))\\,\\Delta u_j > \\tau_i$, with $s_{ij}$ the
+  unit-step response, $G_{ij}$ the static gain, $\\Delta u_j$ the input's span and the
+  threshold $\\tau_i = \\max(3\\sigma_i, 0.01 \\max_k |s_{ij}(k)|\\,\\Delta u_j)$ from the
+  output's noise level $\\sigma_i$ (°C);
+- a *heater that cools its own sensor*: $G_{ii}\\,\\Delta u_i < -\\tau_i$ on a square model.
+
+Plus an unstable model (a heater step that never settles). Findings are warnings, not errors:
+the fit stands, the user decides. The response is computed on the host in float64 over a window
+of five times the slowest time constant (bounded, see `window`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import ModelError
+from ..models import AbstractModel, Envelope
+
+#: an excursion counts when it exceeds this many noise standard deviations ...
+NOISE_SIGMAS = 3.0
+#: ... and this share of the response's largest magnitude (numerical wiggles of a noise-free fit)
+RELATIVE_FLOOR = 0.01
+#: the window covers this many of the slowest time constants ...
+TIME_CONSTANTS = 5.0
+#: ... within these sample counts, and within this many multiply-adds of the state recursion
+MIN_SAMPLES, MAX_SAMPLES, MAX_WORK = 64, 20_000, 2e8
+
+
+def window(A: np.ndarray, nu: int) -> int:
+    """Samples of the step response checked: $5\\tau_{max}/T_s$ from the slowest pole
+    ($\\tau/T_s = -1/\\ln|p|$), clipped to [`MIN_SAMPLES`, `MAX_SAMPLES`] and to `MAX_WORK`
+    multiply-adds of the recursion $x_{k+1} = A x_k + B$ with `nu` columns."""
+    nx = A.shape[0]
+    if nx == 0:
+        return MIN_SAMPLES
+    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    n = MAX_SAMPLES if rho >= 1.0 else (TIME_CONSTANTS / -math.log(max(rho, 1e-300)))
+    cap = max(MIN_SAMPLES, int(MAX_WORK / max(nx * nx * nu, 1)))
+    return int(min(max(math.ceil(n), MIN_SAMPLES), MAX_SAMPLES, cap))
+
+
+def step_responses(A, B, C, D, n: int) -> np.ndarray:
+    """Unit-step responses $s(k) = C x_k + D$, $x_{k+1} = A x_k + B$, $x_0 = 0$: `(n, ny, nu)`."""
+    x = np.zeros((A.shape[0], B.shape[1]))
+    out = np.empty((n, C.shape[0], B.shape[1]))
+    for k in range(n):
+        out[k] = C @ x + D
+        x = A @ x + B
+    return out
+
+
+def _names(names, n, prefix):
+    return [str(v) for v in names] if names else [f"{prefix}{i + 1}" for i in range(n)]
+
+
+def plausibility(model: AbstractModel, *, noise_std: Sequence[float] | float | None = None,
+                 input_span: Sequence[float] | float | None = None,
+                 input_names: Sequence[str] = (), output_names: Sequence[str] = ()) -> dict:
+    """Check that heater steps move the sensors the way heat does (module docstring).
+
+    **Arguments:**
+    - `model`: any `AbstractModel` (its state-space realisation is used).
+    - `noise_std`: each output's measurement-noise std, °C (one value or one per output;
+      `Envelope.noise_std` of a fit); default 0 (the relative floor alone).
+    - `input_span`: each input's step size, power fraction (default 1: off to full power).
+    - `input_names`, `output_names`: channel names for the warnings.
+
+    **Returns:** `{"stable", "window_s", "pairs", "warnings"}`: `pairs` one dict per
+    (output, input) with `output`, `input`, `dc_gain` (°C per unit input), `wrong_way_C`
+    (largest move against the final direction for the step `input_span`, °C), `wrong_way_at_s`,
+    `threshold_C`, `inverse_response` and `cools_own_sensor` (bools); `warnings` one line each.
+    """
+    ss = model.to_statespace()
+    A, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
+    ny, nu = C.shape[0], B.shape[1]
+    if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
+        raise ModelError("plausibility: the model has non-finite matrices")
+    sigma = np.broadcast_to(np.asarray(0.0 if noise_std is None else noise_std, np.float64), (ny,))
+    span = np.broadcast_to(np.asarray(1.0 if input_span is None else input_span, np.float64), (nu,))
+    if not (np.all(np.isfinite(sigma)) and np.all(sigma >= 0)
+            and np.all(np.isfinite(span)) and np.all(span > 0)):
+        raise ModelError("plausibility: noise_std must be >= 0 and input_span > 0, all finite")
+    ts = float(model.ts)
+    n = window(A, nu)
+    s = step_responses(A, B, C, D, n) * span                        # °C, (n, ny, nu)
+    stable = A.shape[0] == 0 or float(np.max(np.abs(np.linalg.eigvals(A)))) < 1.0
+    if stable:      # G(1) = C (I - A)^{-1} B + D, on the host
+        gain = (C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D) * span
+    else:
+        gain = s[-1]
+    ynames, unames = _names(output_names, ny, "y"), _names(input_names, nu, "u")
+    pairs, warnings = [], []
+    if not stable:
+        warnings.append("the model is not stable: a heater step never settles")
+    for i in range(ny):
+        for j in range(nu):
+            r = s[:, i, j]
+            tau = max(NOISE_SIGMAS * sigma[i], RELATIVE_FLOOR * float(np.max(np.abs(r))))
+            direction = math.copysign(1.0, gain[i, j])
+            against = -direction * r
+            k = int(np.argmax(against))
+            wrong = max(float(against[k]), 0.0) + 0.0      # no -0.0
+            inverse = bool(abs(gain[i, j]) > tau and wrong > tau)
+            cools = bool(ny == nu and i == j and gain[i, j] < -tau)
+            pairs.append({"output": ynames[i], "input": unames[j], "dc_gain": float(gain[i, j] / span[j]),
+                          "wrong_way_C": wrong, "wrong_way_at_s": k * ts, "threshold_C": tau,
+                          "inverse_response": inverse, "cools_own_sensor": cools})
+            if inverse:
+                warnings.append(
+                    f"{unames[j]} -> {ynames[i]}: a step of {span[j]:g} first moves the output "
+                    f"{'down' if direction > 0 else 'up'} by {wrong:.3g} °C (at {k * ts:.3g} s; "
+                    f"threshold {tau:.3g} °C) before it settles {'up' if direction > 0 else 'down'}"
+                    f": an inverse response no heater has")
+            if cools:
+                warnings.append(f"{unames[j]} -> {ynames[i]}: static gain {gain[i, j] / span[j]:.3g} "
+                                f"°C per unit input: a heater that cools its own sensor")
+    return {"stable": stable, "window_s": n * ts, "pairs": pairs, "warnings": warnings}
+
+
+def check_fit(model: AbstractModel, envelope: Envelope | None = None, *,
+              input_names: Sequence[str] = (), output_names: Sequence[str] = ()) -> dict:
+    """`plausibility` of a fitted model with its recording's noise level (`envelope.noise_std`)
+    and input span (`envelope.u_max - envelope.u_min`); without an envelope, the defaults."""
+    if envelope is None:
+        return plausibility(model, input_names=input_names, output_names=output_names)
+    span = np.asarray(envelope.u_max, np.float64) - np.asarray(envelope.u_min, np.float64)
+    return plausibility(model, noise_std=envelope.noise_std, input_span=span,
+                        input_names=input_names, output_names=output_names)
