@@ -5,6 +5,8 @@ The table gives what the diagnosis names, the baseline and augmented validation 
 absolute errors (SAE, the CACE 2020 paper's metric), and whether anything crashed.
 
     .venv/bin/python experiments/diagnose_real.py [--only NAME] [--out experiments/results]
+        [--before-label LABEL]   # keep the previous run's figures as the table's 'before'
+    .venv/bin/python experiments/diagnose_real.py --merge DIR [--before-from OLD.json --before-label LABEL]
 
 Writes `experiments/results/diagnose_real.md` and `.json`.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import traceback
@@ -84,19 +87,37 @@ def _load_pair(est_rel, val_rel):
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--only", default=None)
+    ap.add_argument("--only", default=None, help="comma-separated substrings of the rows' names")
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
+    ap.add_argument("--merge", default=None, metavar="DIR",
+                    help="no diagnosis: merge the rows of DIR/diagnose_real.json (a parallel run's "
+                         "--out) into --out's table")
+    ap.add_argument("--before-from", default=None, metavar="JSON",
+                    help="take the 'before' column from this earlier diagnose_real.json (with --before-label)")
+    ap.add_argument("--before-label", default=None,
+                    help="keep the previous run's figures as the 'before' column, labelled so "
+                         "(default: keep the 'before' the previous run carried)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     prev = out / "diagnose_real.json"
+    old = {r["data"]: r for r in json.loads(prev.read_text())} if prev.exists() else {}
+    if args.merge:
+        rows = {**old, **{r["data"]: r for r in json.loads((Path(args.merge) / "diagnose_real.json").read_text())}}
+        rows = sorted(rows.values(), key=lambda r: _order(r["data"]))
+        if args.before_from:
+            earlier = {r["data"]: r for r in json.loads(Path(args.before_from).read_text())}
+            for r in rows:
+                r["before"] = _before(earlier.get(r["data"]), args.before_label)
+        write(rows, out)
+        return 0
     if args.only and prev.exists():           # rerun of some rows: keep the others
-        rows = [r for r in json.loads(prev.read_text()) if args.only not in r["data"]]
+        rows = [r for r in old.values() if not _picked(args.only, r["data"])]
     for name, est_rel, val_rel, act, pub in PAIRS:
-        if args.only and args.only not in name:
+        if args.only and not _picked(args.only, name):
             continue
-        t0 = time.perf_counter()
+        t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
         row = {"data": name, "actuator": act, "published_val_sae": pub}
         try:
             est, val = _load_pair(est_rel, val_rel)
@@ -116,11 +137,42 @@ def main(argv=None):
         except Exception as e:   # noqa: BLE001 - the study records crashes instead of stopping
             row.update({"status": f"CRASH {type(e).__name__}: {e}", "trace": traceback.format_exc()})
         row["seconds"] = time.perf_counter() - t0
+        row["cpu_seconds"], row["load"] = time.process_time() - c0, load0
+        row["before"] = _before(old.get(name), args.before_label)
         rows.append(row)
-        rows.sort(key=lambda r: [p[0] for p in PAIRS].index(r["data"]) if r["data"] in [p[0] for p in PAIRS] else 99)
+        rows.sort(key=lambda r: _order(r["data"]))
         print(name, row["status"], row.get("named"), flush=True)
         write(rows, out)
     return 0
+
+
+def _order(name):
+    names = [p[0] for p in PAIRS]
+    return names.index(name) if name in names else len(names)
+
+
+def _picked(only, name):
+    return any(part in name for part in only.split(","))
+
+
+def _before(prev, label):
+    """The previous run's figures of a row, as its 'before' column: those it carried itself when
+    `label` is None, else its own results labelled `label`."""
+    if prev is None:
+        return None
+    if label is None:
+        return prev.get("before")
+    if prev.get("status") != "ok":
+        return {"label": label, "status": prev.get("status")}
+    return {"label": label, "named": prev["named"], "augmented_fit": prev["augmented_fit"],
+            "augmented_sae": prev["augmented_sae"], "seconds": prev["seconds"]}
+
+
+def _secs(r):
+    """Wall seconds, with the process CPU seconds and the 1-minute load when recorded."""
+    if "cpu_seconds" not in r:
+        return f"{r['seconds']:.0f}"
+    return f"{r['seconds']:.0f} ({r['cpu_seconds']:.0f}, {r['load']:.1f})"
 
 
 def write(rows, out):
@@ -129,17 +181,28 @@ def write(rows, out):
              "Made by `experiments/diagnose_real.py`. Fits are validation simulation fits (%) per output;",
              "SAE is the validation sum of absolute errors (°C), the CACE 2020 paper's metric (published",
              "physics model, 2 heaters: 840.95; ARX: 3196.26; 1 heater physics: 1991.23).", "",
-             "| data | actuator | status | named (augmented model) | rivals | flagged | fit % baseline → augmented | SAE baseline → augmented (published) | s |",
+             "| data | actuator | status | named (augmented model) | rivals | flagged | fit % baseline → augmented | SAE baseline → augmented (published) | s (CPU s, load) |",
              "|---|---|---|---|---|---|---|---|---|"]
+    before = [r for r in rows if r.get("before")]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['data']} | {r['actuator']} | {r['status']} | | | | | | {r['seconds']:.0f} |")
+            lines.append(f"| {r['data']} | {r['actuator']} | {r['status']} | | | | | | {_secs(r)} |")
             continue
         pub = "" if r["published_val_sae"] is None else f" ({r['published_val_sae']:.2f})"
         lines.append(f"| {r['data']} | {r['actuator']} | ok | {', '.join(r['named']) or '-'} | "
                      f"{', '.join(r['rivals']) or '-'} | {', '.join(r['flagged']) or '-'} | "
                      f"{fmt(r['baseline_fit'])} → {fmt(r['augmented_fit'])} | "
-                     f"{r['baseline_sae']:.1f} → {r['augmented_sae']:.1f}{pub} | {r['seconds']:.0f} |")
+                     f"{r['baseline_sae']:.1f} → {r['augmented_sae']:.1f}{pub} | {_secs(r)} |")
+    if before:
+        lines += ["", f"Before ({before[0]['before']['label']}):", "",
+                  "| data | named (augmented model) | augmented fit % | augmented SAE | s |", "|---|---|---|---|---|"]
+        for r in before:
+            b = r["before"]
+            if "named" not in b:
+                lines.append(f"| {r['data']} | {b.get('status')} | | | |")
+                continue
+            lines.append(f"| {r['data']} | {', '.join(b['named']) or '-'} | {fmt(b['augmented_fit'])} | "
+                         f"{b['augmented_sae']:.1f} | {b['seconds']:.0f} |")
     lines += ["", "## Why the named physics is plausible", ""]
     lines += [f"- {v}" for v in WHY.values()]
     atomic_write_text(out / "diagnose_real.md", "\n".join(lines) + "\n")
