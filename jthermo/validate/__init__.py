@@ -1,4 +1,5 @@
-"""Model validation: fit %, residual tests, spectral estimates, responses, poles/zeros, RGA.
+"""Model validation: fit %, residual tests, spectral estimates, responses, poles/zeros, RGA,
+physical plausibility (does a heater step move each sensor the way heat does).
 
 Works with any `AbstractModel`; everything linear goes through the model's own `simulate`,
 `predict`, `frequency_response`, `step_response` and `dcgain`, and the state space only where
@@ -19,14 +20,17 @@ from .properties import (
     rga as rga, spectral_estimate as spectral_estimate, steady_state_rga as steady_state_rga,
     step_info as step_info,
 )
+from .plausibility import check_fit as check_fit, plausibility as plausibility
 
 __all__ = [
     "bode",
+    "check_fit",
     "compare",
     "correlations",
     "estimate_initial_state",
     "fit_percent",
     "information_criteria",
+    "plausibility",
     "poles_zeros",
     "residual_tests",
     "rga",
