@@ -27,13 +27,14 @@ from .common import (
     write_report,
 )
 
-#: `jthermo tune`'s default Adam iterations on the virtual printer: with 150 the validation
-#: guard (Ms <= 2) chose iteration 60 for pi and 30 for lqg; with 60, pi returns the same
-#: controller and lqg 47.5 % below lambda PI instead of 46.8 %
-#: (benchmarks/results/tuning_profile_default*.md, tuning_optimisers.json)
-PRINTER_STEPS = 60
-#: ... and on a fitted plant (`tune_own_plant`), unchanged
-OWN_PLANT_STEPS = 150
+#: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
+#: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
+#: for pi and 30 for lqg; with 60, pi returns the same controller and lqg 47.5 % below lambda
+#: PI instead of 46.8 % (benchmarks/results/tuning_profile_default*.md, tuning_optimisers.json)
+SHORT_STEPS = {"pi_lambda": 60, "lqg": 60}
+#: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
+#: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
+DEFAULT_STEPS = 150
 
 
 def add_parsers(sub) -> None:
@@ -75,8 +76,8 @@ def add_parsers(sub) -> None:
                     help="powder preset tuned on (default PA12); the report adds the other one")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
     sp.add_argument("--steps", type=positive_int(100000), default=None,
-                    help=f"Adam iterations (default {PRINTER_STEPS} on the virtual printer, "
-                         f"{OWN_PLANT_STEPS} on a fitted plant)")
+                    help=f"Adam iterations (default {DEFAULT_STEPS}; "
+                         f"{SHORT_STEPS['pi_lambda']} for pi and lqg on the virtual printer)")
     sp.add_argument("--setpoint", type=setpoints, metavar="T[,T...]",
                     help="set point, °C: one value or one per output (a fitted plant only; "
                          "default: the middle of the recorded range)")
@@ -309,7 +310,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             input_file(args.validation_plant, "--validation-plant")
             validation = io.load_model(args.validation_plant)
     if args.steps is None:
-        args.steps = OWN_PLANT_STEPS if own else PRINTER_STEPS
+        args.steps = DEFAULT_STEPS if own else SHORT_STEPS.get(args.controller, DEFAULT_STEPS)
     bar = progress_bar(args, f"tune {args.controller}", total=args.steps)
     t0 = time.perf_counter()
     try:
