@@ -10,16 +10,20 @@ augmented model has to predict a record it was not fitted on, where only initial
 the surroundings level when no surroundings signal is measured, for every model alike), and for
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
 Significant candidates are ranked by their validation MSE; explanations within the test's resolution
-of the top one are reported as its `rivals`. Combinations are grown greedily from the top one
-(up to `MAX_COMBINED` mechanisms) with any candidate that lowered the validation error on its
-own (significant alone or not: a coupling can show only behind a lag), each addition fitted and
-kept only if it passes the same tests against the smaller model: chosen by validation, not by
-estimation cost.
+of the top one are reported as its `rivals`.
 
-Fitting is per zone (series-parallel form): zone i's model sees its neighbours' and the bed's
-measured temperatures, so all zones and candidates are independent small problems solved
-together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates all
-zones coupled.
+The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
+the bed's measured temperatures, so all zones and candidates are independent small problems
+solved together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates
+all zones coupled. The augmented model is then refitted *jointly* over all zones (coupled
+simulation error, `fitting.fit_joint`: zones interact through their simulated temperatures and
+the fitted exchange), with the surroundings at the record's rest level (its first sample: the
+heaters were off before it) unless both tests demand a fitted level, and grown by forward
+selection (up to `MAX_COMBINED` mechanisms): every other candidate may join, significant alone
+or not (radiation shows only once the surroundings sit at their level, a coupling only behind a
+lag); an addition is kept only if it passes both tests against the smaller joint model, and of
+those that pass the one with the strongest estimation evidence (smallest χ² tail of its
+likelihood ratio) joins.
 """
 
 from __future__ import annotations
@@ -185,25 +189,27 @@ class _JointFits:
     level: float
     neutral: np.ndarray
     u_pad_v: np.ndarray
+    uv: np.ndarray
     n_iter: int
     slots: int
     n_active: int
 
     def setup(self, free: bool, validation: bool = False) -> dict:
         """How a record enters a joint model: surroundings level `ts_level` (°C) and whether an
-        offset is fitted (`ts_free`), the input before the record `u_pad`. Measured surroundings:
-        as the per-zone fits. At rest (the default): the heaters were off before the record and
-        the zones sat at the surroundings, so the level is the first sample's mean zone
-        temperature. Free: the rest level plus a fitted offset, the input before the record its
-        mean."""
-        y = self.yv if validation else self.y
+        offset is fitted (`ts_free`), the input before the record `u_pad`. Measured
+        surroundings: as the per-zone fits. At rest (the default): the estimation record starts
+        with the zones at the surroundings, so the level is its first sample's mean zone
+        temperature, the same room's level on the validation record too, and the input before
+        a record is its first value (off, for a record that starts at rest). Free: each
+        record's first-sample level plus a fitted offset, the input before it its mean."""
         u_mean = self.u_pad_v if validation else np.asarray(self.sh["u_pad"])
         if self.measured:
             return {"ts_level": self.level, "ts_free": 0.0, "u_pad": u_mean}
-        rest = float(y[0].mean())
         if free:
-            return {"ts_level": rest, "ts_free": 1.0, "u_pad": u_mean}
-        return {"ts_level": rest, "ts_free": 0.0, "u_pad": np.zeros_like(u_mean)}
+            return {"ts_level": float((self.yv if validation else self.y)[0].mean()), "ts_free": 1.0,
+                    "u_pad": u_mean}
+        return {"ts_level": float(self.y[0].mean()), "ts_free": 0.0,
+                "u_pad": np.asarray((self.uv if validation else self.sh["u"])[0])}
 
     def start(self, theta, add=None) -> np.ndarray:
         """`theta` with the record groups cleared and the groups of mechanism `add` at their
@@ -577,7 +583,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         js = _JointFits(n=n, lay=lay, y=y, yv=yv, sh=sh_e, ev=ev_e, delay=best_delay,
                         measured=amb is not None, measured_var=measured_var, level=level,
                         neutral=_joint_start(y, u, ts, level if amb is not None else float(y[0].mean()), lay),
-                        u_pad_v=rec_v["u_pad"],
+                        u_pad_v=rec_v["u_pad"], uv=rec_v["u"],
                         n_iter=JOINT_ITER, slots=K + 1,
                         n_active=_joint_active(n, lay, chosen[0], pool))
         aug, added, chosen = _forward_select(js, validate, k_val, chosen[0], pool, fit_of)
