@@ -199,8 +199,9 @@ class _JointFits:
         offset is fitted (`ts_free`), the input before the record `u_pad`. Measured
         surroundings: as the per-zone fits. At rest (the default): the estimation record starts
         with the zones at the surroundings, so the level is its first sample's mean zone
-        temperature, the same room's level on the validation record too, and the input before
-        a record is its first value (off, for a record that starts at rest). Free: each
+        temperature, re-estimated on the validation record from that start (as every model's
+        level is there), and the input before a record is its first value (off, for a record
+        that starts at rest). Free: each
         record's first-sample level plus a fitted offset, the input before it its mean."""
         u_mean = self.u_pad_v if validation else np.asarray(self.sh["u_pad"])
         if self.measured:
@@ -208,7 +209,7 @@ class _JointFits:
         if free:
             return {"ts_level": float((self.yv if validation else self.y)[0].mean()), "ts_free": 1.0,
                     "u_pad": u_mean}
-        return {"ts_level": float(self.y[0].mean()), "ts_free": 0.0,
+        return {"ts_level": float(self.y[0].mean()), "ts_free": float(validation),
                 "u_pad": np.asarray((self.uv if validation else self.sh["u"])[0])}
 
     def start(self, theta, add=None) -> np.ndarray:
@@ -298,7 +299,7 @@ def _forward_select(js, validate, k_val, top, pool, fit_of):
     cur, free, level_test = out[0], False, None
     adds = out[len(models):len(models) + len(pool)]
     if not js.measured:
-        level_test = _judge(out[0], out[1], 1, 1, 1.0)
+        level_test = _judge(out[0], out[1], 1, 1, 0.0)
         if level_test["passed"]:
             cur, free = out[1], True
             adds = js.fit([(js.start(cur["theta"], m), chosen + (m,), True) for m in pool], validate)
