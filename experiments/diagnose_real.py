@@ -61,8 +61,8 @@ WHY = {
              "runs start with the heaters off), and grown by forward selection in that structure: "
              "radiation is tried given lag + exchange and does not pass both tests (validation "
              "Diebold-Mariano and the estimation likelihood ratio on the 10-minute estimation run), so "
-             "it is not added; lag + exchange alone is below the published SAE 840.95. "On the Kuntz-Rawlings PRBS run the exchange (`lateral_conduction`) "
-             "is named. A lamp exponent fits the CACE and Rawlings runs better, but a PWM-driven "
+             "it is not added; lag + exchange alone is below the published SAE 840.95. "
+             "On the Kuntz-Rawlings PRBS run the exchange (`lateral_conduction`) is named. A lamp exponent fits the CACE and Rawlings runs better, but a PWM-driven "
              "resistive heater's power is linear in the duty cycle: it is flagged, not named "
              "(`--actuator resistive-pwm`).",
     "runs": "Code of each row (this session ran out of time): tclab_cace2020 2 heaters with 6b261fe "
