@@ -196,15 +196,12 @@ def import_times() -> list[tuple[str, float]]:
 def run(N: int, families: list[str], seed: int = 0) -> list[dict]:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import identification as B
-    from jthermo.data import from_arrays, save_csv
 
     W = B.load_workloads()
-    est, val = W.make_dataset(N, 6000, seed, 1), W.make_dataset(N, 3000, seed, 2)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for name, d in (("est", est), ("val", val)):
-            save_csv(from_arrays(d["u"], 25.0 + d["y"]), tmp / f"{name}.csv")
+        B.write_default_records(W, N, seed, tmp)
         for fam in families:
             print(f"[fit profile] N={N} {fam} ...", file=sys.stderr, flush=True)
             prof, tm = tmp / f"{fam}.prof.json", tmp / f"{fam}.time"

@@ -359,6 +359,17 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
 # ----------------------------------------------------------------------------- default path
 
 
+def write_default_records(W, N: int, seed: int, folder: Path) -> tuple[dict, dict]:
+    """The default-path W1 records (6000 estimation + 3000 validation samples, absolute °C with
+    the ambient at 25 °C) written as `folder/est.csv` and `folder/val.csv`; returns both."""
+    from jthermo.data import from_arrays, save_csv
+
+    est, val = W.make_dataset(N, 6000, seed, 1), W.make_dataset(N, 3000, seed, 2)
+    for name, d in (("est", est), ("val", val)):
+        save_csv(from_arrays(d["u"], 25.0 + d["y"]), folder / f"{name}.csv")
+    return est, val
+
+
 def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
     automatic orders, in a fresh process with an empty compilation cache (JTHERMO_CACHE_DIR),
@@ -368,16 +379,14 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> lis
     import subprocess
     import tempfile
 
-    from jthermo.data import atomic_write_text, from_arrays, save_csv
+    from jthermo.data import atomic_write_text
 
     rows = []
     for N in Ns:
-        est, val = W.make_dataset(N, 6000, seed, 1), W.make_dataset(N, 3000, seed, 2)
-        truth = W.fit_percent(val["y"], val["y_clean"])
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
-            for name, d in (("est", est), ("val", val)):
-                save_csv(from_arrays(d["u"], 25.0 + d["y"]), tmp / f"{name}.csv")
+            est, val = write_default_records(W, N, seed, tmp)
+            truth = W.fit_percent(val["y"], val["y_clean"])
             for fam in families:
                 print(f"[default path] N={N} {fam} ...", file=sys.stderr, flush=True)
                 js, tm = tmp / f"{fam}.json", tmp / f"{fam}.time"
