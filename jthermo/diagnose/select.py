@@ -59,7 +59,8 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
                                                      "in the duty cycle"},
              "any": {}}
 N_ITER = 25
-#: Levenberg–Marquardt iterations of a joint fit (it starts from `_joint_start`: the separable grid at the surroundings level, mechanisms at their neutral values)
+#: Levenberg–Marquardt iterations of a joint fit (it starts from `_joint_start`: the separable
+#: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
