@@ -2,7 +2,7 @@
 
 The plant is written here (not `jthermo.printer`, not the candidate library's functional forms)
 and every case draws it from its own seed (`SeedSequence([i, 2026, 1414])`, used by no other
-script); nothing in `jthermo.diagnose` was tuned on these records. Zone temperatures $x_i$ (°C),
+script; `--seed-set s` draws a fresh set from `[i, 2026, 1414, s]`); nothing in `jthermo.diagnose` was tuned on these records. Zone temperatures $x_i$ (°C),
 surroundings $T_\\infty(t)$, heater commands $u_j \\in [0, 1]$:
 
 $$\\dot x_i = a_i (T_\\infty - x_i) - c_i\\,\\Delta_i |\\Delta_i|^{1/3} + \\sum_j B_{ij}\\, q_j
@@ -31,6 +31,7 @@ steps of at most 0.05 s.
 
     .venv/bin/python experiments/diagnose_heldout_hard.py [--cases 19] [--first 0] [--max-zones 9]
     .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 12 --max-zones 3 --tag nulls
+    .venv/bin/python experiments/diagnose_heldout_hard.py --seed-set 1 --tag fresh   # score once
     .venv/bin/python experiments/diagnose_heldout_hard.py --pooled   # pool every study's JSON
 
 Writes `experiments/results/diagnose_heldout_hard[_TAG].{md,json}` (after every case): top-1,
@@ -78,9 +79,15 @@ COUNTED = {"null": (), "convection_hT": ("radiative_loss",), "distributed_heater
 SLOW = ("slow_body", "ambient_drift")
 
 
-def draw_case(i: int, kind: str | None = None, max_zones: int = 9) -> dict:
+def case_seed(i: int, seed_set: int = 0) -> np.random.SeedSequence:
+    """Case i's seed: `[i, 2026, 1414]` for the development set (0), `[i, 2026, 1414, s]` for
+    the fresh set s > 0 (records no one looked at while changing the diagnosis)."""
+    return np.random.SeedSequence([i, 2026, 1414] + ([seed_set] if seed_set else []))
+
+
+def draw_case(i: int, kind: str | None = None, max_zones: int = 9, seed_set: int = 0) -> dict:
     """Everything about case i, from its own seed."""
-    rng = np.random.default_rng(np.random.SeedSequence([i, 2026, 1414]))
+    rng = np.random.default_rng(case_seed(i, seed_set))
     kind = kind or KINDS[i % len(KINDS)]
     n = int(rng.integers(1, max_zones + 1))
     if kind == "conduction":
@@ -412,6 +419,8 @@ def main(argv=None):
     ap.add_argument("--only", default=None, help="comma-separated kinds to keep")
     ap.add_argument("--nulls", type=int, default=0, help="run this many null records instead")
     ap.add_argument("--max-zones", type=int, default=9)
+    ap.add_argument("--seed-set", type=int, default=0,
+                    help="0: the development seeds; s > 0: a fresh set (score once, never tune on it)")
     ap.add_argument("--tag", default="")
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--pooled", action="store_true",
@@ -435,14 +444,15 @@ def main(argv=None):
     rows = []
     t0, c0 = time.perf_counter(), cpu_s()
     for i, kind in plan:
-        c = draw_case(i, kind, args.max_zones)
+        c = draw_case(i, kind, args.max_zones, args.seed_set)
         est, val = make_record(c)
         t1, c1 = time.perf_counter(), cpu_s()
         res = to_json(diagnose(est, val))
         named = [f["mechanism"] for f in res["findings"]]
         top = named[0] if named else None
         ok = top is None if kind == "null" else top in COUNTED[kind]
-        rows.append({"case": f"{i:02d}_{kind}", "kind": kind, "zones": c["zones"], "ts": c["ts"],
+        rows.append({"case": f"{i:02d}_{kind}", "kind": kind, "seed_set": args.seed_set,
+                     "zones": c["zones"], "ts": c["ts"],
                      "noise_C": c["noise"], "measured_ambient": c["measured_ambient"],
                      "physics": describe(c), "counted": list(COUNTED[kind]), "named": named, "top": top,
                      "correct": ok, "rivals": res["findings"][0]["rivals"] if named else [],
