@@ -2,7 +2,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench bench-peers clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -20,11 +20,26 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -n 2 --dist loadfile -m "not slow" --durations=15
 
-bench: $(STAMP)
+# The peers (SIPPY, jax-sysid) in their own environment: jax-sysid pins an older JAX than
+# jthermo's, so it cannot share .venv (needs Python <= 3.12).
+PEERS := .venv-peers
+PEERS_PY := $(PEERS)/bin/python
+PEERS_STAMP := $(PEERS)/.installed
+
+$(PEERS_STAMP): benchmarks/requirements-peers.txt
+	python3 -m venv $(PEERS)
+	$(PEERS_PY) -m pip install -q --upgrade pip
+	$(PEERS_PY) -m pip install -q -r benchmarks/requirements-peers.txt
+	touch $(PEERS_STAMP)
+
+bench-peers: $(PEERS_STAMP)
+
+bench: $(STAMP) $(PEERS_STAMP)
 	$(PY) -m pip install -q -e ".[dev,bench]"
-	$(PY) benchmarks/identification.py
+	$(PY) benchmarks/identification.py --peer-python $(PEERS_PY)
+	$(PY) benchmarks/peers_fair.py --peer-python $(PEERS_PY)
 	$(PY) benchmarks/closedloop.py
 	$(PY) benchmarks/tuning.py
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) $(PEERS) runs .pytest_cache

@@ -25,12 +25,10 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import multiprocessing as mp
 import os
 import platform
 import sys
 import time
-import traceback
 from pathlib import Path
 
 # One BLAS thread for every tool (set before NumPy loads; the peers' child processes inherit
@@ -53,6 +51,8 @@ SIPPY_METHOD = {"arx": "ARX", "armax": "ARMAX", "oe": "OE", "bj": "BJ", "n4sid":
 #: workload's definition): the output level at rest is 0, which SIPPY, fitting the raw data,
 #: assumes too. `--estimate-level` makes jthermo estimate it instead (its "rest" default).
 REST_LEVEL = 0.0
+#: the peers' own environment (`make bench-peers`): jax-sysid pins an older JAX than jthermo's
+PEERS_PYTHON = ROOT / ".venv-peers" / "bin" / "python"
 
 
 # ----------------------------------------------------------------------------- workload
@@ -182,28 +182,68 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
                **({} if N <= 4 else {"max_steps": 20, "screen_steps": 5}))
 
 
-def run_jthermo(W, family: str, N: int, est: dict, val: dict) -> dict:
+def timed(fn):
+    """`(fn(), wall s, CPU s)`: CPU = user + system time of this process, all its threads (XLA's
+    compiler threads included); under a shared machine's load the wall time grows, CPU much less."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - t0, time.process_time() - c0
+
+
+def jthermo_child(family: str, N: int, cache: str, warm: bool) -> dict:
+    """One fresh process with the persistent compilation cache at `cache` (what `jthermo fit`
+    uses): the first fit call (`cold_*`, compilation or cache loads included; imports and data
+    excluded), then a second call on the same data (`warm_*`), then the validation fit."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    from jthermo import runtime
     from jthermo.data import from_arrays
+    from jthermo.identify.fit import fit  # noqa: F401 - imported before the clock starts
 
+    runtime.enable_cache(cache)
+    W = load_workloads()
+    est, val = W.estimation_validation(N, T, 0)
     data = from_arrays(est["u"], est["y"])
     row = {"tool": "jthermo", "family": family, "N": N}
+    for key in ("cold", "warm")[:2 if warm else 1]:
+        res, row[f"{key}_s"], row[f"{key}_cpu"] = timed(
+            lambda: jax.block_until_ready(jthermo_fit(family, data, N)))
+    row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
+    row["note"] = "" if res.converged else "not converged"
+    return row
+
+
+def run_child(python: str, args: list[str], timeout: float) -> dict:
+    """Run this script's `--child ...` in a fresh process (`nice -n 5`); its last JSON line."""
+    import subprocess
+
+    cmd = ["nice", "-n", "5", python, str(Path(__file__).resolve()), "--child", *args]
     try:
-        t0 = time.perf_counter()
-        res = jthermo_fit(family, data, N)
-        jax.block_until_ready(res.model)
-        row["cold_s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        res = jthermo_fit(family, data, N)
-        jax.block_until_ready(res.model)
-        row["warm_s"] = time.perf_counter() - t0
-        row["load"] = os.getloadavg()[0]
-        row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
-        row["note"] = "" if res.converged else "not converged"
-    except Exception as exc:  # noqa: BLE001 - a missing or failing family is a row, not a crash
-        row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120]}"
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT,
+                           check=False)
+    except subprocess.TimeoutExpired:
+        return {"error": f"timed out after {timeout:.0f} s"}
+    lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
+    if p.returncode != 0 or not lines:
+        return {"error": (p.stderr.strip().splitlines() or [f"exit {p.returncode}"])[-1][:160]}
+    return json.loads(lines[-1])
+
+
+def run_jthermo(family: str, N: int, timeout: float) -> dict:
+    """Two fresh processes sharing one new cache directory: the first meets an empty cache
+    (cold, then warm), the second the cache the first wrote (`cached_*`: a user's repeat call)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="jthermo-bench-cache-") as cache:
+        level = "zero" if REST_LEVEL == 0.0 else "estimated"
+        row = {"tool": "jthermo", "family": family, "N": N, **run_child(
+            sys.executable, ["jthermo", family, str(N), cache, level, "warm"], timeout)}
+        if "error" not in row:
+            again = run_child(sys.executable, ["jthermo", family, str(N), cache, level, "cold"],
+                              timeout)
+            row.update({"cached_s": again.get("cold_s"), "cached_cpu": again.get("cold_cpu")})
+    row["load"] = os.getloadavg()[0]
     return row
 
 
@@ -248,61 +288,45 @@ def _sippy_sim(model, family: str, u: np.ndarray) -> np.ndarray:
     return _lfilter_sim(model.NUMERATOR, model.DENOMINATOR, u)
 
 
-def _jaxsysid_fit(est: dict, N: int):
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    from jax_sysid.models import LinearModel
-
-    model = LinearModel(N, N, N, feedthrough=False)
-    model.loss(rho_x0=1e-3, rho_th=1e-2)
-    model.optimization(lbfgs_epochs=1000, iprint=-1)
-    model.fit(est["y"], est["u"])
-    return model
+#: a peer fit taking more CPU s than this is called once (its warm time = its cold time: the
+#: peers compile nothing, and SIPPY OE/BJ at N = 16 take minutes per call)
+PEER_WARM_MAX_CPU = 60.0
 
 
-def _peer_child(tool: str, family: str, N: int, queue):
-    """Child process: build the data, fit once (timed), simulate, put the row on `queue`."""
+def peer_child(tool: str, family: str, N: int) -> dict:
+    """One fresh process of the peers' environment: fit (timed), fit again unless the first
+    call took more than `PEER_WARM_MAX_CPU` (warm), simulate the validation record from rest.
+    jax-sysid is configured as its documentation recommends (`peers_fair.SYSID_CONFIGS['doc']`)."""
+    W = load_workloads()
+    est, val = W.estimation_validation(N, T, 0)
     row = {"tool": tool, "family": family, "N": N}
-    try:
-        W = load_workloads()
-        est, val = W.estimation_validation(N, T, 0)
-        if tool == "SIPPY":
-            t0 = time.perf_counter()
-            model = _sippy_fit(family, est, N)
-            row["cold_s"] = time.perf_counter() - t0
-            yhat = _sippy_sim(model, family, val["u"])
-        else:
-            t0 = time.perf_counter()
-            model = _jaxsysid_fit(est, N)
-            row["cold_s"] = time.perf_counter() - t0
-            yhat, _ = model.predict(np.zeros(N), val["u"])
-            yhat = np.asarray(yhat)
-        fitp = W.fit_percent(val["y"], yhat)
-        row["fit"] = fitp if np.isfinite(fitp) else float("-inf")
-        if not np.isfinite(fitp) or np.max(np.abs(yhat)) > 1e6:
-            row["note"] = "unstable simulation"
-    except BaseException as exc:  # noqa: BLE001 - SIPPY calls sys.exit on bad options
-        row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}"
-        row["trace"] = traceback.format_exc(limit=2)[-400:]
+    if tool == "SIPPY":
+        fit_once = (lambda: _sippy_fit(family, est, N))
+    else:
+        from peers_fair import sysid_fit, sysid_sim_from_rest
+
+        fit_once = (lambda: sysid_fit(est, N, "doc"))
+    model, row["cold_s"], row["cold_cpu"] = timed(fit_once)
+    if row["cold_cpu"] <= PEER_WARM_MAX_CPU:
+        model, row["warm_s"], row["warm_cpu"] = timed(fit_once)
+    else:
+        row.update(warm_s=row["cold_s"], warm_cpu=row["cold_cpu"], note="one call")
+    if tool == "SIPPY":
+        yhat = _sippy_sim(model, family, val["u"])
+    else:
+        yhat = sysid_sim_from_rest(*model, val["u"])
+    fitp = W.fit_percent(val["y"], yhat)
+    row["fit"] = fitp if np.isfinite(fitp) else float("-inf")
+    if not np.isfinite(fitp) or np.max(np.abs(yhat)) > 1e6:
+        row["note"] = "unstable simulation"
+    return row
+
+
+def run_peer(python: str, tool: str, family: str, N: int, timeout: float) -> dict:
+    row = {"tool": tool, "family": family, "N": N,
+           **run_child(python, ["peer", tool, family, str(N)], timeout)}
     row["load"] = os.getloadavg()[0]
-    queue.put(row)
-
-
-def run_peer(tool: str, family: str, N: int, timeout: float) -> dict:
-    ctx = mp.get_context("spawn")
-    q = ctx.Queue()
-    p = ctx.Process(target=_peer_child, args=(tool, family, N, q))
-    p.start()
-    p.join(timeout)
-    if p.is_alive():
-        p.terminate()
-        p.join()
-        return {"tool": tool, "family": family, "N": N, "error": f"timed out after {timeout:.0f} s"}
-    try:
-        return q.get(timeout=5)
-    except Exception:  # noqa: BLE001 - the child died without a result
-        return {"tool": tool, "family": family, "N": N, "error": f"child exited with {p.exitcode}"}
+    return row
 
 
 # ----------------------------------------------------------------------------- report
@@ -316,43 +340,67 @@ def _fmt(x, nd=2):
     return f"{x:.{nd}f}" if abs(x) < 1000 else f"{x:.0f}"
 
 
+def _ratio(num, den) -> str:
+    return "—" if num is None or not den else f"{num / den:.1f}×"
+
+
+def _speedups(r: dict, ref: dict | None, unit: str) -> str:
+    """Peer time / jthermo time: cold (empty cache) / cold with the cache warm / warm."""
+    if r["tool"] == "jthermo" or not ref or "cold_" + unit not in r:
+        return "—"
+    return " / ".join(_ratio(r[f"{p}_{unit}"], ref.get(f"{j}_{unit}")) for p, j in
+                      (("cold", "cold"), ("cold", "cached"), ("warm", "warm")))
+
+
 def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
     lines = [
-        "# W1 identification benchmark",
+        "# W1 identification benchmark, fixed orders",
         "",
         f"T = {T} estimation + {T} validation samples; fit % = validation simulation fit from rest "
-        "(mean over outputs); oracle = noise-free truth vs measured. Cold = first call in the process "
-        "(JAX compilation included), warm = second call. Peers: one call each, in a child process "
-        "(time of the fit call only). Speed-up = peer seconds / jthermo warm seconds "
-        "(cold in brackets). OE and BJ: one denominator per output shared by its inputs "
+        "(mean over outputs); oracle = noise-free truth vs measured. Every tool runs in fresh "
+        "processes (`nice -n 5`); times are of the fit call (imports and data excluded), wall s "
+        "and CPU s (user + system of the process, all threads) in brackets. jthermo: **cold** = "
+        "first call in a process with an empty persistent compilation cache (`jthermo.runtime`), "
+        "**cached** = first call of a second process reading the cache the first wrote (a "
+        "user's repeat `jthermo fit`), **warm** = second call in the first process. Peers: cold "
+        "= first call, warm = second call (they compile nothing; one call only where it took "
+        f"more than {PEER_WARM_MAX_CPU:.0f} CPU s: warm = cold). Speed-up = peer s / jthermo s, "
+        "cold / cached / warm (the peer's cold time against jthermo's cold and cached, warm "
+        "against warm), by wall and by CPU s; on the shared machine the CPU ratio is the "
+        "load-robust one. OE and BJ: one denominator per output shared by its inputs "
         "(`common_f=True`, SIPPY's MIMO structure). Output level at rest: "
         + ("estimated by jthermo (`rest_level=None`; SIPPY, fitting the raw data, takes 0). "
            if REST_LEVEL is None else
            "0 °C for ARX/ARMAX/OE/BJ/N4SID (`rest_level=0`: W1's outputs are °C above ambient "
            "and start at ambient, which SIPPY assumes too by fitting the raw data). ")
         + "N4SID = subspace estimate only (order N, 20 block rows); SS = N4SID start + PEM "
-        "of the simulation error (order N; MATLAB `ssest` with focus simulation), compared with "
-        "jax-sysid's SS fit (also a simulation-error fit). Load = 1-minute load average when the "
-        "row finished (2-core machine shared with other jobs). Every tool runs with one BLAS "
+        "of the simulation error (order N; MATLAB `ssest` with focus simulation), against "
+        "jax-sysid's simulation-error fit configured as its documentation recommends (scaled "
+        "data, rho_th 1e-2, rho_x0 1e-3, 1000 L-BFGS epochs; `benchmarks/peers_fair.py` 'doc'). "
+        "Peers run in their own environment (`make bench-peers`: "
+        "`benchmarks/requirements-peers.txt`). Load = 1-minute load average when the row "
+        "finished (2-core machine shared with other jobs). Every tool runs with one BLAS "
         "thread (OPENBLAS_NUM_THREADS=1).",
         "",
         f"Machine: {meta['machine']}; {meta['date']}; command: `{meta['command']}`",
         "",
-        "| family | N | tool | cold s | warm s | fit % | oracle % | speed-up vs jthermo | load | note |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        ("| family | N | tool | cold s (CPU) | cached s (CPU) | warm s (CPU) | fit % | oracle % "
+         "| speed-up by wall, cold / cached / warm | by CPU s | load | note |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     jt = {(r["family"], r["N"]): r for r in rows if r["tool"] == "jthermo"}
+
+    def cell(r, key):
+        return f"{_fmt(r.get(key + '_s'))} ({_fmt(r.get(key + '_cpu'))})"
+
     for r in rows:
-        key = (r["family"], r["N"])
+        ref = jt.get((r["family"], r["N"]))
         note = r.get("error", r.get("note", ""))
-        speed = "—"
-        ref = jt.get(key)
-        if r["tool"] != "jthermo" and ref and "warm_s" in ref and "cold_s" in r:
-            speed = f"{r['cold_s'] / ref['warm_s']:.1f}× ({r['cold_s'] / ref['cold_s']:.1f}×)"
-        warm = r.get("warm_s") if r["tool"] == "jthermo" else r.get("cold_s")
-        lines.append(f"| {r['family'].upper()} | {r['N']} | {r['tool']} | {_fmt(r.get('cold_s'))} | "
-                     f"{_fmt(warm)} | {_fmt(r.get('fit'), 1)} | {_fmt(oracle[r['N']], 1)} | {speed} | "
-                     f"{_fmt(r.get('load'), 1)} | {note} |")
+        cached = cell(r, "cached") if r["tool"] == "jthermo" else "—"
+        lines.append(f"| {r['family'].upper()} | {r['N']} | {r['tool']} | {cell(r, 'cold')} | "
+                     f"{cached} | {cell(r, 'warm')} | {_fmt(r.get('fit'), 1)} | "
+                     f"{_fmt(oracle[r['N']], 1)} | {_speedups(r, ref, 's')} | "
+                     f"{_speedups(r, ref, 'cpu')} | {_fmt(r.get('load'), 1)} | {note} |")
     return "\n".join(lines) + "\n"
 
 
@@ -439,7 +487,10 @@ def main(argv=None) -> int:
     ap.add_argument("--peers", choices=("none", "sippy", "all"), default="all")
     ap.add_argument("--n", type=int, nargs="+", default=None, help="zone counts (default 4 16)")
     ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
-    ap.add_argument("--peer-timeout", type=float, default=900.0, help="s per peer fit")
+    ap.add_argument("--peer-timeout", type=float, default=900.0, help="s per child process")
+    ap.add_argument("--peer-python", default=str(PEERS_PYTHON),
+                    help="python of the peers' environment (`make bench-peers`)")
+    ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     ap.add_argument("--peer-families", nargs="+", default=list(FAMILIES), choices=FAMILIES,
                     help="families the peers are run for (SIPPY OE/BJ are slow)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
@@ -450,19 +501,28 @@ def main(argv=None) -> int:
                     help="time `jthermo fit` with automatic orders from the shell (cold), per --n "
                     "and --families; writes results/identification_default_n<N>.md/.json")
     args = ap.parse_args(argv)
+    global REST_LEVEL
+    if args.child:   # jthermo FAMILY N CACHE zero|estimated warm|cold, or peer TOOL FAMILY N
+        kind, *rest = args.child
+        if kind == "jthermo":
+            REST_LEVEL = 0.0 if rest[3] == "zero" else None
+            row = jthermo_child(rest[0], int(rest[1]), rest[2], warm=rest[4] == "warm")
+        else:
+            row = peer_child(rest[0], rest[1], int(rest[2]))
+        print(json.dumps(row), flush=True)
+        return 0
     if args.default_path:
         fams = [f for f in args.families if f != "n4sid"]
         for N in args.n or [4]:
             default_path(load_workloads(), [N], fams,
                          out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}.md")
         return 0
-    global REST_LEVEL
     if args.estimate_level:
         REST_LEVEL = None
     Ns = args.n or ([4] if args.quick else [4, 16])
     W = load_workloads()
     rows, oracle = [], {}
-    meta = {"machine": f"{platform.machine()}, {mp.cpu_count()} CPU cores, {platform.python_version()}",
+    meta = {"machine": f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}",
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "command": "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
     from jthermo.data import atomic_write_text
@@ -476,22 +536,23 @@ def main(argv=None) -> int:
                                                     indent=1))
 
     for N in Ns:
-        est, val = W.estimation_validation(N, T, 0)
+        _, val = W.estimation_validation(N, T, 0)
         oracle[N] = W.fit_percent(val["y"], val["y_clean"])
         for fam in args.families:
             print(f"[W1] N={N} {fam}: jthermo ...", file=sys.stderr, flush=True)
-            rows.append(run_jthermo(W, fam, N, est, val))
+            rows.append(run_jthermo(fam, N, args.peer_timeout))
             save()
             if args.peers in ("sippy", "all") and fam in SIPPY_METHOD:
                 if (args.quick and fam in ("oe", "bj")) or fam not in args.peer_families:
                     rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped"})
                 else:
                     print(f"[W1] N={N} {fam}: SIPPY ...", file=sys.stderr, flush=True)
-                    rows.append(run_peer("SIPPY", fam, N, args.peer_timeout))
+                    rows.append(run_peer(args.peer_python, "SIPPY", fam, N, args.peer_timeout))
                     save()
             if args.peers == "all" and fam == "ss" and fam in args.peer_families:
                 print(f"[W1] N={N} ss: jax-sysid ...", file=sys.stderr, flush=True)
-                rows.append(run_peer("jax-sysid", fam, N, args.peer_timeout))
+                rows.append(run_peer(args.peer_python, "jax-sysid", fam, N,
+                                     args.peer_timeout))
                 save()
     save()
     print(markdown(rows, oracle, meta))

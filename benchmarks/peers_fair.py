@@ -16,11 +16,12 @@ jax-sysid (`LinearModel(N, N, N)`, L-BFGS on the simulation error), configured a
 earlier benchmark (unscaled data, "unscaled") and variants searched for its best fit (weaker
 regularisation, more L-BFGS epochs, a few seeds). Its second call re-initialises the same model
 object and fits again (jax-sysid builds its jitted functions inside `fit`, so it recompiles).
-jax-sysid 1.1.0 pins jax <= 0.4.31: it runs in its own environment (`--peer-python`), jthermo in
+jax-sysid 1.1.0 pins jax <= 0.4.31: it runs in its own environment (`--peer-python`, default `.venv-peers`), jthermo in
 the project's (jax 0.10): each tool on the JAX its authors support.
 
 Usage:
-    python benchmarks/peers_fair.py --peer-python PATH/TO/venv-with-jax-sysid/bin/python
+    make bench-peers   # .venv-peers from benchmarks/requirements-peers.txt (once)
+    python benchmarks/peers_fair.py [--peer-python .venv-peers/bin/python]
         [--n 4 16] [--configs doc unscaled ...] [--out benchmarks/results/peers_fair]
     python benchmarks/peers_fair.py --from-log LOG   # the table of the rows a run printed
 """
@@ -32,7 +33,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -63,8 +63,9 @@ def _data(N: int):
     return W, est, val, oracle
 
 
-def _sysid_fit(est: dict, N: int, config: str, model=None):
-    """One jax-sysid fit: returns (model, scaling, fit seconds)."""
+def sysid_fit(est: dict, N: int, config: str) -> tuple:
+    """One jax-sysid fit (every seed of `config`, the best estimation MSE kept): returns
+    (model, scaling); `identification.timed` or `child` time it."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -78,7 +79,6 @@ def _sysid_fit(est: dict, N: int, config: str, model=None):
         U, umean, ugain = standard_scale(U)
     else:
         ymean, ygain, umean, ugain = np.zeros(N), np.ones(N), np.zeros(N), np.ones(N)
-    t0 = time.perf_counter()
     best = None
     for seed in seeds:
         m = LinearModel(N, N, N, feedthrough=False, seed=seed)
@@ -89,10 +89,10 @@ def _sysid_fit(est: dict, N: int, config: str, model=None):
         mse = float(np.mean((np.asarray(yhat) - Y) ** 2))
         if best is None or mse < best[0]:
             best = (mse, m)
-    return best[1], (ymean, ygain, umean, ugain), time.perf_counter() - t0
+    return best[1], (ymean, ygain, umean, ugain)
 
 
-def _sysid_sim_from_rest(model, scaling, u: np.ndarray) -> np.ndarray:
+def sysid_sim_from_rest(model, scaling, u: np.ndarray) -> np.ndarray:
     """Simulate the (scaled) jax-sysid model from rest at u = 0, unscaled output."""
     ymean, ygain, umean, ugain = scaling
     A, B, C, _ = (np.asarray(m) for m in model.ssdata())
@@ -106,14 +106,15 @@ def _sysid_sim_from_rest(model, scaling, u: np.ndarray) -> np.ndarray:
 
 
 def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
-    """One fresh process: cold call, warm call (unless not `warm`), validation fit from rest."""
+    """One fresh process: cold call, warm call (unless not `warm`), validation fit from rest.
+    `*_s` wall, `*_cpu` user + system CPU s of the process (all threads) around the fit call."""
+    from identification import timed
+
     W, est, val, oracle = _data(N)
-    row = {"tool": tool, "config": config, "N": N, "oracle": oracle, "warm_s": None}
+    row = {"tool": tool, "config": config, "N": N, "oracle": oracle, "warm_s": None,
+           "warm_cpu": None}
     if tool == "jax-sysid":
-        model, scaling, row["cold_s"] = _sysid_fit(est, N, config)
-        if warm:
-            model, scaling, row["warm_s"] = _sysid_fit(est, N, config)
-        yhat = _sysid_sim_from_rest(model, scaling, val["u"])
+        fit_once = (lambda: sysid_fit(est, N, config))
     else:
         import jax
 
@@ -124,11 +125,12 @@ def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
         from jthermo.identify.fit import fit
 
         data = from_arrays(est["u"], est["y"])
-        for key in ("cold_s", "warm_s")[:2 if warm else 1]:
-            t0 = time.perf_counter()
-            res = fit(data, "ss", (N,), seed=0)
-            jax.block_until_ready(res.model)
-            row[key] = time.perf_counter() - t0
+        fit_once = (lambda: jax.block_until_ready(fit(data, "ss", (N,), seed=0)))
+    for key in ("cold", "warm")[:2 if warm else 1]:
+        res, row[f"{key}_s"], row[f"{key}_cpu"] = timed(fit_once)
+    if tool == "jax-sysid":
+        yhat = sysid_sim_from_rest(*res, val["u"])
+    else:
         row["converged"] = bool(res.converged)
         yhat = simulate_from_rest(res.model, val["u"])
     fitp = W.fit_percent(val["y"], yhat)
@@ -138,7 +140,8 @@ def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
 
 
 def run_child(python: str, tool: str, config: str, N: int, timeout: float) -> dict:
-    cmd = [python, str(Path(__file__).resolve()), "--child", tool, config, str(N)]
+    cmd = ["nice", "-n", "5", python, str(Path(__file__).resolve()), "--child", tool, config,
+           str(N)]
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT,
                            check=False)
@@ -159,37 +162,45 @@ def report(rows: list[dict], args, uptime: str) -> list[str]:
              "jax <= 0.4.31; jthermo on jax 0.10). W1 records of `identification.py`, T = 6000 + "
              "6000, fit % = validation simulation from rest. One fresh process per row: cold = "
              "first fit call (compilation included), warm = second call in that process. "
-             "Speed-up = jax-sysid s / jthermo s, cold / warm. Shared 2-core machine (load1 at "
+             "Speed-up = jax-sysid s / jthermo s, cold / warm, by wall and by CPU s (user + system "
+             "of the process, all threads; the load-robust figure). Children run with `nice -n "
+             "5`. Shared 2-core machine (load1 at "
              f"the end of each row; wall times inflated by the load); uptime "
              f"{'when rendered from the run log' if args.from_log else 'at the end'}: `{uptime}`."),
              "" if not args.from_log else
              f"Rendered with `--from-log {Path(args.from_log).name}`: the rows of that log only (a "
              "configuration absent at some N was not run there; warm `—`: the child ran with "
              "`--cold-only`).",
-             "", "| N | tool | configuration | cold s | warm s | fit % | oracle % | speed-up cold / warm | load1 |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "", ("| N | tool | configuration | cold s (CPU s) | warm s (CPU s) | fit % | oracle % "
+                  "| speed-up cold / warm, wall | by CPU s | load1 |"),
+             "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def ratio(r, ref, unit):
+        return " / ".join("—" if r.get(f"{k}_{unit}") is None or not ref.get(f"{k}_{unit}")
+                          else f"{r[f'{k}_{unit}'] / ref[f'{k}_{unit}']:.1f}×"
+                          for k in ("cold", "warm"))
+
     for r in rows:
         ref = next((q for q in rows if q["tool"] == "jthermo" and q["N"] == r["N"]
                     and "cold_s" in q), None)
-        speed = "—"
-        if r["tool"] != "jthermo" and ref and "cold_s" in r:
-            speed = f"{r['cold_s'] / ref['cold_s']:.1f}× / " + (
-                "—" if r["warm_s"] is None else f"{r['warm_s'] / ref['warm_s']:.1f}×")
         if "error" in r:
             lines.append(f"| {r['N']} | {r['tool']} | {r['config']} | — | — | — | — | "
-                         f"{r['error']} | — |")
+                         f"{r['error']} | — | — |")
             continue
-        lines.append(f"| {r['N']} | {r['tool']} | {r['config']} | {f(r['cold_s'])} | "
-                     f"{f(r['warm_s'])} | {f(r['fit'])} | {f(r['oracle'])} | {speed} | "
-                     f"{r['load1']:.1f} |")
+        speed = cpu = "—"
+        if r["tool"] != "jthermo" and ref:
+            speed, cpu = ratio(r, ref, "s"), ratio(r, ref, "cpu")
+        lines.append(f"| {r['N']} | {r['tool']} | {r['config']} | {f(r['cold_s'])} "
+                     f"({f(r.get('cold_cpu'))}) | {f(r['warm_s'])} ({f(r.get('warm_cpu'))}) | "
+                     f"{f(r['fit'])} | {f(r['oracle'])} | {speed} | {cpu} | {r['load1']:.1f} |")
     return lines
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--child", nargs=3, metavar=("TOOL", "CONFIG", "N"), help=argparse.SUPPRESS)
-    ap.add_argument("--peer-python", default=sys.executable,
-                    help="python of an environment with jax-sysid installed")
+    ap.add_argument("--peer-python", default=str(ROOT / ".venv-peers" / "bin" / "python"),
+                    help="python of an environment with jax-sysid installed (`make bench-peers`)")
     ap.add_argument("--n", type=int, nargs="+", default=[4, 16])
     ap.add_argument("--configs", nargs="+", default=["doc", "unscaled"],
                     choices=sorted(SYSID_CONFIGS))
