@@ -34,27 +34,45 @@ class ARXResult(eqx.Module):
     cost: Float[Array, ""]             # mean squared one-step prediction error
 
 
-def arx_regressors(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int,
-                   nk=1, *, full_a: bool = False) -> np.ndarray:
-    """Regressor matrices $\\Phi_i$ of every output row, `(ny, T, m·na + nu·nb)` (NumPy:
-    copies of lagged samples, exact, and nothing to compile once per candidate order)."""
-    y = np.asarray(y)
-    u = np.asarray(u)
+def lag_pool(y, u, na: int, L: int) -> np.ndarray:
+    """Every column an ARX regression of orders up to `na`, `L` can use, `(T, k)` (NumPy):
+    $-y_l(t-k)$ for each output l and k = 1..na (`ny·na`, output-major), $u_j(t-k)$ for each
+    input j and k = 0..L (`nu·(L+1)`, input-major), the outputs $y_i(t)$ (`ny`) and a
+    constant; samples before t = 0 are zero. Column positions: `pool_index`."""
+    y = np.asarray(y, np.float64)
+    u = np.asarray(u, np.float64)
     T, ny = y.shape
-    nu = u.shape[1]
-    nkt = as_nk(nk, ny, nu)
-    L = max(max(r) for r in nkt) + max(nb, 1) - 1
-    Yl = -_lagged(y, na)[:, :, 1:]                                       # (T, ny, na)
-    Ul = _lagged(u, L)                                                   # (T, nu, L+1)
-    Ub = np.empty((ny, T, nu, nb), np.result_type(u, y))
-    for i in range(ny):
-        for j in range(nu):
-            Ub[i, :, j, :] = Ul[:, j, nkt[i][j]:nkt[i][j] + nb]
-    if full_a or ny == 1:
-        Ya = np.broadcast_to(Yl.reshape(T, ny * na)[None], (ny, T, ny * na))
-    else:
-        Ya = np.moveaxis(Yl, 1, 0)                                       # (ny, T, na)
-    return np.concatenate([Ya, Ub.reshape(ny, T, nu * nb)], axis=2)
+    Yl = -_lagged(y, na)[:, :, 1:].reshape(T, ny * na)
+    Ul = _lagged(u, L).reshape(T, u.shape[1] * (L + 1))
+    return np.concatenate([Yl, Ul, y, np.ones((T, 1))], axis=1)
+
+
+def pool_index(ny: int, nu: int, na: int, L: int) -> dict[str, np.ndarray]:
+    """Column positions in `lag_pool(y, u, na, L)`: `ylag[l, k-1]`, `ulag[j, k]`, `y[i]`,
+    `one`."""
+    nya = ny * na
+    return {"ylag": np.arange(nya).reshape(ny, na),
+            "ulag": nya + np.arange(nu * (L + 1)).reshape(nu, L + 1),
+            "y": nya + nu * (L + 1) + np.arange(ny), "one": nya + nu * (L + 1) + ny}
+
+
+def pool_r(pool: np.ndarray, n0: int) -> np.ndarray:
+    """R of the QR factorisation of the pool's rows `n0..T-1`, `(k, k)`.
+
+    With $X = QR$ every regression among the pool's columns, $\\min_\\theta \\|X_S\\theta -
+    x_t\\|$, is the same problem on $R$: $\\|X_S\\theta - x_t\\| = \\|R_S\\theta - r_t\\|$ ($Q$ has
+    orthonormal columns), so one factorisation serves every output, candidate order and
+    residual cross-product, and each solve is a `(k, p)` problem instead of a `(T, p)` one."""
+    return np.linalg.qr(pool[n0:], mode="r")
+
+
+def pool_lstsq(R: np.ndarray, cols, target: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares of pool column `target` on pool columns `cols` from `pool_r`'s R:
+    `(theta, r)` with `r` the residual in R's coordinates ($\\|r\\|$ is the residual norm and
+    $r_i^\\top r_j$ the residual cross-product of two such regressions over the same rows)."""
+    A = R[:, cols]
+    theta = np.linalg.lstsq(A, R[:, target], rcond=None)[0]
+    return theta, R[:, target] - A @ theta
 
 
 def _lagged(x: np.ndarray, L: int) -> np.ndarray:
@@ -64,23 +82,20 @@ def _lagged(x: np.ndarray, L: int) -> np.ndarray:
     return np.stack([xp[L - l:L - l + T] for l in range(L + 1)], axis=-1)
 
 
-def _solve(Phi, Y, n0, offset):
-    """Per-output least squares on rows `n0..T-1` (NumPy: a closed-form problem, solved in
-    milliseconds, that would otherwise compile once per candidate order)."""
-    Phi = np.asarray(Phi, np.float64)
-    Y = np.asarray(Y, np.float64)
-    if offset:
-        Phi = np.concatenate([Phi, np.ones(Phi.shape[:2] + (1,))], axis=2)
+def _solve(R, cols, targets, n_rows):
+    """Per-output least squares on the pooled rows (`pool_r`): `theta (ny, p)`, covariance
+    $\\hat\\sigma_i^2 (\\Phi_i^\\top\\Phi_i)^+$ `(ny, p, p)` and residual sums of squares `(ny,)`
+    (NumPy: closed-form problems, solved in milliseconds, that would otherwise compile once
+    per candidate order)."""
     thetas, covs, rsss = [], [], []
-    for P, yi in zip(Phi, Y.T):
-        P, yi = P[n0:], yi[n0:]
-        theta = np.linalg.lstsq(P, yi, rcond=None)[0]
-        r = yi - P @ theta
-        T, p = P.shape
-        sigma2 = np.sum(r**2) / max(T - p, 1)
+    for c, t in zip(cols, targets):
+        theta, r = pool_lstsq(R, c, t)
+        A = R[:, c]
+        rss = float(r @ r)
+        sigma2 = rss / max(n_rows - len(c), 1)
         thetas.append(theta)
-        covs.append(sigma2 * np.linalg.pinv(P.T @ P, hermitian=True))
-        rsss.append(np.sum(r**2))
+        covs.append(sigma2 * np.linalg.pinv(A.T @ A, hermitian=True))
+        rsss.append(rss)
     return np.stack(thetas), np.stack(covs), np.asarray(rsss)
 
 
@@ -111,15 +126,24 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
         raise ModelError(f"arx_ls: impossible orders na={na}, nb={nb}")
     ny, nu = y.shape[1], u.shape[1]
     m = ny if (full_a and ny > 1) else 1
-    Phi = arx_regressors(y, u, na, nb, nk, full_a=full_a)
-    n0 = first_row(na, nb, as_nk(nk, ny, nu))
-    n_par = Phi.shape[2] + int(bool(offset))
+    nkt = as_nk(nk, ny, nu)
+    n0 = first_row(na, nb, nkt)
+    n_par = m * na + nu * nb + int(bool(offset))
     if y.shape[0] - n0 <= n_par:
         raise DataError(f"arx_ls: {y.shape[0]} samples are too few for {n_par} parameters "
                          "per output")
-    # the solve and the small post-processing run in NumPy: jitted or eager jnp ops would
-    # compile once per shape, which dominated order searches over many candidate (na, nb)
-    theta, cov, rss = _solve(Phi, y, n0, bool(offset))
+    # one QR of every lagged column serves all outputs (`pool_r`); the solves and the small
+    # post-processing run in NumPy: jitted or eager jnp ops would compile once per shape,
+    # which dominated order searches over many candidate (na, nb)
+    L = max(max(r) for r in nkt) + max(nb, 1) - 1
+    ix = pool_index(ny, nu, na, L)
+    R = pool_r(lag_pool(y, u, na, L), n0)
+    cols = [np.concatenate([ix["ylag"][:m].ravel() if m == ny else ix["ylag"][i],
+                            np.concatenate([ix["ulag"][j, nkt[i][j]:nkt[i][j] + nb]
+                                            for j in range(nu)]) if nb else np.zeros(0, int),
+                            [ix["one"]] if offset else np.zeros(0, int)]).astype(int)
+            for i in range(ny)]
+    theta, cov, rss = _solve(R, cols, ix["y"], y.shape[0] - n0)
     p = m * na + nu * nb
     a = theta[:, :m * na].reshape(ny, m, na)
     b = theta[:, m * na:p].reshape(ny, nu, nb)
@@ -152,4 +176,5 @@ def perturb_starts(theta0: np.ndarray, n_starts: int, seed: int, scale: float = 
     return np.concatenate([base, pert], axis=-2)
 
 
-__all__ = ["ARXResult", "arx_ls", "arx_regressors", "first_row", "perturb_starts"]
+__all__ = ["ARXResult", "arx_ls", "first_row", "lag_pool", "perturb_starts", "pool_index",
+           "pool_lstsq", "pool_r"]

@@ -30,6 +30,7 @@ from scipy.signal import lfilter
 from ..data import IOData, require_excitation
 from ..errors import ConfigError, FitError, ModelError
 from ..families import ORDER_NAMES
+from .arx import lag_pool, pool_index, pool_lstsq, pool_r
 from .orders import CRITERIA, estimate_delays
 
 #: screening candidates per order name
@@ -42,9 +43,10 @@ SM_STEPS = 4
 CLOSE = 4.0
 
 
-def _criterion(e: np.ndarray, p: int, criterion: str) -> float:
-    N = e.shape[0]
-    sign, logdet = np.linalg.slogdet(e.T @ e / N)
+def _criterion(S: np.ndarray, N: int, p: int, criterion: str) -> float:
+    """AIC / BIC / FPE (log scale) from the residual cross-product $S = \\sum_t e e^\\top$ over
+    N samples."""
+    sign, logdet = np.linalg.slogdet(S / N)
     if sign <= 0 or not np.isfinite(logdet) or p >= N:
         return float("inf")
     if criterion == "aic":
@@ -55,36 +57,67 @@ def _criterion(e: np.ndarray, p: int, criterion: str) -> float:
     return float(N * (logdet + np.log((1 + p / N) / (1 - p / N))))
 
 
-def _arx(y: np.ndarray, u: np.ndarray, na: int, nb: int, nk: int, prefilter=None):
+def _gram(e: np.ndarray) -> tuple[np.ndarray, int]:
+    return e.T @ e, e.shape[0]
+
+
+def _arx(y: np.ndarray, u: np.ndarray, na: int, nb: int, nk: int, prefilter=None, pools=None):
     """Least-squares ARX with a constant per output (diagonal A): `a (ny, na)`, `bl (ny, nu,
-    nk+nb)` lag coefficients, `c (ny,)`, one-step residuals `(T - n0, ny)`. `prefilter (ny,
-    n)`: each row's data filtered by $1/A_i$ first (a Steiglitz–McBride step)."""
+    nk+nb)` lag coefficients, `c (ny,)`, and the one-step residuals' cross-product `(ny, ny)`
+    with their number `T - n0`. `prefilter (ny, n)`: each row's data filtered by $1/A_i$ first
+    (a Steiglitz–McBride step). Without one, every output and candidate shares one QR of the
+    lagged columns (`arx.pool_r`; `pools` caches it across candidates of a grid)."""
     T, ny = y.shape
     nu = u.shape[1]
     L = nk + nb - 1
     n0 = max(na, L)
-    uf = [u] * ny
-    if prefilter is not None:
-        uf = [lfilter([1.0], np.concatenate([[1.0], prefilter[i]]), u, axis=0) for i in range(ny)]
-        y = np.stack([lfilter([1.0], np.concatenate([[1.0], prefilter[i]]), y[:, i])
-                      for i in range(ny)], axis=1)
+    if prefilter is None:
+        return _arx_pooled(y, u, na, nb, nk, n0, {} if pools is None else pools)
     a = np.zeros((ny, na))
     bl = np.zeros((ny, nu, L + 1))
     c = np.zeros(ny)
     res = np.empty((T - n0, ny))
     for i in range(ny):
-        ulag = np.stack([uf[i][n0 - l:T - l] for l in range(nk, L + 1)], axis=2).reshape(T - n0, nu * nb)
-        ylag = np.stack([-y[n0 - k:T - k, i] for k in range(1, na + 1)], axis=1) if na else \
+        den = np.concatenate([[1.0], prefilter[i]])
+        uf = lfilter([1.0], den, u, axis=0)
+        yf = lfilter([1.0], den, y[:, i])
+        ulag = np.stack([uf[n0 - l:T - l] for l in range(nk, L + 1)], axis=2).reshape(T - n0, nu * nb)
+        ylag = np.stack([-yf[n0 - k:T - k] for k in range(1, na + 1)], axis=1) if na else \
             np.zeros((T - n0, 0))
-        one = np.ones(T) if prefilter is None else \
-            lfilter([1.0], np.concatenate([[1.0], prefilter[i]]), np.ones(T))
+        one = lfilter([1.0], den, np.ones(T))
         Phi = np.concatenate([ylag, ulag, one[n0:, None]], axis=1)
-        theta = np.linalg.lstsq(Phi, y[n0:, i], rcond=None)[0]
-        res[:, i] = y[n0:, i] - Phi @ theta
+        theta = np.linalg.lstsq(Phi, yf[n0:], rcond=None)[0]
+        res[:, i] = yf[n0:] - Phi @ theta
         a[i] = theta[:na]
         bl[i, :, nk:] = theta[na:na + nu * nb].reshape(nu, nb)
         c[i] = theta[-1]
-    return a, bl, c, res
+    return (a, bl, c) + _gram(res)
+
+
+def _arx_pooled(y, u, na, nb, nk, n0, pools):
+    """`_arx` without a prefilter from the pooled QR; `pools` holds `(orders, pool)` and one R
+    per first row n0. The pool is kept when a later candidate's lags fit in it."""
+    T, ny = y.shape
+    nu = u.shape[1]
+    L = nk + nb - 1
+    key = pools.get("orders")
+    if key is None or key[0] < na or key[1] < L:
+        key = (max(na, SCREEN_GRID["na"][-1]), max(L, nk + SCREEN_GRID["nb"][-1] - 1))
+        pools.clear()
+        pools.update(orders=key, pool=lag_pool(y, u, *key))
+    if n0 not in pools:
+        pools[n0] = pool_r(pools["pool"], n0)
+    ix = pool_index(ny, nu, *key)
+    R = pools[n0]
+    a, bl, c = np.zeros((ny, na)), np.zeros((ny, nu, L + 1)), np.zeros(ny)
+    r = np.empty((R.shape[0], ny))
+    for i in range(ny):
+        cols = np.concatenate([ix["ylag"][i, :na], ix["ulag"][:, nk:L + 1].ravel(), [ix["one"]]])
+        theta, r[:, i] = pool_lstsq(R, cols, ix["y"][i])
+        a[i] = theta[:na]
+        bl[i, :, nk:] = theta[na:na + nu * nb].reshape(nu, nb)
+        c[i] = theta[-1]
+    return a, bl, c, r.T @ r, T - n0
 
 
 def _simulate(a: np.ndarray, bl: np.ndarray, c: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -103,7 +136,7 @@ def _stable(a: np.ndarray) -> bool:
 
 def _noise_free_response(y, u, nk):
     for n in HIGH_ORDERS:
-        a, bl, c, _ = _arx(y, u, n, n, nk)
+        a, bl, c, _, _ = _arx(y, u, n, n, nk)
         if _stable(a):
             yh = _simulate(a, bl, c, u)
             if np.all(np.isfinite(yh)):
@@ -161,31 +194,33 @@ def screen_orders(data: IOData, family: str, *, criterion: str = "aic", nk: int 
     ny, nu = y.shape[1], u.shape[1]
     table: list[dict] = []
     if family == "arx":
+        pools: dict = {}
         for na, nb in itertools.product(g["na"], g["nb"]):
             if na == 0 and nb == 0:
                 continue
-            _, _, _, e = _arx(y, u, na, nb, nk)
+            *_, S, N = _arx(y, u, na, nb, nk, pools=pools)
             p = ny * (na + nu * nb + 1)
             table.append(_row({"na": na, "nb": nb, "nk": nk}, family, p,
-                              _criterion(e, p, criterion), criterion, "arx"))
+                              _criterion(S, N, p, criterion), criterion, "arx"))
         return _choose(table, family, criterion, close), table
     yh = _noise_free_response(y, u, nk)
     den = "na" if family == "armax" else "nf"
     per_f = 1 if family == "armax" else nu
     best = None
+    pools = {}
     for n_den, nb in itertools.product(g[den], g["nb"]):
         if n_den < 1 or nb < 1:
             continue
-        a, bl, c, _ = _arx(yh, u, n_den, nb, nk)
+        a, bl, c, _, _ = _arx(yh, u, n_den, nb, nk, pools=pools)
         for _ in range(SM_STEPS):     # towards the output-error estimate of yh
             if not _stable(a):
                 break
-            a, bl, c, _ = _arx(yh, u, n_den, nb, nk, prefilter=a)
+            a, bl, c, _, _ = _arx(yh, u, n_den, nb, nk, prefilter=a)
         if not _stable(a):
             continue
         e = y - _simulate(a, bl, c, u)
         p = ny * (per_f * n_den + nu * nb + 1)
-        row = _row({den: n_den, "nb": nb, "nk": nk}, family, p, _criterion(e, p, criterion),
+        row = _row({den: n_den, "nb": nb, "nk": nk}, family, p, _criterion(*_gram(e), p, criterion),
                    criterion, "deterministic")
         table.append(row)
         if best is None or row[criterion] < best[0][criterion]:
@@ -211,7 +246,8 @@ def screen_orders(data: IOData, family: str, *, criterion: str = "aic", nk: int 
         p = ny * (nc + nd)
         o = {n: row[n] for n in ORDER_NAMES[family] if n in row}
         o.update(nc=nc, **({"nd": nd} if family == "bj" else {}))
-        noise_rows.append(_row(o, family, p, _criterion(e, p, criterion), criterion, "noise"))
+        noise_rows.append(_row(o, family, p, _criterion(*_gram(e), p, criterion), criterion,
+                               "noise"))
     table.extend(noise_rows)
     det_close = [r for r in det if r is not row and r[criterion] - row[criterion] < close]
     chosen = _choose(noise_rows, family, criterion, close)
