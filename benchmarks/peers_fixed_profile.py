@@ -23,7 +23,6 @@ import argparse
 import json
 import logging
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -39,19 +38,6 @@ import identification as B
 #: stages of the in-process fit (the CLI's stages of `fit_profile.STAGES` are not called here)
 STAGES = [s for s in fit_profile.STAGES if not s[0].startswith("jthermo.cli")]
 ORDER = ["operating point", "ARX", "PEM", "guard", "fit (rest)"]
-
-
-class CompileNames(logging.Handler):
-    """Names of the functions JAX compiles or loads (`jax_log_compiles`), per open stage."""
-
-    def __init__(self, prof):
-        super().__init__(logging.DEBUG)
-        self.prof = prof
-
-    def emit(self, record):
-        m = re.match(r"Compiling (\S+)", record.getMessage())
-        if m:
-            self.prof.compiled[self.prof.stack[-1]][m.group(1)] += 1
 
 
 def child(family: str, N: int, cache: str, out: Path) -> None:
@@ -77,7 +63,7 @@ def child(family: str, N: int, cache: str, out: Path) -> None:
     fit_call = prof.wrap(B.jthermo_fit, "fit (rest)")
     jax.config.update("jax_log_compiles", True)
     for lg in ("jax._src.interpreters.pxla", "jax._src.dispatch", "jax"):
-        logging.getLogger(lg).addHandler(CompileNames(prof))
+        logging.getLogger(lg).addHandler(fit_profile._CompileLog(prof))  # same script family
         logging.getLogger(lg).propagate = False
     jax.monitoring.register_event_time_span_listener(prof.on_span)
 
