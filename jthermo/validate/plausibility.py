@@ -23,11 +23,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import equinox as eqx
 import numpy as np
 
 from ..errors import ModelError
 from ..models import AbstractModel, Envelope
+from ..models.statespace_numpy import realise
 
 #: an excursion counts when it exceeds this many noise standard deviations ...
 NOISE_SIGMAS = 3.0
@@ -62,13 +62,6 @@ def step_responses(A, B, C, D, n: int) -> np.ndarray:
     return out
 
 
-@eqx.filter_jit
-def _realise(model):
-    """`model.to_statespace()` as one compiled program: eagerly, a polynomial model's
-    realisation compiles op by op (1.6 CPU s against 0.17 s in a fresh process, hot-end OE)."""
-    return model.to_statespace()
-
-
 def _names(names, n, prefix):
     return [str(v) for v in names] if names else [f"{prefix}{i + 1}" for i in range(n)]
 
@@ -90,7 +83,7 @@ def plausibility(model: AbstractModel, *, noise_std: Sequence[float] | float | N
     (largest move against the final direction for the step `input_span`, °C), `wrong_way_at_s`,
     `threshold_C`, `inverse_response` and `cools_own_sensor` (bools); `warnings` one line each.
     """
-    ss = _realise(model)
+    ss = realise(model)
     A, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
     ny, nu = C.shape[0], B.shape[1]
     if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):

@@ -14,7 +14,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..data import IOData
 from ..errors import DataError, ModelError
-from ..models import polynomial_numpy
+from ..models import polynomial_numpy, statespace_numpy
 from ..models._base import AbstractModel
 
 
@@ -181,10 +181,18 @@ def compare(model: AbstractModel, data: IOData, *, k: int | None = None,
     if k is not None and (not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1):
         raise DataError(f"compare: k must be a positive integer or None, got {k!r}")
     k = None if k is None else int(k)
-    fast = k is None and isinstance(x0, str) and x0 == "estimate" and polynomial_numpy.supported(model)
-    if fast:    # NumPy filters: nothing to compile (same result, `polynomial_numpy.initial_state`)
+    fast = k is None and isinstance(x0, str) and x0 == "estimate"
+    if fast and polynomial_numpy.supported(model):
+        # NumPy filters: nothing to compile (same result, `polynomial_numpy.initial_state`)
         x_init, yhat = polynomial_numpy.initial_state(model, data.y, data.u)
         fast = bool(np.all(np.isfinite(x_init)))
+    elif fast and statespace_numpy.supported(model):
+        # one compiled realisation, the rest on the host (`statespace_numpy.initial_state`)
+        x_init, yhat = statespace_numpy.initial_state(model, data.y, data.u,
+                                                      None if w is None else data.w)
+        fast = bool(np.all(np.isfinite(x_init)))
+    else:
+        fast = False
     if not fast:
         x_init = _initial_state(model, data, x0, k, y)
         yhat = _response(model, y, u, w, x_init, k)

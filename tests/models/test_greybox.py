@@ -103,7 +103,7 @@ def test_fit_recovers_parameters(measured):
     y = np.asarray(true.simulate(u, w, x0=jnp.full(3, 40.0)))
     y = y + 0.05 * np.random.default_rng(3).normal(size=y.shape)
     data = from_arrays(u, y, 1.0, w if measured else None)
-    fit = fit_greybox(data, n_starts=2)
+    fit = fit_greybox(data)
     model = fit.model
     np.testing.assert_allclose(np.exp(model.log_loss), loss * 1000 / cap, rtol=0.05)
     np.testing.assert_allclose(np.exp(model.log_gain), gain * 1000 / cap[:, None], rtol=0.05)
