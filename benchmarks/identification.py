@@ -447,7 +447,8 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> lis
                 wall, rss, user, system = (float(v) for v in tm.read_text().split()[-4:])
                 row = {"family": fam, "N": N, "exit": p.returncode, "wall_s": wall,
                        "cpu_s": user + system, "peak_rss_mb": rss / 1024, "true_fit": truth,
-                       "load": os.getloadavg()[0], "load_before": load0}
+                       "load": os.getloadavg()[0], "load_before": load0,
+                       "blas_threads": env.get("OPENBLAS_NUM_THREADS", "default")}
                 if p.returncode == 0:
                     r = json.loads(js.read_text())
                     row.update(orders=r["orders"], fit=r["mean_fit_percent"],
@@ -468,7 +469,11 @@ def default_markdown(rows: list[dict]) -> str:
              "compilation cache per row; wall, CPU (user + system) and peak RSS by /usr/bin/time; "
              "gap = validation fit (MATLAB compare, initial state estimated) minus the true "
              "model's fit; load = 1-minute load average before / after the row (2-core machine "
-             "shared with other jobs: wall times grow with the load, CPU seconds much less).", "",
+             "shared with other jobs: wall times grow with the load, CPU seconds much less). "
+             "OpenBLAS threads: OPENBLAS_NUM_THREADS as this script sets it (1 unless set before "
+             f"it ran; here {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}): a shell without "
+             "it uses one thread per core, which made small LAPACK calls much slower under load.",
+             "",
              "| family | N | orders | fit % | true % | gap | converged | wall s | CPU s | peak RSS MB | load | note |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -486,7 +491,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="N = 4 only; skip SIPPY OE and BJ")
     ap.add_argument("--peers", choices=("none", "sippy", "all"), default="all")
     ap.add_argument("--n", type=int, nargs="+", default=None, help="zone counts (default 4 16)")
-    ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
+    ap.add_argument("--families", nargs="+", default=list(FAMILIES),
+                    choices=FAMILIES + ("greybox",), help="greybox: --default-path only")
     ap.add_argument("--peer-timeout", type=float, default=900.0, help="s per child process")
     ap.add_argument("--peer-python", default=str(PEERS_PYTHON),
                     help="python of the peers' environment (`make bench-peers`)")
@@ -517,6 +523,8 @@ def main(argv=None) -> int:
             default_path(load_workloads(), [N], fams,
                          out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}.md")
         return 0
+    if "greybox" in args.families:
+        ap.error("--families greybox: only with --default-path (no fixed-order W1 grey-box)")
     if args.estimate_level:
         REST_LEVEL = None
     Ns = args.n or ([4] if args.quick else [4, 16])
