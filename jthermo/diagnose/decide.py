@@ -205,10 +205,25 @@ def order_body_drift(rows: list, z_input: float) -> list:
     return out
 
 
+def not_worse(y: np.ndarray, e_new: np.ndarray, e_ref: np.ndarray) -> bool:
+    """Whether a model with validation residuals `e_new (T, n)` predicts the record `y` at least as
+    well as one with `e_ref`: validation MSE not higher *and* mean fit not lower, where the fit of
+    output $i$ is $100\\,(1 - \\|e_i\\| / \\|y_i - \\bar y_i\\|)$. The MSE pools the outputs, so
+    a model can lower it on a wide-swinging output while it predicts a quiet one worse; such a
+    model is never reported in place of `e_ref`'s."""
+    if not np.all(np.isfinite(e_new)):
+        return False
+    y = np.asarray(y, float)
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0) + 1e-300
+    fit = lambda e: float(np.mean(1.0 - np.linalg.norm(e, axis=0) / den))
+    return bool(np.mean(e_new ** 2) <= np.mean(e_ref ** 2) and fit(e_new) >= fit(e_ref))
+
+
 def is_rival(z_top_vs_other: float) -> bool:
     """The better explanation does not beat the other at `RIVAL_LEVEL`: they are tied."""
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
 __all__ = ["ALPHA", "BODY_TAUS", "ar_filter", "confidence", "input_dependence", "is_rival", "lag_filter",
-           "likelihood_ratio", "order_body_drift", "p_value", "predictive_z", "thresholds", "whiten"]
+           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "thresholds",
+           "whiten"]

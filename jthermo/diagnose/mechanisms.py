@@ -292,9 +292,14 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
 
     `Theta (n, P)` per-zone parameters; `rec` = [x0 (n), wall0 (n), drift (Kv)[, level]] the
     record's own initial states (°C), surroundings drift and (optional, used where the
-    surroundings are not measured: `ts_free`) the record's own surroundings level offset (°C); `f` dict with `u`, `events (T, n)`,
-    `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`, `ts`, `t_ref`. The lamps start at
-    their steady state for `u_pad`.
+    surroundings are not measured: `ts_free`) the record's own surroundings level offset (°C); `f`
+    dict with `u`, `events (T, n)`, `ts_level`, `ts_free`, `wdev`, `Phi (T, Kv)`, `delay`, `u_pad`,
+    `ts`, `t_ref`. The lamps start at their steady state for `u_pad`.
+
+    Where the level is free, zone $i$ sees $T_{s,i} = $ `ts_level` $+ \\theta_{ts0,i} + $ `level`:
+    its own fitted offset (as in its per-zone fit, where the offset trades with its gains and
+    loss) plus the record's common one. (A single shared level, the median of the zones'
+    offsets, gave multi-zone baselines validation fits of -12 ... -271 %.)
     """
     n = lay.n
     dt = Theta.dtype
@@ -302,8 +307,8 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     x0, w0, dr = rec[:n], rec[n:2 * n], rec[2 * n:2 * n + kv]
     lev = rec[2 * n + kv] if rec.shape[0] > 2 * n + kv else 0.0
     g = lambda nm: Theta[:, lay.sl(nm)]
-    ts_level = f["ts_level"] + f["ts_free"] * (jnp.median(g("ts0")[:, 0]) + lev)
-    ts_seq = ts_level + on[7] * (f["wdev"] + f["Phi"] @ dr)
+    ts_level = f["ts_level"] + f["ts_free"] * (g("ts0")[:, 0] + lev)            # (n,)
+    ts_seq = ts_level[None, :] + on[7] * (f["wdev"] + f["Phi"] @ dr)[:, None]    # (T, n)
 
     def zone_input(th):
         u, u0 = _inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
@@ -331,13 +336,13 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     A = A.at[n:2 * n, :n].set(jnp.broadcast_to((1.0 / (n * tauw))[:, None], (n, n)))
     A = A.at[n + iz, n + iz].set(-(1.0 + gam) / tauw)
     A = A.at[2 * n + iz, 2 * n + iz].set(-ih)
-    Bc = jnp.zeros((3 * n, n + 1), dt)
-    Bc = Bc.at[iz, iz].set(1.0 - lag).at[:n, n].set(a_lin).at[n:2 * n, n].set(gam / tauw)
+    Bc = jnp.zeros((3 * n, 2 * n), dt)            # inputs: heat rates (n), surroundings (n)
+    Bc = Bc.at[iz, iz].set(1.0 - lag).at[iz, n + iz].set(a_lin).at[n + iz, n + iz].set(gam / tauw)
     Bc = Bc.at[2 * n + iz, iz].set(ih)
     E, Bd, P1 = _zoh(A, Bc, f["ts"])
     Pz = P1[:, :n]
     drop = on[6] * jnp.exp(g("log_drop")[:, 0])
-    Fz = jnp.concatenate([V, ts_seq[:, None]], axis=1) @ Bd.T
+    Fz = jnp.concatenate([V, ts_seq], axis=1) @ Bd.T
     Fz = Fz.at[:, :n].add(-drop[None, :] * f["events"])
     sk4 = (ts_seq + KELVIN) ** 4
     s0 = jnp.concatenate([x0, w0, p0])

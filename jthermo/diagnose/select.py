@@ -316,7 +316,8 @@ def _forward_select(js, validate, k_val, top, pool, fit_of):
             # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
             # parameters are re-estimated on the validation record itself (a drift)
             ev = chi2.logsf(t["estimation_lr"], max(M.n_added_per_zone(m, lay) * n, 1))
-            if t["passed"] and (best is None or ev < best[3]):
+            # an addition that predicts the validation record worse is never the augmented model
+            if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]) and (best is None or ev < best[3]):
                 best = (tried[-1], a, m, ev)
         if best is None:
             break
@@ -542,8 +543,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         fk = fit_of(e_c[k])
         table.append({"mechanism": m, "validation_z": zv, "validation_z_critical": zc,
                       "estimation_lr": lr, "estimation_lr_critical": lc, "p_value": D.p_value(zv),
-                      "significant": bool(zv >= zc and lr >= lc
-                                          and np.mean(e_c[k] ** 2) < np.mean(e_base ** 2)),
+                      "significant": bool(zv >= zc and lr >= lc and D.not_worse(yv, e_c[k], e_base)),
                       "val_mse": float(np.mean(e_c[k] ** 2)),
                       "val_reduction": float(1 - np.mean(e_c[k] ** 2) / np.mean(e_base ** 2)),
                       "mean_fit_percent": float(np.mean(fk)),
@@ -589,6 +589,12 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         n_iter=JOINT_ITER, slots=K + 1,
                         n_active=_joint_active(n, lay, chosen[0], pool))
         aug, added, chosen = _forward_select(js, validate, k_val, chosen[0], pool, fit_of)
+        if not D.not_worse(yv, aug["e"], e_c[kt]):
+            # the joint structure predicts the validation record worse than the top mechanism's
+            # own (per-zone) model: that model is reported, with its mechanism alone
+            aug = {"theta": thc[kt], "yhat": yhat_v[kt + 1], "level_mode": None, "level_test": None,
+                   "fit": "per zone (the joint fit predicted the validation record worse)"}
+            chosen = [top["mechanism"]]
         aug_theta, aug_yhat, level_mode = aug["theta"], aug["yhat"], aug["level_mode"]
     tick({"stage": "combination"})
 
@@ -630,7 +636,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         "flagged": flagged,
         "inputs_left_out": [f"u_{nm}" for nm in dropped],
         "augmented": {"mechanisms": list(chosen),
-                      "fit": "joint (all zones, coupled simulation error)" if chosen else "baseline",
+                      "fit": aug.get("fit", "joint (all zones, coupled simulation error)") if chosen
+                      else "baseline",
                       "surroundings": level_mode,
                       "surroundings_test": aug.get("level_test") if chosen else None,
                       "mean_fit_percent": float(np.mean(aug_fit)),
