@@ -532,7 +532,8 @@ def main(argv=None) -> int:
     rows, oracle = [], {}
     meta = {"machine": f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}",
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "command": "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
+            "command": "".join(f"{v}={os.environ[v]} " for v in ("XLA_FLAGS",) if os.environ.get(v))
+            + "python benchmarks/identification.py " + " ".join(argv or sys.argv[1:])}
     from jthermo.data import atomic_write_text
 
     def save():   # after every row, so a stopped run still leaves its table

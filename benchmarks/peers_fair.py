@@ -139,9 +139,10 @@ def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
     return row
 
 
-def run_child(python: str, tool: str, config: str, N: int, timeout: float) -> dict:
+def run_child(python: str, tool: str, config: str, N: int, timeout: float,
+              cold_only: bool = False) -> dict:
     cmd = ["nice", "-n", "5", python, str(Path(__file__).resolve()), "--child", tool, config,
-           str(N)]
+           str(N)] + (["--cold-only"] if cold_only else [])
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT,
                            check=False)
@@ -206,7 +207,10 @@ def main(argv=None) -> int:
                     choices=sorted(SYSID_CONFIGS))
     ap.add_argument("--timeout", type=float, default=1800.0, help="s per process")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "peers_fair"))
-    ap.add_argument("--cold-only", action="store_true", help="with --child: no warm call")
+    ap.add_argument("--cold-only", action="store_true",
+                    help="no warm call (the rows' warm column stays empty)")
+    ap.add_argument("--no-jthermo", action="store_true",
+                    help="peer rows only (to be rendered with --from-log beside a jthermo row)")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="render the rows a run printed (one JSON object a line) instead of running")
     args = ap.parse_args(argv)
@@ -221,11 +225,11 @@ def main(argv=None) -> int:
         args.n = sorted({r["N"] for r in rows})
         args.configs = list(dict.fromkeys(r["config"] for r in rows if r["tool"] != "jthermo"))
     for N in ([] if args.from_log is not None else args.n):
-        runs = [("jthermo", "default", sys.executable)] + \
+        runs = [("jthermo", "default", sys.executable)] * (not args.no_jthermo) + \
             [("jax-sysid", c, args.peer_python) for c in args.configs]
         for tool, config, python in runs:
             print(f"[peers_fair] N={N} {tool} {config} ...", file=sys.stderr, flush=True)
-            rows.append(run_child(python, tool, config, N, args.timeout))
+            rows.append(run_child(python, tool, config, N, args.timeout, args.cold_only))
             print(json.dumps(rows[-1]), flush=True)
     uptime = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
     out = Path(args.out)
