@@ -423,6 +423,9 @@ def main(argv=None):
                     help="0: the development seeds; s > 0: a fresh set (score once, never tune on it)")
     ap.add_argument("--tag", default="")
     ap.add_argument("--out", default="experiments/results")
+    ap.add_argument("--combine", default=None, metavar="TAGS",
+                    help="no diagnosis: merge the records of these comma-separated tags (shards run in "
+                         "parallel) into --tag's files")
     ap.add_argument("--pooled", action="store_true",
                     help="only pool the studies' JSON in --out: false alarms and confidence calibration")
     args = ap.parse_args(argv)
@@ -430,6 +433,14 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     if args.pooled:
         write_pooled(out, out)
+        return 0
+    if args.combine:
+        parts = [json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in args.combine.split(",")]
+        rows = sorted((r for p in parts for r in p["records"]), key=lambda r: r["case"])
+        meta = {"args": "; ".join(p["meta"]["args"] for p in parts) + " (shards in parallel)",
+                "wall_s": max(p["meta"]["wall_s"] for p in parts), "cpu_s": sum(p["meta"]["cpu_s"] for p in parts),
+                "load": " / ".join(p["meta"]["load"] for p in parts)}
+        write(rows, meta, out, f"_{args.tag}")
         return 0
     meta = {"args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                              if k != "out" and v not in (None, "", 0) and not (k == "max_zones" and v == 9)
