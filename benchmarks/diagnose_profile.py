@@ -1,0 +1,253 @@
+"""Where `jthermo diagnose` spends its time: CPU seconds, wall seconds and compiles per stage.
+
+The latency record of `benchmarks/latency.py` (one hour, 4 zones, PRBS, lateral conduction +
+radiation + heater lag; 30 min of validation data) is diagnosed in a fresh process twice: cold
+(empty compilation cache) and warm (a second process with the cache the first one filled). In
+each process every call of the diagnosis's compiled fits (`fit_zones`, `sim_zones`,
+`fit_joint`, `fit_records`) is timed (blocked until ready) and attributed to the stage it runs
+in; the joint combination stage is split per `_JointFits.fit` call (one call per forward
+selection round, plus the level test's). Compile time and count come from JAX's monitoring
+events (tracing, lowering, backend compile; a cache hit counts as a short load). CPU seconds are
+the process's user + system time (all threads): the load-robust figure on a shared machine.
+
+    python benchmarks/diagnose_profile.py                 # cold + warm, writes the results
+    python benchmarks/diagnose_profile.py --tag _after    # ... to diagnose_profile_after.md
+    python benchmarks/diagnose_profile.py --cprofile      # + the top functions (cold run)
+
+Writes `benchmarks/results/diagnose_profile{tag}.md` and `.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import os
+import pstats
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+#: the latency benchmark's record (benchmarks/latency.py RECORD)
+RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
+          "lateral_conduction,radiative_loss,heater_lag"]
+
+
+def _load() -> float:
+    try:
+        return float(Path("/proc/loadavg").read_text().split()[0])
+    except (OSError, ValueError):
+        return float("nan")
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system
+
+
+class _Clock:
+    """Wall, CPU and compile (seconds, backend compile count) accumulated per label."""
+
+    def __init__(self):
+        self.rows: dict[str, dict] = {}
+        self.compile_s = 0.0
+        self.compiles = 0
+        self.loads = 0
+
+    def on_duration(self, event: str, secs: float, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            self.compiles += 1
+            self.compile_s += secs
+        elif event in ("/jax/core/compile/jaxpr_trace_duration",
+                       "/jax/core/compile/jaxpr_to_mlir_module_duration"):
+            self.compile_s += secs
+
+    def on_event(self, event: str, **_):
+        if event == "/jax/compilation_cache/cache_hits":
+            self.loads += 1
+
+    def snap(self):
+        return time.perf_counter(), _cpu(), self.compile_s, self.compiles, self.loads
+
+    def add(self, label: str, s0, calls: int = 1):
+        s1 = self.snap()
+        r = self.rows.setdefault(label, {"wall_s": 0.0, "cpu_s": 0.0, "compile_s": 0.0,
+                                         "compiles": 0, "cache_loads": 0, "calls": 0})
+        for k, i in (("wall_s", 0), ("cpu_s", 1), ("compile_s", 2), ("compiles", 3), ("cache_loads", 4)):
+            r[k] += s1[i] - s0[i]
+        r["calls"] += calls
+
+
+def _instrument(clock: _Clock, state: dict):
+    """Time every compiled fit `select` calls, and each `_JointFits.fit` call."""
+    import jax
+
+    from jthermo.diagnose import select
+
+    def timed(name, fn):
+        def wrapper(*a, **k):
+            s0 = clock.snap()
+            out = jax.block_until_ready(fn(*a, **k))
+            clock.add(f"{state['stage']}: {name}", s0)
+            return out
+        return wrapper
+
+    for name in ("fit_zones", "sim_zones", "fit_joint", "fit_records"):
+        setattr(select, name, timed(name, getattr(select, name)))
+    jf = select._JointFits.fit
+
+    def joint_fit(self, models, validate):
+        state["round"] += 1
+        outer = state["stage"]
+        state["stage"] = f"joint call {state['round']} ({len(models)} models)"
+        s0 = clock.snap()
+        try:
+            return jf(self, models, validate)
+        finally:
+            clock.add(state["stage"] + ": total", s0)
+            state["stage"] = outer
+
+    select._JointFits.fit = joint_fit
+
+
+def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:
+    """Diagnose the record in this process; the per-stage table as a dict."""
+    import jax
+    import jax.monitoring
+
+    from jthermo import runtime
+
+    runtime.enable_cache()
+    runtime.unroll_threefry()
+    jax.config.update("jax_enable_x64", True)
+    clock = _Clock()
+    jax.monitoring.register_event_duration_secs_listener(clock.on_duration)
+    jax.monitoring.register_event_listener(clock.on_event)
+    state = {"stage": "baseline", "round": 0}
+    t0, c0 = time.perf_counter(), _cpu()
+    s0 = clock.snap()
+    from jthermo.data import load
+    import jthermo.diagnose as diag
+
+    est, val = load(est_path), load(val_path)
+    clock.add("reading (import + load)", s0)
+    _instrument(clock, state)
+    order = ["baseline", "localisation", "candidates", "validation", "combination", "done"]
+    marks = {"s": clock.snap()}
+
+    def progress(i, total, info):
+        clock.add(f"stage {info['stage']}", marks["s"])
+        nxt = order.index(info["stage"]) + 1
+        state["stage"] = order[nxt] if nxt < len(order) else "after"
+        marks["s"] = clock.snap()
+
+    prof = cProfile.Profile() if cprofile_out else None
+    if prof:
+        prof.enable()
+    result = diag.diagnose(est, val, progress=progress)
+    if prof:
+        prof.disable()
+        buf = io.StringIO()
+        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(40)
+        Path(cprofile_out).write_text(buf.getvalue().replace(str(HERE.parent) + "/", ""))
+    s0 = clock.snap()
+    js = diag.to_json(result)
+    json.dumps(js, default=float)
+    clock.add("report (to_json)", s0)
+    return {"rows": clock.rows, "total_wall_s": time.perf_counter() - t0, "total_cpu_s": _cpu() - c0,
+            "compile_s": clock.compile_s, "compiles": clock.compiles, "cache_loads": clock.loads,
+            "verdict": js["verdict"], "findings": [f["mechanism"] for f in js["findings"]],
+            "augmented": js["augmented"]["mechanisms"],
+            "baseline_fit": js["baseline"]["mean_fit_percent"],
+            "augmented_fit": js["augmented"]["mean_fit_percent"],
+            "augmented_fit_per_zone": js["augmented"]["fit_percent"],
+            "parameters": js["augmented"]["parameters"],
+            "combinations": [{k: c[k] for k in ("mechanisms", "accepted", "mean_fit_percent")}
+                             for c in js["combinations"]]}
+
+
+def _subprocess(phase: str, est: Path, val: Path, cache: Path, out: Path, cprofile: Path | None) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env.pop("JTHERMO_NO_CACHE", None)
+    env["JTHERMO_CACHE_DIR"] = str(cache)
+    cmd = [sys.executable, __file__, "--child", str(est), str(val), str(out)]
+    if cprofile is not None:
+        cmd += ["--child-cprofile", str(cprofile)]
+    load0 = _load()
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, env=env)
+    row = json.loads(out.read_text())
+    row.update(phase=phase, process_wall_s=time.perf_counter() - t0, load_before=load0, load_after=_load())
+    print(phase, {k: row[k] for k in ("process_wall_s", "total_cpu_s", "compile_s", "compiles",
+                                      "verdict", "augmented", "augmented_fit", "load_before")}, flush=True)
+    return row
+
+
+def _table(run: dict) -> list[str]:
+    lines = [f"### {run['phase']}: {run['total_wall_s']:.1f} s wall in diagnose "
+             f"({run['process_wall_s']:.1f} s process), {run['total_cpu_s']:.1f} CPU s, compile "
+             f"{run['compile_s']:.1f} s ({run['compiles']} backend compiles, {run['cache_loads']} "
+             f"cache loads), load {run['load_before']:.2f} → {run['load_after']:.2f}", "",
+             "| stage: call | calls | wall s | CPU s | compile s | compiles |", "|---|---|---|---|---|---|"]
+    for k, r in run["rows"].items():
+        lines.append(f"| {k} | {r['calls']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | "
+                     f"{r['compile_s']:.2f} | {r['compiles']} |")
+    return lines
+
+
+def write(runs: list[dict], tag: str, cmdline: str) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"diagnose_profile{tag}.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
+    w = runs[-1]
+    lines = [f"# `jthermo diagnose` profile{(' (' + tag.strip('_') + ')') if tag else ''}", "",
+             f"`{cmdline}`: the latency record (1 h, 4 zones; 30 min validation), diagnosed "
+             "in-process, cold (empty compilation cache) then warm (second process). Stages are "
+             "the diagnosis's progress ticks; `stage: call` rows are the compiled fits inside a "
+             "stage (blocked until ready); stage rows include them. CPU s = user + system of the "
+             "process (all threads), the load-robust figure; wall s is inflated by the load "
+             "(2 shared cores).", "",
+             f"Result (warm): {w['verdict']}, findings {', '.join(w['findings'])}; augmented "
+             f"{' + '.join(w['augmented'])}: mean validation fit {w['baseline_fit']:.2f} → "
+             f"{w['augmented_fit']:.2f} % (zones {', '.join(f'{v:.2f}' for v in w['augmented_fit_per_zone'])}).", ""]
+    for run in runs:
+        lines += _table(run) + [""]
+    out = RESULTS / f"diagnose_profile{tag}.md"
+    out.write_text("\n".join(lines))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tag", default="", help="suffix of the results files")
+    ap.add_argument("--cprofile", action="store_true", help="cProfile the cold run's diagnose()")
+    ap.add_argument("--phases", default="cold,warm")
+    ap.add_argument("--child", nargs=3, metavar=("EST", "VAL", "OUT"), help=argparse.SUPPRESS)
+    ap.add_argument("--child-cprofile", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        est, val, out = args.child
+        Path(out).write_text(json.dumps(run_once(est, val, args.child_cprofile), default=float))
+        return
+    with tempfile.TemporaryDirectory(prefix="jthermo-diagprof-") as d:
+        tmp = Path(d)
+        env = dict(os.environ, JTHERMO_NO_CACHE="1")
+        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
+            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
+                            "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
+        runs = []
+        for phase in args.phases.split(","):
+            cp = RESULTS / f"diagnose_profile{args.tag}.cprofile.txt" if args.cprofile and phase == "cold" else None
+            runs.append(_subprocess(phase, tmp / "est.csv", tmp / "val.csv", tmp / "cache",
+                                    tmp / f"{phase}.json", cp))
+    cmd = "python benchmarks/diagnose_profile.py" + (f" --tag {args.tag}" if args.tag else "") + \
+        (" --cprofile" if args.cprofile else "")
+    print(write(runs, args.tag, cmd).read_text())
+
+
+if __name__ == "__main__":
+    main()
