@@ -42,38 +42,67 @@ from .rules import as_array, as_state_space
 sg = jax.lax.stop_gradient
 
 
+def _fori(xp, iters, body, carry):
+    """`iters` applications of `body(i, carry)`: a `lax.fori_loop` (traceable, differentiable)
+    for `jnp`, a Python loop for NumPy (no compile)."""
+    if xp is np:
+        for i in range(iters):
+            carry = body(i, carry)
+        return carry
+    return jax.lax.fori_loop(0, iters, body, carry)
+
+
 def solve_dare(A: Float[Array, "n n"], B: Float[Array, "n m"], Q: Float[Array, "n n"],
-               R: Float[Array, "m m"], iters: int = 40) -> Float[Array, "n n"]:
+               R: Float[Array, "m m"], iters: int = 40, *, xp=jnp) -> Float[Array, "n n"]:
     """Stabilising solution X of $X = A^T X A - A^T X B (R + B^T X B)^{-1} B^T X A + Q$.
 
     Structure-preserving doubling: $A_0 = A$, $G_0 = B R^{-1} B^T$, $H_0 = Q$,
     $W = I + G_k H_k$, $A_{k+1} = A_k W^{-1} A_k$, $G_{k+1} = G_k + A_k W^{-1} G_k A_k^T$,
     $H_{k+1} = H_k + A_k^T H_k W^{-1} A_k \\to X$ (quadratic convergence; 40 doublings cover a
-    horizon of $2^{40}$ samples). Differentiable: a `lax.fori_loop` of fixed length.
+    horizon of $2^{40}$ samples). Differentiable: a `lax.fori_loop` of fixed length. `xp`:
+    `jnp` (default) or `np`, the same iterations in NumPy float64 where nothing is
+    differentiated (a design check: no program to compile).
     """
     n = A.shape[0]
-    eye = jnp.eye(n, dtype=A.dtype)
-    G0 = B @ jnp.linalg.solve(R, B.T)
+    eye = xp.eye(n, dtype=A.dtype)
+    G0 = B @ xp.linalg.solve(R, B.T)
     G0 = 0.5 * (G0 + G0.T)
 
     def body(_, carry):
         Ak, Gk, Hk = carry
         W = eye + Gk @ Hk
-        WiA = jnp.linalg.solve(W, Ak)                  # W^{-1} A_k
-        WiG = jnp.linalg.solve(W, Gk)                  # W^{-1} G_k
+        WiA = xp.linalg.solve(W, Ak)                   # W^{-1} A_k
+        WiG = xp.linalg.solve(W, Gk)                   # W^{-1} G_k
         A1 = Ak @ WiA
         G1 = Gk + Ak @ WiG @ Ak.T
         H1 = Hk + Ak.T @ Hk @ WiA
         return A1, 0.5 * (G1 + G1.T), 0.5 * (H1 + H1.T)
 
-    _, _, X = jax.lax.fori_loop(0, iters, body, (A, G0, Q))
+    _, _, X = _fori(xp, iters, body, (A, G0, Q))
     return X
 
 
-def lqr_gain(A, B, Q, R, iters: int = 40):
-    """Discrete LQR gain $L = (R + B^T X B)^{-1} B^T X A$ and X."""
-    X = solve_dare(A, B, Q, R, iters)
-    return jnp.linalg.solve(R + B.T @ X @ B, B.T @ X @ A), X
+def lqr_gain(A, B, Q, R, iters: int = 40, *, xp=jnp):
+    """Discrete LQR gain $L = (R + B^T X B)^{-1} B^T X A$ and X (`xp`: as `solve_dare`)."""
+    X = solve_dare(A, B, Q, R, iters, xp=xp)
+    return xp.linalg.solve(R + B.T @ X @ B, B.T @ X @ A), X
+
+
+def lqg_gains(A, B, C, q1, q2, qi, qw, ts: float, iters: int = 40, *, xp=jnp) -> "LQGGains":
+    """`LQGGains` of the design model $(A, B, C)$ and the diagonal weights (`LQG.gains`), in
+    `xp` = `jnp` (traceable) or `np` (float64, eager, nothing compiled)."""
+    nx, ny = A.shape[0], C.shape[0]
+    dt = A.dtype
+    Aa = xp.block([[A, xp.zeros((nx, ny), dt)], [-ts * C, xp.eye(ny, dtype=dt)]])
+    Ba = xp.concatenate([B, xp.zeros((ny, B.shape[1]), dt)], axis=0)
+    Qx = C.T @ (q1[:, None] * C) + 1e-9 * xp.eye(nx, dtype=dt)
+    Qa = xp.block([[Qx, xp.zeros((nx, ny), dt)], [xp.zeros((ny, nx), dt), xp.diag(qi)]])
+    La, _ = lqr_gain(Aa, Ba, Qa, xp.diag(q2), iters, xp=xp)
+    Lx, Li = La[:, :nx], La[:, nx:]
+    L0 = xp.linalg.inv(C @ xp.linalg.solve(xp.eye(nx, dtype=dt) - A + B @ Lx, B))
+    P = solve_dare(A.T, C.T, qw * xp.eye(nx, dtype=dt), xp.eye(ny, dtype=dt), iters, xp=xp)
+    M = P @ C.T @ xp.linalg.inv(C @ P @ C.T + xp.eye(ny, dtype=dt))
+    return LQGGains(Lx=Lx, Li=Li, L0=L0, M=M)
 
 
 class LQGGains(eqx.Module):
@@ -110,21 +139,8 @@ class LQG(AbstractController):
 
     def gains(self) -> LQGGains:
         """Feedback, integral, static and observer gains from the current weights."""
-        A, B, C = sg(self.A), sg(self.B), sg(self.C)
-        nx, ny = A.shape[0], C.shape[0]
-        dt = A.dtype
-        Aa = jnp.block([[A, jnp.zeros((nx, ny), dt)], [-self.ts * C, jnp.eye(ny, dtype=dt)]])
-        Ba = jnp.concatenate([B, jnp.zeros((ny, B.shape[1]), dt)], axis=0)
-        Qx = C.T @ (self.q1[:, None] * C) + 1e-9 * jnp.eye(nx, dtype=dt)
-        Qa = jnp.block([[Qx, jnp.zeros((nx, ny), dt)],
-                        [jnp.zeros((ny, nx), dt), jnp.diag(self.qi)]])
-        La, _ = lqr_gain(Aa, Ba, Qa, jnp.diag(self.q2), self.iters)
-        Lx, Li = La[:, :nx], La[:, nx:]
-        L0 = jnp.linalg.inv(C @ jnp.linalg.solve(jnp.eye(nx, dtype=dt) - A + B @ Lx, B))
-        P = solve_dare(A.T, C.T, self.qw * jnp.eye(nx, dtype=dt), jnp.eye(ny, dtype=dt),
-                       self.iters)
-        M = P @ C.T @ jnp.linalg.inv(C @ P @ C.T + jnp.eye(ny, dtype=dt))
-        return LQGGains(Lx=Lx, Li=Li, L0=L0, M=M)
+        return lqg_gains(sg(self.A), sg(self.B), sg(self.C), self.q1, self.q2, self.qi,
+                         self.qw, self.ts, self.iters)
 
     def init(self, y0: Output, r0: Setpoint) -> LQGState:
         g = self.gains()
@@ -159,11 +175,14 @@ class LQG(AbstractController):
         return u, LQGState(x=x_next, xi=xi, rm=rm, gains=g)
 
 
-@eqx.filter_jit
 def compiled_gains(ctrl: LQG) -> LQGGains:
-    """`ctrl.gains()` as one compiled program, for use outside jit (eager, the Riccati
-    iterations and solves compiled about 50 small programs)."""
-    return ctrl.gains()
+    """`ctrl.gains()` for use outside jit, as NumPy float64 arrays: the same doubling
+    iterations (`lqg_gains(xp=np)`) run eagerly on the small dense matrices, so nothing is
+    compiled (as one compiled program it cost about 1.5 CPU s cold per state size; eager JAX
+    compiled about 50 small programs)."""
+    f = lambda a: np.asarray(a, np.float64)
+    return lqg_gains(f(ctrl.A), f(ctrl.B), f(ctrl.C), f(ctrl.q1), f(ctrl.q2), f(ctrl.qi),
+                     f(ctrl.qw), ctrl.ts, ctrl.iters, xp=np)
 
 
 def design_lqg(model, Q1=1.0, Q2=1.0, *, Qi=0.01, qw=0.1, tau_r=10.0,
