@@ -243,6 +243,8 @@ def run_jthermo(family: str, N: int, timeout: float) -> dict:
             again = run_child(sys.executable, ["jthermo", family, str(N), cache, level, "cold"],
                               timeout)
             row.update({"cached_s": again.get("cold_s"), "cached_cpu": again.get("cold_cpu")})
+            if "error" in again:
+                row["note"] = f"cached process: {again['error']}"
     row["load"] = os.getloadavg()[0]
     return row
 
