@@ -19,6 +19,7 @@ from ..control._base import AbstractController
 from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
+from ..printer.noise import NoiseStream, in_scan_supported
 from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
@@ -143,33 +144,44 @@ def initial_state(plant, scenario: Scenario):
 
 
 def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, observe, acc0,
-                 unroll: int = 1, recoat: bool = True):
+                 unroll: int = 1, recoat: bool = True, noise: NoiseStream | None = None):
     """The scanned loop shared by `simulate`, `simulate_cost` and `simulate_metrics`: at each
     sample k, `acc, out = observe(acc, k, y, u, temps, r)` sees the measured output, the
-    saturated input, the true temperatures and the set point. Returns `(acc, outs)`."""
+    saturated input, the true temperatures and the set point. Returns `(acc, outs)`.
+
+    `noise` (a printer's `NoiseStream`): the measurement noise is drawn inside the scan, one
+    sample at a time, instead of read from `scenario.v` (which is then not read at all)."""
     if scenario.r.ndim != 2:
         raise ConfigError("simulate: a batched scenario needs `rollouts`, not `simulate`")
     check_loop("simulate", plant, controller, scenario, x0)
     p = _prepare(plant, recoat)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
-    y_first = p.measure(x0, d0)[0] + scenario.v[0]
+    if noise is None:
+        v0, n0 = scenario.v[0], ()
+        vs = scenario.v
+    else:
+        v0, n0 = noise.at(0, noise.init())
+        vs = None
+    y_first = p.measure(x0, d0)[0] + v0
     c0 = controller.init(y_first, scenario.r[0])
 
     def body(carry, inp):
-        x, c, acc = carry
+        x, c, acc, nc = carry
         k, r, d, v, s = inp
+        if noise is not None:
+            v, nc = noise.at(k, nc)
         y_clean, temps = p.measure(x, d)
         y = y_clean + v
         u, c = controller.step_schedule(c, y, r, s)
         u = jnp.clip(u, 0.0, 1.0)
         acc, out = observe(acc, k, y, u, temps, r)
-        return (p.step(x, u, d), c, acc), out
+        return (p.step(x, u, d), c, acc, nc), out
 
     ks = jnp.arange(scenario.r.shape[0])
-    (_, _, acc), outs = jax.lax.scan(body, (x0, c0, acc0),
-                                     (ks, scenario.r, scenario.d, scenario.v, scenario.s),
-                                     unroll=unroll)
+    (_, _, acc, _), outs = jax.lax.scan(body, (x0, c0, acc0, n0),
+                                        (ks, scenario.r, scenario.d, vs, scenario.s),
+                                        unroll=unroll)
     return acc, outs
 
 
@@ -186,38 +198,43 @@ def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None)
 
 def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
                      weights: Mapping[str, float] | None = None, x0=None, *,
-                     smoothing: float = 0.1, recoat: bool = True) -> dict[str, Array]:
+                     smoothing: float = 0.1, recoat: bool = True,
+                     noise: NoiseStream | None = None) -> dict[str, Array]:
     """`metrics(simulate(...))` of one run (per-rollout values) and its `cost` (key `"cost"`),
     accumulated inside the scan (`RunningMetrics`): no `(T, n)` trajectory is stored, memory
     independent of the horizon. Equal to the dense figures to rounding.
 
     `recoat=False` (a printer scenario without any recoat, `RECOAT_FREE_KINDS`): the printer
     is integrated without the recoat sweep (`Printer.discretise(recoat=False)`), within 1e-3 °C
-    of the full integration (benchmarks/results/simulate_substeps.md)."""
+    of the full integration (benchmarks/results/simulate_substeps.md).
+
+    `noise` (`Printer.noise_stream`): the measurement noise drawn inside the scan instead of
+    read from `scenario.v` (the same draws, equal to round-off, when it is the stream
+    `scenario.v` was drawn from: `run` does this)."""
     scorer = RunningMetrics.of(scenario, smoothing=smoothing)
     acc, _ = _closed_loop(plant, controller, scenario, x0,
                           lambda acc, k, y, u, temps, r: (scorer.update(acc, k, y, u, temps, r), None),
-                          scorer.init(_n_inputs(plant)), recoat=recoat)
+                          scorer.init(_n_inputs(plant)), recoat=recoat, noise=noise)
     return scorer.finish(acc, weights)
 
 
 def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
                     weights: Mapping[str, float] | None = None, x0s=None, *,
                     plant_axis: int | None = None, smoothing: float = 0.1,
-                    recoat: bool = True) -> dict[str, Array]:
+                    recoat: bool = True, noise: NoiseStream | None = None) -> dict[str, Array]:
     """`simulate_metrics` over a batch of scenarios: each figure `(B,)` (the lean counterpart of
-    `metrics(rollouts(...), per_rollout=True)` plus the per-rollout `cost`)."""
+    `metrics(rollouts(...), per_rollout=True)` plus the per-rollout `cost`); `noise`: one
+    `NoiseStream` per rollout (a leading rollout axis), drawn inside the scan."""
     if scenarios.r.ndim != 3:
         raise ConfigError("rollout_metrics: scenarios need a leading rollout axis "
                           "(make_scenario(..., n_rollouts=B))")
 
-    def one(pl, sc, x0=None):
+    def one(pl, sc, x0=None, nz=None):
         return simulate_metrics(pl, controller, sc, weights, x0, smoothing=smoothing,
-                                recoat=recoat)
+                                recoat=recoat, noise=nz)
 
-    if x0s is None:
-        return jax.vmap(one, in_axes=(plant_axis, 0))(plant, scenarios)
-    return jax.vmap(one, in_axes=(plant_axis, 0, 0))(plant, scenarios, x0s)
+    return jax.vmap(one, in_axes=(plant_axis, 0, None if x0s is None else 0,
+                                  None if noise is None else 0))(plant, scenarios, x0s, noise)
 
 
 def rollouts(plant, controller: AbstractController, scenarios: Scenario, x0s=None, *,
@@ -355,21 +372,39 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
 
 
 @eqx.filter_jit
-def _run_metrics(plant, controller, scenarios, recoat=True):
+def _run_metrics(plant, controller, scenarios, recoat=True, noise=None):
     """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost), the
     first set point and the run length: one compiled call, no `(B, T, n)` output."""
-    vals = rollout_metrics(plant, controller, scenarios, recoat=recoat)
+    vals = rollout_metrics(plant, controller, scenarios, recoat=recoat, noise=noise)
     return {k: jnp.mean(v) for k, v in vals.items()}, scenarios.r[0, 0], scenarios.n_samples
+
+
+#: white measurement noise of `run`'s printer scenarios, °C (`make_scenario`'s `noise_std`)
+RUN_NOISE_STD = 0.05
+
+
+def rollout_noise(plant: Printer, key, n_rollouts: int, noise_std: float = RUN_NOISE_STD):
+    """The `NoiseStream` of each rollout of `make_scenario(kind, plant, ..., key,
+    n_rollouts=n_rollouts, noise_std=noise_std)` (a leading rollout axis): rollout b draws
+    from the second of four keys split from the b-th of `split(key, n_rollouts)`, as the
+    scenario builder does (`tests/closedloop/test_noise_in_scan.py` holds the two equal)."""
+    def one(k):
+        return plant.noise_stream(jax.random.split(k, 4)[1], noise_std)
+
+    return jax.vmap(one)(jax.random.split(key, n_rollouts))
 
 
 @eqx.filter_jit
 def _scenario_metrics(kind, plant, controller, duration, key, n_rollouts):
     """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
-    traced: one compile for every seed)."""
-    return _run_metrics(plant, controller,
-                        make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts),
-                        kind not in RECOAT_FREE_KINDS)
+    traced: one compile for every seed). Where it can (`noise.in_scan_supported`), the
+    measurement noise is drawn inside the scan, sample by sample, from the same bits: the
+    scenario's `(B, T, ny)` noise is never formed (XLA drops it unread): `jthermo simulate`'s
+    run program before and after in benchmarks/results/simulate_stages*.md."""
+    sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
+    noise = rollout_noise(plant, key, n_rollouts) if in_scan_supported(sc.r.dtype) else None
+    return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise)
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
