@@ -86,6 +86,30 @@ def spectral_radius(model: Polynomial) -> float:
     return float(max(radii, default=0.0))
 
 
+def step_responses(model: Polynomial, n: int) -> np.ndarray:
+    """Unit-step responses of the deterministic part $B_{ij}/(A_i F_{ij})$ for k = 0..n-1,
+    `(n, ny, nu)`: `Polynomial.to_statespace()`'s $s(k) = C x_k + D$, $x_{k+1} = A x_k + B$."""
+    a, bl, _, _, f, _, _ = _parts(model)
+    ny, nu = bl.shape[:2]
+    ones = np.ones(int(n))
+    out = np.empty((int(n), ny, nu))
+    for i in range(ny):
+        for j in range(nu):
+            out[:, i, j] = lfilter(bl[i, j], np.convolve(_monic(a[i]), _monic(f[i, j])), ones)
+    return out
+
+
+def dc_gain(model: Polynomial) -> np.ndarray:
+    """Static gains $B_{ij}(1) / (A_i(1) F_{ij}(1))$, `(ny, nu)` (of a stable model)."""
+    a, bl, _, _, f, _, _ = _parts(model)
+    return bl.sum(axis=2) / ((1.0 + a.sum(axis=1))[:, None] * (1.0 + f.sum(axis=2)))
+
+
+def n_states(model: Polynomial) -> int:
+    """State dimension of `Polynomial.to_statespace()`."""
+    return _blocks(model, _parts(model))[1]
+
+
 def _blocks(model: Polynomial, parts) -> tuple[list[list[np.ndarray]], int]:
     """Denominators (monic, padded to the block size) of the realisation's observer-canonical
     blocks, listed per output in state order, and the state dimension.
@@ -152,4 +176,5 @@ def initial_state(model: Polynomial, y, u) -> tuple[np.ndarray, np.ndarray]:
     return (np.concatenate(x_parts) if x_parts else np.zeros(nx)), yhat
 
 
-__all__ = ["initial_state", "residuals", "simulate", "spectral_radius", "supported"]
+__all__ = ["dc_gain", "initial_state", "n_states", "residuals", "simulate", "spectral_radius",
+           "step_responses", "supported"]

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ModelError
-from ..models import AbstractModel, Envelope
+from ..models import AbstractModel, Envelope, polynomial_numpy
 from ..models.statespace_numpy import realise
 
 #: an excursion counts when it exceeds this many noise standard deviations ...
@@ -44,9 +44,14 @@ def window(A: np.ndarray, nu: int) -> int:
     ($\\tau/T_s = -1/\\ln|p|$), clipped to [`MIN_SAMPLES`, `MAX_SAMPLES`] and to `MAX_WORK`
     multiply-adds of the recursion $x_{k+1} = A x_k + B$ with `nu` columns."""
     nx = A.shape[0]
+    rho = float(np.max(np.abs(np.linalg.eigvals(A)))) if nx else 0.0
+    return window_length(rho, nx, nu)
+
+
+def window_length(rho: float, nx: int, nu: int) -> int:
+    """`window` from the largest pole magnitude `rho` and the state dimension `nx`."""
     if nx == 0:
         return MIN_SAMPLES
-    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
     n = MAX_SAMPLES if rho >= 1.0 else (TIME_CONSTANTS / -math.log(max(rho, 1e-300)))
     cap = max(MIN_SAMPLES, int(MAX_WORK / max(nx * nx * nu, 1)))
     return int(min(max(math.ceil(n), MIN_SAMPLES), MAX_SAMPLES, cap))
@@ -66,6 +71,44 @@ def _names(names, n, prefix):
     return [str(v) for v in names] if names else [f"{prefix}{i + 1}" for i in range(n)]
 
 
+def _responses(model: AbstractModel, span_arg):
+    """Step responses scaled by the input span `(n, ny, nu)`, static gains `(ny, nu)` (the final
+    value when unstable), stability and the window length: from the model's NumPy filters for a
+    diagonal-A polynomial model (`polynomial_numpy`: nothing to compile), otherwise from its
+    state-space realisation on the host."""
+    if polynomial_numpy.supported(model):
+        rho = polynomial_numpy.spectral_radius(model)
+        if not np.isfinite(rho):
+            raise ModelError("plausibility: the model has non-finite matrices")
+        nu = model.n_inputs
+        span = _span(span_arg, nu)
+        n = window_length(rho, polynomial_numpy.n_states(model), nu)
+        s = polynomial_numpy.step_responses(model, n) * span
+        stable = rho < 1.0
+        gain = polynomial_numpy.dc_gain(model) * span if stable else s[-1]
+        return s, gain, stable, n
+    ss = realise(model)
+    A, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
+    if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
+        raise ModelError("plausibility: the model has non-finite matrices")
+    span = _span(span_arg, B.shape[1])
+    n = window(A, B.shape[1])
+    s = step_responses(A, B, C, D, n) * span                        # °C, (n, ny, nu)
+    stable = A.shape[0] == 0 or float(np.max(np.abs(np.linalg.eigvals(A)))) < 1.0
+    if stable:      # G(1) = C (I - A)^{-1} B + D, on the host
+        gain = (C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D) * span
+    else:
+        gain = s[-1]
+    return s, gain, stable, n
+
+
+def _span(span, nu: int) -> np.ndarray:
+    span = np.broadcast_to(np.asarray(1.0 if span is None else span, np.float64), (nu,))
+    if not (np.all(np.isfinite(span)) and np.all(span > 0)):
+        raise ModelError("plausibility: noise_std must be >= 0 and input_span > 0, all finite")
+    return span
+
+
 def plausibility(model: AbstractModel, *, noise_std: Sequence[float] | float | None = None,
                  input_span: Sequence[float] | float | None = None,
                  input_names: Sequence[str] = (), output_names: Sequence[str] = ()) -> dict:
@@ -83,24 +126,13 @@ def plausibility(model: AbstractModel, *, noise_std: Sequence[float] | float | N
     (largest move against the final direction for the step `input_span`, °C), `wrong_way_at_s`,
     `threshold_C`, `inverse_response` and `cools_own_sensor` (bools); `warnings` one line each.
     """
-    ss = realise(model)
-    A, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
-    ny, nu = C.shape[0], B.shape[1]
-    if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
-        raise ModelError("plausibility: the model has non-finite matrices")
+    s, gain, stable, n = _responses(model, input_span)
+    ny, nu = gain.shape
+    span = _span(input_span, nu)
     sigma = np.broadcast_to(np.asarray(0.0 if noise_std is None else noise_std, np.float64), (ny,))
-    span = np.broadcast_to(np.asarray(1.0 if input_span is None else input_span, np.float64), (nu,))
-    if not (np.all(np.isfinite(sigma)) and np.all(sigma >= 0)
-            and np.all(np.isfinite(span)) and np.all(span > 0)):
+    if not (np.all(np.isfinite(sigma)) and np.all(sigma >= 0)):
         raise ModelError("plausibility: noise_std must be >= 0 and input_span > 0, all finite")
     ts = float(model.ts)
-    n = window(A, nu)
-    s = step_responses(A, B, C, D, n) * span                        # °C, (n, ny, nu)
-    stable = A.shape[0] == 0 or float(np.max(np.abs(np.linalg.eigvals(A)))) < 1.0
-    if stable:      # G(1) = C (I - A)^{-1} B + D, on the host
-        gain = (C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D) * span
-    else:
-        gain = s[-1]
     ynames, unames = _names(output_names, ny, "y"), _names(input_names, nu, "u")
     pairs, warnings = [], []
     if not stable:

@@ -106,3 +106,26 @@ def test_fit_in_a_shared_shape_is_the_own_fit():
                                    rtol=1e-6, atol=1e-8)
     assert m2.nb == 1 and m2.nf == 1 and i2["converged"] == i1["converged"]
     np.testing.assert_allclose(np.asarray(i2["std"]), np.asarray(i1["std"]), rtol=1e-5)
+
+
+@pytest.mark.parametrize("orders", ORDERS)
+def test_numpy_step_responses_match_the_realisation(orders):
+    """What the plausibility check uses for polynomial models (nothing to compile): step
+    responses, static gains and state dimension of `to_statespace()`."""
+    from jthermo.validate.plausibility import plausibility, step_responses, window
+
+    m = _model(np.random.default_rng(4), *orders)
+    ss = m.to_statespace()
+    A, B, C, D = (np.asarray(x) for x in (ss.A, ss.B, ss.C, ss.D))
+    assert pn.n_states(m) == A.shape[0]
+    np.testing.assert_allclose(pn.step_responses(m, 80), step_responses(A, B, C, D, 80),
+                               rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(pn.dc_gain(m), C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D,
+                               rtol=1e-10, atol=1e-12)
+    # the check itself: same pairs as from the realisation (a StateSpace takes that path)
+    fast, ref = plausibility(m, noise_std=0.01), plausibility(ss, noise_std=0.01)
+    assert fast["window_s"] == ref["window_s"] == window(A, B.shape[1]) * float(m.ts)
+    for p, q in zip(fast["pairs"], ref["pairs"]):
+        assert p["inverse_response"] == q["inverse_response"]
+        assert p["wrong_way_C"] == pytest.approx(q["wrong_way_C"], rel=1e-8, abs=1e-12)
+        assert p["dc_gain"] == pytest.approx(q["dc_gain"], rel=1e-8)
