@@ -48,6 +48,9 @@ WINDOW_C = 1.0        # half-width of the print window used by the metrics, °C
 PREVIEW_S = 15.0      # how far ahead the build job announces its events to the controller, s
 JITTER_S = 2.0        # timing error of the announced events, ± s (uniform, per rollout)
 WRONG_P = 0.1         # chance that a zone's announced exposure is wrong, per layer
+#: the printer scenarios `make_scenario(..., shared=True)` builds with one compiled program:
+#: kind -> (set-point step on, recoat on, laser on), traced flags on the full disturbances
+SHARED_KINDS = {"tracking": (1.0, 0.0, 0.0), "powder": (0.0, 1.0, 0.0), "print": (0.0, 1.0, 1.0)}
 
 
 class ModelDisturbance(eqx.Module):
@@ -145,8 +148,11 @@ def _as_key(key):
 
 
 def _printer_scenario(kind: str, printer: Printer, T: int, key, noise_std: float,
-                      step_c: float):
-    """r, d, v, y0 for one rollout on the printer (traceable in `key`)."""
+                      step_c: float, flags=None):
+    """r, d, v, y0 for one rollout on the printer (traceable in `key`). `kind="shared"`: the
+    `SHARED_KINDS` scenario picked by the traced `flags` (step, recoat, laser): every part
+    drawn from the same keys as the kind's own branch, then switched off by a factor 0, so
+    the values are the same and tracking, powder and print share one program."""
     dt = printer.capacity.dtype
     n, ny = printer.zones, printer.n_outputs
     k_d, k_v, k_r, k_p = jax.random.split(key, 4)
@@ -156,7 +162,12 @@ def _printer_scenario(kind: str, printer: Printer, T: int, key, noise_std: float
     def full(bed):
         return jnp.concatenate([bed, extra.astype(dt)])
 
-    if kind == "tracking":
+    if kind == "shared":
+        d = disturbances(printer, T, k_d, recoat=True, laser=True)
+        d = dataclasses.replace(d, recoat=flags[1] * d.recoat, laser=flags[2] * d.laser)
+        off = flags[0] * (step_c / 2)
+        y0, r = full(centre - off), full(centre + off)
+    elif kind == "tracking":
         d = disturbances(printer, T, k_d, recoat=False, laser=False)
         y0 = full(centre - step_c / 2)
         r = full(centre + step_c / 2)
@@ -185,7 +196,7 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
                   n_rollouts: int | None = None, noise_std: float = 0.05,
                   step_c: float = STEP_C, window: float = WINDOW_C,
                   reference: Printer | None = None, envelope: Envelope | None = None,
-                  setpoint=None) -> Scenario:
+                  setpoint=None, shared: bool = False) -> Scenario:
     """Build a thesis test scenario for `plant` (a batch with `n_rollouts`).
 
     **Arguments:**
@@ -200,6 +211,9 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
       `envelope` and `setpoint` go to `model_scenario` (fitted models only).
     - `duration` (s, default `DEFAULT_DURATION[kind]`), `key` (a PRNG key or integer seed),
       `noise_std` (white measurement noise, °C, added to the printer's `sensor_noise`).
+    - `shared`: build `tracking`, `powder` and `print` on a printer with recoat and laser with
+      one compiled program for the three (`SHARED_KINDS`; the same values): for a study that
+      builds all three (`tune`); a single kind compiles less without it.
     """
     if kind not in KINDS:
         raise ConfigError(f"make_scenario: unknown scenario `{kind}` (known: {', '.join(KINDS)})")
@@ -232,18 +246,23 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
         raise ConfigError(f"make_scenario: duration {duration} s is shorter than two samples")
 
     keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
+    build, flags = kind, None
+    if shared and kind in SHARED_KINDS and printer.has("recoat_cooling") \
+            and printer.has("laser_exposure"):
+        build, flags = "shared", jnp.asarray(SHARED_KINDS[kind], printer.capacity.dtype)
     # one compiled builder per kind for printers of every powder (the name is only a label)
-    r, d, v, y0, s = _build_scenario(kind, unlabelled(printer), model, T, keys,
-                                     float(noise_std), float(step_c), n_rollouts is not None)
+    r, d, v, y0, s = _build_scenario(build, unlabelled(printer), model, T, keys,
+                                     float(noise_std), float(step_c), n_rollouts is not None,
+                                     flags)
     return Scenario(r=r, d=d, v=v, y0=y0, s=s, kind=kind, window=float(window),
                     edges=grid_edges(printer.zones), ts=printer.ts,
                     cold_start=(kind == "preheat"))
 
 
 @eqx.filter_jit
-def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched):
+def _build_scenario(kind, printer, model, T, keys, noise_std, step_c, batched, flags=None):
     def one(k):
-        r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c)
+        r, d, v, y0 = _printer_scenario(kind, printer, T, k, noise_std, step_c, flags)
         # its own key (folded in): the other signals keep the draws they had without it
         s = event_schedule(printer, d, jax.random.fold_in(k, 16))
         if model is not None:

@@ -136,23 +136,29 @@ def _same_controller(a, b) -> bool:
 
 
 def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration: float,
-                   weights=None) -> dict:
+                   weights=None, chunk: int | None = None) -> dict:
     """Mean cost and measured MSE of each controller of `ctrls` (`{name: controller}`) on each
     plant of `plants` (`{label: plant}`) in the three scenarios, over `rollouts` realisations
     per seed of `seeds`, on the lean path (`batch_terms`: cost and mse accumulated in the scan,
     equal to `evaluate`'s `closedloop.cost` and `metrics` mse at weights without overshoot).
     Every plant, scenario and seed is one batch, simulated in one compiled program per
     controller structure; each distinct controller is simulated once (equal leaves, e.g. the
-    start design and the same classical design made again, count as one).
+    start design and the same classical design made again, count as one). `chunk`: simulate
+    the items in batches of this many (the last one filled up by repeating its items), so
+    that a program compiled for a training batch of that many items (`tune`) serves here too.
+    Every controller's simulations are dispatched before any is read, so that compiling the
+    next structure overlaps running the previous one.
 
     **Returns:** `{name: {label: {"cost": mean over scenarios, "scenarios": {kind: {"cost",
     "mse"}}}}}`.
     """
     items = [(lab, k, s) for lab in plants for k in SCENARIOS for s in seeds]
-    batch = group_batch([(plants[lab], k, make_scenario(k, plants[lab], duration,
-                                                         jax.random.key(int(s)),
-                                                         n_rollouts=int(rollouts)))
-                         for lab, k, s in items])
+    study = [(plants[lab], k, make_scenario(k, plants[lab], duration, jax.random.key(int(s)),
+                                            n_rollouts=int(rollouts), shared=True))
+             for lab, k, s in items]
+    n = len(study) if not chunk else int(chunk)
+    parts = [study[i:i + n] for i in range(0, len(study), n)]
+    batches = [group_batch(p + [p[j % len(p)] for j in range(n - len(p))]) for p in parts]
     reps: list = []
 
     def distinct(c):
@@ -163,8 +169,9 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
 
     which = {name: distinct(c) for name, c in ctrls.items()}
     done: dict[int, dict] = {}
-    for c in reps:
-        v = np.asarray(batch_terms(c, batch, weights))
+    pending = [[batch_terms(c, b, weights) for b in batches] for c in reps]
+    for c, outs in zip(reps, pending):
+        v = np.concatenate([np.asarray(o) for o in outs])[:len(items)]
         per = {lab: {k: {q: float(np.mean([v[i, j] for i, (l2, k2, _) in enumerate(items)
                                             if l2 == lab and k2 == k]))
                          for j, q in enumerate(("cost", "mse"))} for k in SCENARIOS}
@@ -283,9 +290,9 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     start = _rescaled(start)
     lam_pi = design("pi_lambda", model)
     refs = [design(f, model) for f in references if f != controller_family]
-    plants = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
+    ens = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
         ensemble else [pl]
-    res = tune(start, pl, plants=plants, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
+    res = tune(start, pl, plants=ens, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
                duration=duration, weights=weights, references=refs, progress=progress,
                ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
                params=tuned_fields(start) if params == "auto" else params)
@@ -306,7 +313,11 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     if check_robustness and isinstance(pl, Printer):
         plants.update(_gain_plants(pl, 0.2))
     # every controller on every plant, scenario and seed: one program per controller structure
-    terms = held_out_terms(ctrls, plants, seeds, rollouts=er, duration=duration, weights=weights)
+    # in batches of the training's item count: the tuned structure's (and the references')
+    # compiled simulation serves again (same plants structure, rollouts and duration)
+    chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
+    terms = held_out_terms(ctrls, plants, seeds, rollouts=er, duration=duration, weights=weights,
+                           chunk=chunk)
     held = _held_out_comparison(terms, "plant", classical)
     changed = None if "changed" not in plants else {
         "powder": changed_powder, **_held_out_comparison(terms, "changed", classical)}

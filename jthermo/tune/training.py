@@ -59,7 +59,7 @@ def make_batches(plants, kind=SCENARIOS, *, rollouts: int = 8, duration: float =
             for j, k in enumerate(kinds):
                 key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(base, b), i), j)
                 batch.append((p, k, make_scenario(k, p, duration, key, n_rollouts=int(rollouts),
-                                                  **dict(scenario_kw or {}))))
+                                                  shared=True, **dict(scenario_kw or {}))))
         out.append(batch)
     return out
 
