@@ -65,13 +65,21 @@ WHY = {
              "On the Kuntz-Rawlings PRBS run the exchange (`lateral_conduction`) is named. A lamp exponent fits the CACE and Rawlings runs better, but a PWM-driven "
              "resistive heater's power is linear in the duty cycle: it is flagged, not named "
              "(`--actuator resistive-pwm`).",
-    "runs": "Code of each row (this session ran out of time): tclab_cace2020 2 heaters with 6b261fe "
-            "(joint fits; on the validation run the level is re-estimated from the estimation run's "
-            "rest level); klipper hot-end and both DaISy rows with 4551194 (the validation run held "
-            "at the estimation run's rest level); tclab_cace2020 1 heater, apm and tclab_dowling with "
-            "a7ac632 (each run's own first-sample level); tclab_rawlings and the klipper fan runs were "
-            "not rerun (their b3060ab figures are in that commit's table). Rerun every row with the "
-            "current code: `python experiments/diagnose_real.py`.",
+    "runs": "Code of each row: this session's rerun at ab80a14 (`python experiments/diagnose_real.py`; "
+            "one shared surroundings level in the coupled validation simulation) for every row but "
+            "tclab_rawlings and the klipper fan runs, which were still running or not reached (their "
+            "b3060ab figures are in that commit's table); the 'before' table is the previous table "
+            "(rows from a7ac632, 4551194 and 6b261fe). No row has been rerun since 9a11b41 (each zone "
+            "keeps its own fitted surroundings offset on validation): that rerun was cut at the "
+            "session's end.",
+    "apm": "tclab_apm_mimo_steps (2/3 split of one run): the regression to 91.2/-36.7 %, SAE 372.1 was "
+           "made at a7ac632, whose joint fits took each run's own first sample as the surroundings "
+           "level: the validation third of a split run does not start at rest, so its level was "
+           "wrong by the heaters' rise. From 4551194 the level is the estimation run's rest level "
+           "(re-estimated on validation from there, 6b261fe): at ab80a14 heat_accumulation, "
+           "90.7/67.7 %, SAE 139.4 (baseline 84.4/18.9 %, 281.2; b3060ab 88.5/43.9 %, 202.8). Since "
+           "9a11b41 an augmented model that predicts the validation run worse (higher MSE or lower "
+           "mean fit) than the model it replaces is never reported.",
     "klipper": "3D-printer hot-end (cartridge heater in an aluminium block, thermistor some mm away): a "
                "dead time plus a lag between heater and sensor is the expected path; the drift found on "
                "the fan runs is the part-cooling fan, which the model does not take as an input.",
