@@ -13,8 +13,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+#: iterations over which `masked_lm(..., rtol=...)` measures the cost's fall
+STALL = 3
 
-def masked_lm(residual, theta0, mask, n_iter, n_active=None):
+
+def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None):
     """Minimise $V(\\theta) = \\frac1m \\|r(\\theta)\\|^2$ over the parameters that `mask` frees.
 
     **Arguments:**
@@ -26,6 +29,10 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None):
     - `n_active`: static upper bound on the number of free parameters (default P). Only the
       first `n_active` free parameters get a Jacobian column (one forward-mode tangent each):
       a problem that frees 20 of 40 parameters pays for 20.
+    - `rtol`: optional early stop (static): the iterations end once the cost has fallen by less
+      than `rtol` of itself over the last `STALL` iterations (or $\\lambda$ reached its bound),
+      at most `n_iter` (a `lax.while_loop`; under `jax.vmap` it runs until every problem has
+      stopped, stopped problems keep their values). None: exactly `n_iter` iterations.
 
     Each iteration linearises $r$, forms $J^\\top J$ and $J^\\top r$ over the free parameters
     (non-finite Jacobian entries count as 0; the rows and columns of fixed parameters are
@@ -38,7 +45,7 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None):
     $[10^{-9}, 10^{9}]$). A non-finite cost counts as $+\\infty$.
 
     **Returns:** `(theta, cost, history)`: the final parameters `(P,)`, their cost and the cost
-    after each iteration `(n_iter,)`.
+    after each iteration `(n_iter,)` (after an early stop: the final cost repeated).
     """
     dt = theta0.dtype
     P = theta0.shape[0]
@@ -80,8 +87,25 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None):
         return (th, c_now, lam), c_now
 
     c0 = cost(theta0)
-    (th, c, _), hist = jax.lax.scan(body, (theta0, c0, jnp.asarray(1e-2, dt)), None, length=n_iter)
-    return th, c, hist
+    lam0 = jnp.asarray(1e-2, dt)
+    if rtol is None:
+        (th, c, _), hist = jax.lax.scan(body, (theta0, c0, lam0), None, length=n_iter)
+        return th, c, hist
+
+    def more(carry):
+        _, c, lam, k, hist = carry
+        back = hist[jnp.maximum(k - 1 - STALL, 0)]         # the cost STALL iterations ago
+        stalled = (k > STALL) & (back - c <= rtol * jnp.abs(back))
+        return (k < n_iter) & ~stalled & (lam < 1e9)
+
+    def step(carry):
+        th, c, lam, k, hist = carry
+        (th, c, lam), _ = body((th, c, lam), None)
+        return th, c, lam, k + 1, hist.at[k].set(c)
+
+    th, c, _, k, hist = jax.lax.while_loop(
+        more, step, (theta0, c0, lam0, jnp.asarray(0, jnp.int32), jnp.full(n_iter, c0, dt)))
+    return th, c, jnp.where(jnp.arange(n_iter) < k, hist, c)
 
 
 __all__ = ["masked_lm"]
