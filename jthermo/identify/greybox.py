@@ -126,7 +126,12 @@ def _zone_fit(zone, ts, capacity, max_steps):
     log_gain = np.log(np.where(at_zero, GAIN_FLOOR * top, gain))
     # Gauss–Newton covariance over the free parameters (lam, gains off the bound, c)
     h = 1e-6
-    sim = lambda l: (lambda a_, F_, Z_, t_: F_ @ c + Z_ @ b + (target - t_))(*_columns(l, zone, ts))  # noqa: E731
+
+    def sim(lam_):
+        """The zone's simulated temperature at `lam_` with the linear part held fixed."""
+        _, F_, Z_, target_ = _columns(lam_, zone, ts)
+        return F_ @ c + Z_ @ b + (target - target_)
+
     d_lam = (sim(lam + h) - sim(lam - h)) / (2 * h)
     free = np.flatnonzero(~at_zero)
     J = np.column_stack([d_lam, Z[:, free], F])
@@ -150,6 +155,7 @@ def _zone_fit(zone, ts, capacity, max_steps):
 
 
 def _fit_zones(y, u, w, mode, ts, capacity, max_steps, surr=0.0):
+    """`_zone_fit` of every zone (column of `y`), surroundings handled as `mode` says."""
     zones = [{"y": y[:, i], "u": u, "w": w, "mode": mode, "surr": surr} for i in range(y.shape[1])]
     return [_zone_fit(z, ts, capacity, max_steps) for z in zones]
 
