@@ -43,6 +43,7 @@ def test_zone_level_gradient_matches_central_differences():
     lay, Th, f, rec, on = _free_level_setup(["radiative_loss"])
     sl = lay.sl("ts0")
 
+    @jax.jit
     def loss(off):
         th = jnp.asarray(Th).at[:, sl].set(off[:, None])
         return jnp.sum(M.simulate_full(th, on, f, lay, rec) ** 2) / 1e4
