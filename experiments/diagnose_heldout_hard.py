@@ -304,7 +304,13 @@ def write(rows, meta, out, tag):
     summ = {"top1": [sum(r["correct"] for r in mech), len(mech)],
             "nulls_quiet": [len(nulls) - fa, len(nulls)], "false_alarm_ci95": [lo, hi],
             "median_gain": float(np.median(gains)) if gains else float("nan"),
-            "params_within_25": [int(sum(e <= 0.25 for e in rec)), len(rec)], "calibration": cal}
+            "params_within_25": [int(sum(e <= 0.25 for e in rec)), len(rec)], "calibration": cal,
+            "uncertain": [sum(r.get("uncertain", False) for r in mech), sum(r.get("uncertain", False) and not r["correct"]
+                                                                          for r in mech)],
+            "confident_wrong": sum(r["top"] is not None and not r.get("uncertain", False) and not r["correct"]
+                                   for r in rows),
+            "truth_among_top_or_rivals": [sum(r["correct"] or any(m in r["counted"] for m in r["rivals"])
+                                              for r in mech), len(mech)]}
     atomic_write_text(out / f"diagnose_heldout_hard{tag}.json",
                       json.dumps({"meta": meta, "summary": summ, "records": rows}, indent=1, default=float))
     lines = [f"# Harder held-out diagnosis study (issue 14){' — ' + tag.strip('_') if tag else ''}", "",
@@ -316,7 +322,11 @@ def write(rows, meta, out, tag):
     if mech:
         lines += [f"- top-1 on mechanism cases: {summ['top1'][0]}/{summ['top1'][1]}",
                   f"- median fit gain (correct cases): {summ['median_gain']:.2f} pts",
-                  f"- recovered parameters within 25 %: {summ['params_within_25'][0]}/{summ['params_within_25'][1]}"]
+                  f"- recovered parameters within 25 %: {summ['params_within_25'][0]}/{summ['params_within_25'][1]}",
+                  f"- top findings reported as uncertain (confidence < 0.95): {summ['uncertain'][0]} "
+                  f"({summ['uncertain'][1]} of them wrong); confident wrong names: {summ['confident_wrong']}",
+                  f"- truth named first or among the rivals: {summ['truth_among_top_or_rivals'][0]}/"
+                  f"{summ['truth_among_top_or_rivals'][1]}"]
     if nulls:
         lines.append(f"- nulls quiet: {len(nulls) - fa}/{len(nulls)} (false alarms {fa}, 95 % Clopper-Pearson "
                      f"{100 * lo:.1f}-{100 * hi:.1f} %; stated {100 * ALPHA:g} % family-wise)")
@@ -330,7 +340,7 @@ def write(rows, meta, out, tag):
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         par = "; ".join(f"{k} {v['true']:.3g} → {v['found']:.3g}" for k, v in (r["recovered"] or {}).items())
-        conf = "" if r["confidence"] is None else f"{r['confidence']:.3f}"
+        conf = "" if r["confidence"] is None else f"{r['confidence']:.3f}{' uncertain' if r.get('uncertain') else ''}"
         lines.append(f"| {r['case']}{'' if r['correct'] else ' **miss**'} | {r['zones']} | {r['ts']:.2f} | "
                      f"{json.dumps(r['physics'])} | {', '.join(r['counted']) or 'nothing'} | "
                      f"{', '.join(r['named']) or '-'} | {', '.join(r['rivals']) or '-'} | {conf} | "
@@ -468,6 +478,7 @@ def main(argv=None):
                      "physics": describe(c), "counted": list(COUNTED[kind]), "named": named, "top": top,
                      "correct": ok, "rivals": res["findings"][0]["rivals"] if named else [],
                      "confidence": res["findings"][0]["confidence"] if named else None,
+                     "uncertain": bool(res["findings"][0].get("uncertain", False)) if named else False,
                      "flagged": [f["mechanism"] for f in res.get("flagged", [])],
                      "drift_input_dependence_z": res["localisation"].get("drift_input_dependence_z"),
                      "combinations": res.get("combinations", []),

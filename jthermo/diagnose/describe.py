@@ -3,7 +3,16 @@
 from __future__ import annotations
 
 
-def summary(mech, zones, params):
+def summary(mech, zones, params, uncertain=False, rivals=()):
+    """One line on the finding; an uncertain one (`decide.uncertain`) says so and names its rivals."""
+    line = _summary(mech, zones, params)
+    if not uncertain:
+        return line
+    alt = f" or {', '.join(rivals)}" if rivals else ""
+    return f"Uncertain (the data do not separate it from the alternatives{alt}): {line}"
+
+
+def _summary(mech, zones, params):
     z = ", ".join(str(v) for v in zones)
     where = f"zone{'s' if len(zones) > 1 else ''} {z}"
     if mech == "lateral_conduction":

@@ -569,12 +569,21 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     if sig:
         top = sig[0]
         kt = top["k"]
+        slow = ("heat_accumulation", "ambient_variation")
+        tied = top["mechanism"] in slow and D.body_drift_tied([r["mechanism"] for r in sig],
+                                                              loc.get("drift_input_dependence_z", 0.0))
         for r in sig[1:]:
-            if D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt])):
+            if (D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt]))
+                    or (tied and r["mechanism"] in slow)):
                 rivals.append(r["mechanism"])
         others = [r for r in ranked if r is not top and r["val_reduction"] > 0]
         z_run = D.predictive_z(e_c[others[0]["k"]], e_c[kt]) if others else None
         conf_top = D.confidence(top["validation_z"], z_run)
+        if D.uncertain(conf_top):
+            # not a confident name: every candidate that improved on the baseline and that the
+            # top one does not beat is a rival, significant alone or not
+            rivals += [r["mechanism"] for r in others if r["mechanism"] not in rivals + [top["mechanism"]]
+                       and D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt]))]
         chosen = [top["mechanism"]]
         # ---- 6. the combination, fitted jointly over all zones, grown forward by the tests ------
         # every candidate may join (one that helps only beside another, e.g. radiation once the
@@ -622,8 +631,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                     "zone_mse_reduction": [round(float(v), 5) for v in dz]}
         evidence.update(mechanism_evidence(mech, loc, per_ev))
         findings.append({"mechanism": mech, "confidence": float(conf), "zones": zones,
-                         "summary": summary(mech, zones, params), "evidence": evidence,
-                         "parameters": params, "rivals": rivals if rank == 0 else []})
+                         "summary": summary(mech, zones, params, rank == 0 and D.uncertain(conf), rivals),
+                         "evidence": evidence,
+                         "parameters": params, "rivals": rivals if rank == 0 else [],
+                         "uncertain": bool(rank == 0 and D.uncertain(conf))})
     sae = lambda e: float(np.sum(np.abs(e))) if np.all(np.isfinite(e)) else float("nan")
     result = {
         "verdict": "mismatch" if findings else "no_significant_mismatch",

@@ -56,3 +56,25 @@ def test_body_goes_ahead_of_drift_only_when_input_dependent():
                                                      "radiative_loss"]
     assert names(D.order_body_drift(rows, 1.0)) == names(rows)
     assert names(D.order_body_drift(rows[:2], 5.0)) == names(rows[:2])
+    body_first = [{"mechanism": m} for m in ("heat_accumulation", "ambient_variation")]
+    assert names(D.order_body_drift(body_first, 0.5)) == names(body_first)
+
+
+def test_body_and_drift_tie_without_input_dependence():
+    both = ["heat_accumulation", "ambient_variation"]
+    assert D.body_drift_tied(both, 0.0)
+    assert not D.body_drift_tied(both, 1.7)                 # above the one-sided 5 % level
+    assert not D.body_drift_tied(["heat_accumulation", "heater_lag"], 0.0)
+
+
+def test_uncertain_below_the_rival_level():
+    """A confidence under 1 - RIVAL_LEVEL is uncertain; the summary then says so and names rivals."""
+    from jthermo.diagnose.describe import summary
+
+    assert D.CONFIDENT == 1.0 - D.RIVAL_LEVEL
+    assert D.uncertain(0.94) and not D.uncertain(0.95) and not D.uncertain(0.999)
+    assert D.uncertain(D.confidence(3.0, 1.0))             # beats the baseline, not the runner-up
+    assert not D.uncertain(D.confidence(5.0, None))
+    line = summary("ambient_variation", [1], {}, True, ["heat_accumulation"])
+    assert line.startswith("Uncertain") and "heat_accumulation" in line
+    assert not summary("ambient_variation", [1], {}).startswith("Uncertain")
