@@ -35,8 +35,8 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 from jthermo.data import atomic_write_text, load
-from jthermo.diagnose import diagnose, to_json
 from jthermo.diagnose import decide as D
+from jthermo.diagnose import diagnose, to_json
 from jthermo.diagnose import mechanisms as M
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,14 +107,14 @@ def main(argv=None):
     f, dr, p = rec["full"], rec["drift"], rec["published_mechanisms_only"]
     fmt = lambda v: "/".join(f"{x:.1f}" for x in v)
     lines = ["# TCLab CACE 2020, two heaters: is the named surroundings drift real? (issue 14)", "",
-             "Made by `python experiments/diagnose_cace2_drift.py` (estimation `id_2heaters`, validation "
-             "`val_2heaters`, `--actuator resistive-pwm`). Published physics model: validation SAE 840.95.", "",
+             ("Made by `python experiments/diagnose_cace2_drift.py` (estimation `id_2heaters`, validation "
+             "`val_2heaters`, `--actuator resistive-pwm`). Published physics model: validation SAE 840.95."), "",
              "| diagnosis | named | rivals | surroundings | fit % | SAE |", "|---|---|---|---|---|---|",
-             f"| all candidates | {', '.join(f['named']) or '-'} | {', '.join(f['rivals']) or '-'} | "
-             f"{f['surroundings']} | {fmt(f['augmented_fit'])} | {f['augmented_sae']:.1f} |",
-             f"| published model's mechanisms only ({', '.join(PUBLISHED)}) | {', '.join(p['named']) or '-'} | "
+             (f"| all candidates | {', '.join(f['named']) or '-'} | {', '.join(f['rivals']) or '-'} | "
+             f"{f['surroundings']} | {fmt(f['augmented_fit'])} | {f['augmented_sae']:.1f} |"),
+             (f"| published model's mechanisms only ({', '.join(PUBLISHED)}) | {', '.join(p['named']) or '-'} | "
              f"{', '.join(p['rivals']) or '-'} | {p['surroundings']} | {fmt(p['augmented_fit'])} | "
-             f"{p['augmented_sae']:.1f} |", "",
+             f"{p['augmented_sae']:.1f} |"), "",
              "Joint additions tried (all candidates):", "",
              "| mechanisms | validation z (crit.) | estimation LR (crit.) | passed | accepted | fit % |",
              "|---|---|---|---|---|---|"]
@@ -123,11 +123,11 @@ def main(argv=None):
               f"{a['mean_fit_percent']:.2f} |" for a in f["combinations"]]
     own = dr["partial_r2_own_vs_other_heater"]
     lines += ["", "The drift each zone's `ambient_variation` model fitted alone (estimation run):", "",
-              f"- range per zone: {', '.join(f'{v:.2f}' for v in dr['drift_range_C'])} °C; start → end: "
-              f"{', '.join(f'{a:.2f} → {b:.2f}' for a, b in zip(*dr['drift_start_end_C']))} °C",
-              f"- correlation of the two zones' drifts: {dr['zone_drift_correlation']:.3f}; rms of their "
+              (f"- range per zone: {', '.join(f'{v:.2f}' for v in dr['drift_range_C'])} °C; start → end: "
+              f"{', '.join(f'{a:.2f} → {b:.2f}' for a, b in zip(*dr['drift_start_end_C']))} °C"),
+              (f"- correlation of the two zones' drifts: {dr['zone_drift_correlation']:.3f}; rms of their "
               f"difference / rms of the drift: {dr['difference_rms_over_drift_rms']:.3f} (a room drift: "
-              "correlation near 1, difference near 0)",
+              "correlation near 1, difference near 0)"),
               "- share of the drift's variance beyond a line explained by a heater's input-driven temperature "
               "(partial R², heater 1 / heater 2): "
               + "; ".join(f"zone {i + 1}: {r[0]:.3f} / {r[1]:.3f}" for i, r in enumerate(own)),

@@ -323,10 +323,10 @@ def write(rows, meta, out, tag):
         lines += [f"- top-1 on mechanism cases: {summ['top1'][0]}/{summ['top1'][1]}",
                   f"- median fit gain (correct cases): {summ['median_gain']:.2f} pts",
                   f"- recovered parameters within 25 %: {summ['params_within_25'][0]}/{summ['params_within_25'][1]}",
-                  f"- top findings reported as uncertain (confidence < 0.95): {summ['uncertain'][0]} "
-                  f"({summ['uncertain'][1]} of them wrong); confident wrong names: {summ['confident_wrong']}",
-                  f"- truth named first or among the rivals: {summ['truth_among_top_or_rivals'][0]}/"
-                  f"{summ['truth_among_top_or_rivals'][1]}"]
+                  (f"- top findings reported as uncertain (confidence < 0.95): {summ['uncertain'][0]} "
+                  f"({summ['uncertain'][1]} of them wrong); confident wrong names: {summ['confident_wrong']}"),
+                  (f"- truth named first or among the rivals: {summ['truth_among_top_or_rivals'][0]}/"
+                  f"{summ['truth_among_top_or_rivals'][1]}")]
     if nulls:
         lines.append(f"- nulls quiet: {len(nulls) - fa}/{len(nulls)} (false alarms {fa}, 95 % Clopper-Pearson "
                      f"{100 * lo:.1f}-{100 * hi:.1f} %; stated {100 * ALPHA:g} % family-wise)")
