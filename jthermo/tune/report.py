@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
@@ -135,8 +136,23 @@ def _same_controller(a, b) -> bool:
     return ta == tb and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
 
 
+def held_out_study(plants: dict, seeds, *, rollouts: int, duration: float,
+                   chunk: int | None = None) -> tuple[list, list]:
+    """`(items, batches)` of `held_out_terms`: the items `(label, kind, seed)` for every plant of
+    `plants`, scenario and seed, and their grouped scenarios in batches of `chunk` items (all:
+    None), the last one filled up by repeating its items; built once, simulated for any number
+    of controllers (`held_out_terms(..., study=...)`)."""
+    items = [(lab, k, s) for lab in plants for k in SCENARIOS for s in seeds]
+    study = [(plants[lab], k, make_scenario(k, plants[lab], duration, jax.random.key(int(s)),
+                                            n_rollouts=int(rollouts), shared=True))
+             for lab, k, s in items]
+    n = len(study) if not chunk else int(chunk)
+    parts = [study[i:i + n] for i in range(0, len(study), n)]
+    return items, [group_batch(p + [p[j % len(p)] for j in range(n - len(p))]) for p in parts]
+
+
 def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration: float,
-                   weights=None, chunk: int | None = None) -> dict:
+                   weights=None, chunk: int | None = None, study=None) -> dict:
     """Mean cost and measured MSE of each controller of `ctrls` (`{name: controller}`) on each
     plant of `plants` (`{label: plant}`) in the three scenarios, over `rollouts` realisations
     per seed of `seeds`, on the lean path (`batch_terms`: cost and mse accumulated in the scan,
@@ -147,18 +163,14 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
     the items in batches of this many (the last one filled up by repeating its items), so
     that a program compiled for a training batch of that many items (`tune`) serves here too.
     Every controller's simulations are dispatched before any is read, so that compiling the
-    next structure overlaps running the previous one.
+    next structure overlaps running the previous one. `study`: `held_out_study`'s `(items,
+    batches)` for these plants, seeds, rollouts, duration and chunk, made once for many calls.
 
     **Returns:** `{name: {label: {"cost": mean over scenarios, "scenarios": {kind: {"cost",
     "mse"}}}}}`.
     """
-    items = [(lab, k, s) for lab in plants for k in SCENARIOS for s in seeds]
-    study = [(plants[lab], k, make_scenario(k, plants[lab], duration, jax.random.key(int(s)),
-                                            n_rollouts=int(rollouts), shared=True))
-             for lab, k, s in items]
-    n = len(study) if not chunk else int(chunk)
-    parts = [study[i:i + n] for i in range(0, len(study), n)]
-    batches = [group_batch(p + [p[j % len(p)] for j in range(n - len(p))]) for p in parts]
+    items, batches = study if study is not None else held_out_study(
+        plants, seeds, rollouts=rollouts, duration=duration, chunk=chunk)
     reps: list = []
 
     def distinct(c):
@@ -179,6 +191,20 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
         done[id(c)] = {lab: {"cost": float(np.mean([d["cost"] for d in sc.values()])),
                              "scenarios": sc} for lab, sc in per.items()}
     return {name: done[id(c)] for name, c in which.items()}
+
+
+def _fixed_held_out(model, start, lam_pi, plants: dict, seeds, kw: dict):
+    """`(classical, study, terms)` for `tune_report`: the classical designs on `model`
+    (`classical_designs`, with `lam_pi` as pi_lambda), the held-out study (`held_out_study`)
+    and `held_out_terms` of the start, the lambda PI and every classical design on it,
+    structures other than the start's simulated first (the tuning compiles the start's)."""
+    classical = {**classical_designs(model), "pi_lambda": lam_pi}
+    ctrls = {"start": start, "lambda_pi": lam_pi, **classical}
+    own = jax.tree_util.tree_structure(start)
+    ctrls = dict(sorted(ctrls.items(), key=lambda kv: jax.tree_util.tree_structure(kv[1]) == own))
+    study = held_out_study(plants, seeds, rollouts=kw["rollouts"], duration=kw["duration"],
+                           chunk=kw["chunk"])
+    return classical, study, held_out_terms(ctrls, plants, seeds, study=study, **kw)
 
 
 def _held_out_comparison(res: dict, label: str, classical: Sequence[str] = ()) -> dict:
@@ -292,19 +318,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     refs = [design(f, model) for f in references if f != controller_family]
     ens = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
         ensemble else [pl]
-    res = tune(start, pl, plants=ens, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
-               duration=duration, weights=weights, references=refs, progress=progress,
-               ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
-               params=tuned_fields(start) if params == "auto" else params)
-    ms_c = (res.guard or {}).get("ms_constraint")
-    if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
-        ms = loop_ms(model, res.controller)
-        ms_c = {"ms_max": float(ms_max), "chosen_ms": ms, "computable": ms is not None,
-                "satisfied": None if ms is None else bool(ms <= ms_max), "rejected_for_ms": []}
     seeds = (int(seed) + HELD_OUT,)
     er = eval_rollouts or rollouts
-    classical = {**classical_designs(model), "pi_lambda": lam_pi}
-    ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi, **classical}
     plants = {"plant": pl}
     if isinstance(plant, str) and changed_powder:
         # the same controllers on the printer with the other powder, never seen in tuning
@@ -316,8 +331,24 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     # in batches of the training's item count: the tuned structure's (and the references')
     # compiled simulation serves again (same plants structure, rollouts and duration)
     chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
-    terms = held_out_terms(ctrls, plants, seeds, rollouts=er, duration=duration, weights=weights,
-                           chunk=chunk)
+    kw = dict(rollouts=er, duration=duration, weights=weights, chunk=chunk)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # the designs that tuning does not change run on the held-out seeds in a second thread
+        # while the tuning loop runs: their compiles and simulations overlap it
+        fixed = pool.submit(_fixed_held_out, model, start, lam_pi, plants, seeds, kw)
+        res = tune(start, pl, plants=ens, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
+                   duration=duration, weights=weights, references=refs, progress=progress,
+                   ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
+                   params=tuned_fields(start) if params == "auto" else params)
+        classical, study, terms = fixed.result()
+    ms_c = (res.guard or {}).get("ms_constraint")
+    if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
+        ms = loop_ms(model, res.controller)
+        ms_c = {"ms_max": float(ms_max), "chosen_ms": ms, "computable": ms is not None,
+                "satisfied": None if ms is None else bool(ms <= ms_max), "rejected_for_ms": []}
+    ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi, **classical}
+    terms["tuned"] = terms["start"] if _same_controller(res.controller, start) else \
+        held_out_terms({"tuned": res.controller}, plants, seeds, study=study, **kw)["tuned"]
     held = _held_out_comparison(terms, "plant", classical)
     changed = None if "changed" not in plants else {
         "powder": changed_powder, **_held_out_comparison(terms, "changed", classical)}
