@@ -417,6 +417,55 @@ def write_pooled(res_dir: Path, out: Path):
     atomic_write_text(out / "diagnose_calibration.json", json.dumps(p, indent=1, default=float))
 
 
+def write_compare(out: Path, tags: list[str], name: str):
+    """Side-by-side summary of fresh sets (`diagnose_heldout_hard_TAG.json` for each tag): top-1,
+    nulls, median gain, parameters, uncertain and confident-wrong findings, and per kind what was
+    named first."""
+    sets = {t: json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in tags}
+    kinds = sorted({r["kind"] for d in sets.values() for r in d["records"] if r["kind"] != "null"})
+    lines = ["# Harder held-out diagnosis, fresh sets side by side (issue 14)", "",
+             (f"Made by `python experiments/diagnose_heldout_hard.py --compare {','.join(tags)} --tag {name}` "
+             "from the sets' JSON files (each made by its own command, given in its .md). Files made before"),
+             "3c64345 carry no `uncertain` field: there a confidence below 0.95 stands for it (their rivals",
+             "are those reported then).", "",
+             "| | " + " | ".join(tags) + " |", "|---|" + "---|" * len(tags)]
+    for key, f in (("top-1", lambda d: "{}/{}".format(*_summ(d)["top1"])),
+                   ("nulls quiet", lambda d: "{}/{}".format(*_summ(d)["nulls_quiet"])),
+                   ("median gain (pts)", lambda d: f"{_summ(d)['median_gain']:.2f}"),
+                   ("parameters within 25 %", lambda d: "{}/{}".format(*_summ(d)["params_within_25"])),
+                   ("confident wrong names", lambda d: str(_summ(d)["confident_wrong"])),
+                   ("uncertain (of them wrong)", lambda d: "{} ({})".format(*_summ(d)["uncertain"])),
+                   ("truth first or a rival", lambda d: "{}/{}".format(*_summ(d)["truth_among_top_or_rivals"]))):
+        lines.append(f"| {key} | " + " | ".join(f(d) for d in sets.values()) + " |")
+    lines += ["", "| kind | " + " | ".join(f"{t}: right / cases, named first" for t in tags) + " |",
+              "|---|" + "---|" * len(tags)]
+    for k in kinds:
+        cells = []
+        for d in sets.values():
+            rs = [r for r in d["records"] if r["kind"] == k]
+            cells.append(f"{sum(r['correct'] for r in rs)}/{len(rs)}: " + ", ".join(r["top"] or "-" for r in rs))
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    atomic_write_text(out / f"diagnose_heldout_hard_{name}.md", "\n".join(lines) + "\n")
+
+
+def _summ(d):
+    """A set's summary recomputed from its records (older files lack the newer fields)."""
+    rows = d["records"]
+    mech = [r for r in rows if r["kind"] != "null"]
+    nulls = [r for r in rows if r["kind"] == "null"]
+    gains = [r["gain"] for r in mech if r["correct"]]
+    rec = [v["rel_error"] for r in mech if r["recovered"] for v in r["recovered"].values()]
+    unc = lambda r: r.get("uncertain", r["confidence"] is not None and r["confidence"] < 0.95)
+    return {"top1": [sum(r["correct"] for r in mech), len(mech)],
+            "nulls_quiet": [sum(r["correct"] for r in nulls), len(nulls)],
+            "median_gain": float(np.median(gains)) if gains else float("nan"),
+            "params_within_25": [int(sum(e <= 0.25 for e in rec)), len(rec)],
+            "confident_wrong": sum(r["top"] is not None and not unc(r) and not r["correct"] for r in rows),
+            "uncertain": [sum(unc(r) for r in mech), sum(unc(r) and not r["correct"] for r in mech)],
+            "truth_among_top_or_rivals": [sum(r["correct"] or any(m in r["counted"] for m in r["rivals"])
+                                              for r in mech), len(mech)]}
+
+
 def cpu_s():
     t = os.times()
     return t.user + t.system
@@ -436,6 +485,8 @@ def main(argv=None):
     ap.add_argument("--combine", default=None, metavar="TAGS",
                     help="no diagnosis: merge the records of these comma-separated tags (shards run in "
                          "parallel) into --tag's files")
+    ap.add_argument("--compare", default=None, metavar="TAGS",
+                    help="no diagnosis: the comma-separated sets' JSON side by side in --tag's .md")
     ap.add_argument("--pooled", action="store_true",
                     help="only pool the studies' JSON in --out: false alarms and confidence calibration")
     args = ap.parse_args(argv)
@@ -443,6 +494,9 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     if args.pooled:
         write_pooled(out, out)
+        return 0
+    if args.compare:
+        write_compare(out, args.compare.split(","), args.tag or "compare")
         return 0
     if args.combine:
         parts = [json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in args.combine.split(",")]
