@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import DataError, ModelError
-from ..models.polynomial import Polynomial, as_nk
+from ..models.polynomial import Polynomial, as_nk, placed
 
 
 class ARXResult(eqx.Module):
@@ -118,8 +118,8 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
 
     **Returns:** `ARXResult` with the `Polynomial` model and per-output covariance.
     """
-    y = jnp.asarray(y)
-    u = jnp.asarray(u)
+    y = np.asarray(y)
+    u = np.asarray(u)
     if y.ndim != 2 or u.ndim != 2 or y.shape[0] != u.shape[0]:
         raise ModelError(f"arx_ls: y (T, ny) and u (T, nu) must share T, got {y.shape} and {u.shape}")
     if na < 0 or nb < 0 or (na == 0 and nb == 0):
@@ -155,22 +155,28 @@ def arx_ls(y: Float[Array, "T ny"], u: Float[Array, "T nu"], na: int, nb: int, n
         y0 = y0 + np.linalg.solve(A1, theta[:, p])
         cov = cov[:, :p, :p]
     dt = y.dtype
-    model = Polynomial(a=jnp.asarray(a, dt), b=jnp.asarray(b, dt), nk=nk, ts=ts,
-                       u0=None if u0 is None else jnp.asarray(u0, dt), y0=jnp.asarray(y0, dt))
+    model = Polynomial(a=placed(a, dt), b=placed(b, dt), nk=nk, ts=ts,
+                       u0=None if u0 is None else placed(u0, dt), y0=placed(y0, dt))
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    return ARXResult(model=model, covariance=jnp.asarray(cov, dt), std=jnp.asarray(std, dt),
-                     cost=jnp.asarray(rss.sum() / (ny * (y.shape[0] - n0)), dt))
+    return ARXResult(model=model, covariance=placed(cov, dt), std=placed(std, dt),
+                     cost=placed(rss.sum() / (ny * (y.shape[0] - n0)), dt))
 
 
-def perturb_starts(theta0: np.ndarray, n_starts: int, seed: int, scale: float = 0.2) -> np.ndarray:
+def perturb_starts(theta0: np.ndarray, n_starts: int, seed: int, scale: float = 0.2,
+                   draws: str = "jax") -> np.ndarray:
     """`(..., K, p)` start points: `theta0` itself first, then K-1 copies with relative Gaussian
-    perturbations $\\theta (1 + s\\,\\xi) + 0.1 s\\, \\xi'$, deterministic from `seed`."""
+    perturbations $\\theta (1 + s\\,\\xi) + 0.1 s\\, \\xi'$, deterministic from `seed`: drawn
+    by `jax.random` (`draws="jax"`, float32 normals) or by NumPy's `default_rng(seed)`
+    (`draws="numpy"`: nothing to compile, other draws)."""
     theta0 = np.asarray(theta0, dtype=np.float64)
-    key = jax.random.key(int(seed))
-    k1, k2 = jax.random.split(key)
     shape = theta0.shape[:-1] + (max(n_starts, 1) - 1, theta0.shape[-1])
-    xi = np.asarray(jax.random.normal(k1, shape, dtype=jnp.float32), dtype=np.float64)
-    xi2 = np.asarray(jax.random.normal(k2, shape, dtype=jnp.float32), dtype=np.float64)
+    if draws == "numpy":
+        rng = np.random.default_rng(int(seed))
+        xi, xi2 = rng.standard_normal(shape), rng.standard_normal(shape)
+    else:
+        k1, k2 = jax.random.split(jax.random.key(int(seed)))
+        xi = np.asarray(jax.random.normal(k1, shape, dtype=jnp.float32), dtype=np.float64)
+        xi2 = np.asarray(jax.random.normal(k2, shape, dtype=jnp.float32), dtype=np.float64)
     base = theta0[..., None, :]
     pert = base * (1.0 + scale * xi) + 0.1 * scale * xi2
     return np.concatenate([base, pert], axis=-2)

@@ -13,7 +13,6 @@ reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Callable, NamedTuple
 
 import equinox as eqx
@@ -25,7 +24,7 @@ from jaxtyping import Array, Float
 from ..data import IOData, require_samples
 from ..errors import ConfigError, FitError, ModelError
 from ..models.polynomial import (
-    Polynomial, ar_filter, as_nk, delay_onehot, fir_monic, lagged, poly_from_reflection,
+    Polynomial, ar_filter, as_nk, placed, delay_onehot, fir_monic, lagged, poly_from_reflection,
     rational_sum, reflection_from_poly,
 )
 from .arx import arx_ls, perturb_starts
@@ -34,10 +33,13 @@ from .operating_point import (
     OFFSETS, estimate_rest_level, known_rest_level, offset_mode, operating_point,
 )
 from .pem import minimize_many
+from .pem_numpy import coefficient_jacobian, minimize_rows, step_up
 from .result import FitResult, register_fitter
 
 #: the model families `fit_polynomial` serves
 POLYNOMIAL_FAMILIES = ("arx", "armax", "oe", "bj")
+#: PEM engines of `fit_polynomial`: the compiled solve, or NumPy (`pem_numpy`)
+ENGINES = ("jax", "numpy")
 
 
 class PolySpec(NamedTuple):
@@ -80,12 +82,6 @@ def _unpack(theta, s: PolySpec):
 
 def _kappa(theta, s: PolySpec):
     return theta[s.n_coef] if s.offset else jnp.zeros((), theta.dtype)
-
-
-def _coefficients(theta, s: PolySpec):
-    """Flat model coefficients `[a, b, c, d, f]` of one output row (the layout of `std`)."""
-    a, b, c, d, f = _unpack(theta, s)
-    return jnp.concatenate([a.ravel(), b.ravel(), c, d, f.ravel()])
 
 
 def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
@@ -136,7 +132,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
                    screen_steps: int = 10, batch: str = "map", common_f: bool = False,
-                   rest_level=None, shape_orders: dict | None = None):
+                   rest_level=None, shape_orders: dict | None = None, engine: str = "jax"):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -163,19 +159,26 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     MATLAB's $F_{ij}$ per input–output pair. `shape_orders`: orders (`na`, `nb`, `nc`, `nd`,
     `nf`) of a larger structure whose compiled PEM solve this fit shares (the fit is that of
     its own orders, the missing coefficients held at zero by a mask: `fit`'s candidates then
-    compile once).
+    compile once). `engine`: `"jax"` (the compiled `pem.minimize_many`, `solver`, `rtol`,
+    `atol`, `batch`) or `"numpy"` (`pem_numpy.minimize_rows`, diagonal A only: the same
+    residual, starts and screening, nothing compiled, solved until the Gauss–Newton step would
+    gain less than `pem_numpy.POLISH_TOL`; `shape_orders` is not needed there).
 
     **Returns:** `(model, info)` where `info` has `converged` (every output row), `cost`,
     `covariance`, `std`, `start_costs`, `start_steps`, `n_steps`, `offset`, and per output row
     `row_converged` and `expected_improvement` (the relative cost decrease the Gauss–Newton
     step from the result would still give; converged below 1e-4, see `PEMResult`).
     """
-    y = jnp.asarray(y)
-    u = jnp.asarray(u, y.dtype)
+    y = placed(y)
+    u = placed(u, y.dtype)
     ny, nu = y.shape[1], u.shape[1]
     if offset not in OFFSETS:
         raise ConfigError(f"fit: offset must be one of {', '.join(OFFSETS)}, got {offset!r}")
     nkt = as_nk(nk, ny, nu)
+    if engine not in ENGINES:
+        raise ConfigError(f"fit: engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if engine == "numpy" and full_a and ny > 1 and nf == 0 and (nc or nd):
+        raise ConfigError("fit: engine 'numpy' needs a diagonal A (full_a=False)")
     if full_a and ny > 1 and (nd or nf):
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
@@ -183,7 +186,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     if rest_level is not None:
         if offset not in ("auto", "rest"):
             raise ConfigError(f"fit: a known rest_level needs offset 'rest' (or 'auto'), got {offset!r}")
-        rest_level, offset = jnp.asarray(known_rest_level(rest_level, ny), y.dtype), "rest"
+        rest_level, offset = placed(known_rest_level(rest_level, ny), y.dtype), "rest"
     elif offset in ("auto", "rest"):
         rest_level = estimate_rest_level(y, u, nb, nkt, n_den, arx_full, ts)
     if offset == "auto":
@@ -221,31 +224,17 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         else:
             parts.append(dy0[:, None])
     theta0 = np.concatenate(parts, axis=1)
-    starts = perturb_starts(theta0, n_starts, seed)                   # (ny, K, p)
-    big = spec if shape_orders is None else _padded_spec(spec, shape_orders, nkt)
-    args = poly_args(dy, du, big, nkt, m > 1)
+    starts = perturb_starts(theta0, n_starts, seed, draws=engine)      # (ny, K, p)
     dt = y.dtype
-    idx = _embedding(spec, big)
-    if shape_orders is not None:    # the shared compiled shape, missing coefficients masked
-        padded = np.zeros(starts.shape[:2] + (big.n_params,))
-        padded[..., idx] = starts
-        starts = padded
-        mask = np.zeros((ny, big.n_params))
-        mask[:, idx] = 1.0
-        args = args + (jnp.asarray(mask, dt),)
     if progress:
         progress(f"PEM: {ny} output rows x {starts.shape[1]} starts, {spec.n_params} parameters each")
-    res = minimize_many(poly_residual, jnp.asarray(starts, dt), args, solver=solver,
-                        max_steps=max_steps, rtol=rtol, atol=atol, covariance=covariance,
-                        throw=False, screen_steps=screen_steps, batch=batch)
-    if shape_orders is not None:
-        # back to the structure's own parameters; the covariance's noise variance divides by
-        # T - p: rescaled from the shared shape's p to the structure's own
-        T = dy.shape[0]
-        scale = max(T - big.n_params, 1) / max(T - spec.n_params, 1)
-        cov_own = np.asarray(res.covariance)[:, idx][:, :, idx] * scale
-        own = (np.asarray(res.theta)[:, idx], cov_own, np.asarray(res.std)[:, idx] * np.sqrt(scale))
-        res = eqx.tree_at(lambda r: (r.theta, r.covariance, r.std), res, own)
+    if engine == "numpy":
+        res = minimize_rows(starts, dy, du, nkt, spec, max_steps=max_steps,
+                            screen_steps=screen_steps, covariance=covariance)
+    else:
+        res = _minimize_compiled(starts, dy, du, nkt, spec, shape_orders, dt, solver=solver,
+                                 max_steps=max_steps, rtol=rtol, atol=atol,
+                                 covariance=covariance, screen_steps=screen_steps, batch=batch)
     cost = np.asarray(res.cost)
     if not np.all(np.isfinite(cost)):
         bad = int(np.argmax(~np.isfinite(cost)))
@@ -261,6 +250,33 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                        expected_improvement=np.asarray(res.expected_improvement),
                        offset=offset, reference=start,
                        start_model=_model_from_theta(theta0, spec, nkt, ts, u0, yref, dt))
+
+
+def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **kw):
+    """`pem.minimize_many` of every output row (`fit_polynomial`'s `engine="jax"`); with
+    `shape_orders`, in the compiled shape of that larger structure (missing coefficients
+    masked), the result mapped back to `spec`'s own parameters."""
+    ny = dy.shape[1]
+    big = spec if shape_orders is None else _padded_spec(spec, shape_orders, nkt)
+    args = poly_args(dy, du, big, nkt, spec.m > 1)
+    idx = _embedding(spec, big)
+    if shape_orders is not None:    # the shared compiled shape, missing coefficients masked
+        padded = np.zeros(starts.shape[:2] + (big.n_params,))
+        padded[..., idx] = starts
+        starts = padded
+        mask = np.zeros((ny, big.n_params))
+        mask[:, idx] = 1.0
+        args = args + (jnp.asarray(mask, dt),)
+    res = minimize_many(poly_residual, jnp.asarray(starts, dt), args, throw=False, **kw)
+    if shape_orders is not None:
+        # back to the structure's own parameters; the covariance's noise variance divides by
+        # T - p: rescaled from the shared shape's p to the structure's own
+        T = dy.shape[0]
+        scale = max(T - big.n_params, 1) / max(T - spec.n_params, 1)
+        cov_own = np.asarray(res.covariance)[:, idx][:, :, idx] * scale
+        own = (np.asarray(res.theta)[:, idx], cov_own, np.asarray(res.std)[:, idx] * np.sqrt(scale))
+        res = eqx.tree_at(lambda r: (r.theta, r.covariance, r.std), res, own)
+    return res
 
 
 def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
@@ -288,22 +304,13 @@ def _embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
     return np.concatenate(idx).astype(int)
 
 
-@partial(jax.jit, static_argnums=2)
 def _coefficient_covariance(theta, cov_theta, spec: PolySpec):
     """Covariance and standard deviations of the model coefficients `[a, b, c, d, f]` per
-    output row, $J \\Sigma_\\theta J^\\top$ with $J$ the Jacobian of `_coefficients`."""
-    Jt = jax.vmap(jax.jacfwd(lambda th: _coefficients(th, spec)))(theta)
-    cov = jnp.einsum("iab,ibc,idc->iad", Jt, cov_theta, Jt)
-    return cov, jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=1, axis2=2), 0.0))
-
-
-def _step_up(kappa: np.ndarray) -> np.ndarray:
-    """`poly_from_reflection` in NumPy (last axis)."""
-    a = np.zeros(kappa.shape[:-1] + (0,))
-    for m in range(kappa.shape[-1]):
-        k = kappa[..., m:m + 1]
-        a = np.concatenate([a + k * a[..., ::-1], k], axis=-1)
-    return a
+    output row, $J \\Sigma_\\theta J^\\top$ with $J$ the Jacobian of the coefficients in the
+    parameters (`pem_numpy.coefficient_jacobian`; NumPy: nothing to compile)."""
+    Jt = np.stack([coefficient_jacobian(th, spec) for th in np.asarray(theta, np.float64)])
+    cov = np.einsum("iab,ibc,idc->iad", Jt, np.asarray(cov_theta, np.float64), Jt)
+    return cov, np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None))
 
 
 def _a_at_one(a: np.ndarray) -> np.ndarray:
@@ -321,14 +328,14 @@ def _model_from_theta(theta, spec: PolySpec, nkt, ts: float, u0, yref, dtype) ->
     k = np.cumsum([0, s.m * s.na, s.nu * s.nb, s.nc, s.nd, s.n_f])
     a = theta[:, k[0]:k[1]].reshape(ny, s.m, s.na)
     b = theta[:, k[1]:k[2]].reshape(ny, s.nu, s.nb)
-    c = _step_up(np.tanh(theta[:, k[2]:k[3]]))
-    d = _step_up(np.tanh(theta[:, k[3]:k[4]]))
+    c = step_up(np.tanh(theta[:, k[2]:k[3]]))
+    d = step_up(np.tanh(theta[:, k[3]:k[4]]))
     rho_f = theta[:, k[4]:k[5]].reshape(ny, 1 if s.common_f else s.nu, s.nf)
-    f = _step_up(np.tanh(np.broadcast_to(rho_f, (ny, s.nu, s.nf))))
+    f = step_up(np.tanh(np.broadcast_to(rho_f, (ny, s.nu, s.nf))))
     y0 = np.asarray(yref, np.float64)
     if s.offset:
         y0 = y0 + np.linalg.solve(_a_at_one(a), theta[:, s.n_coef])
-    as_dt = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    as_dt = lambda x: placed(x, dtype)  # noqa: E731
     return Polynomial(a=as_dt(a), b=as_dt(b), c=as_dt(c), d=as_dt(d), f=as_dt(f), nk=nkt, ts=ts,
                       u0=as_dt(u0), y0=as_dt(y0))
 
@@ -398,5 +405,5 @@ def guard_polynomial(model: Polynomial, info: dict, data: IOData, family: str, o
                    f"(try other orders)")
 
 
-__all__ = ["POLYNOMIAL_FAMILIES", "PolySpec", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
+__all__ = ["ENGINES", "POLYNOMIAL_FAMILIES", "PolySpec", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
            "n_params_per_output", "poly_args", "poly_cost", "poly_residual", "polynomial_orders"]

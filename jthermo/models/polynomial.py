@@ -43,6 +43,16 @@ from .filters import (
 
 
 
+def placed(x, dtype=None) -> Array:
+    """`jnp.asarray(x, dtype)` by a transfer from NumPy: with JAX 0.10 `jnp.asarray` of a host
+    array compiles a small XLA program per shape and dtype, `jax.device_put` compiles nothing."""
+    return jax.device_put(np.asarray(x, dtype))
+
+
+def _zeros(shape, dtype) -> Array:
+    return placed(np.zeros(shape, dtype))
+
+
 class Polynomial(AbstractModel):
     """MIMO polynomial model $A y = \\frac{B}{F} u(t-n_k) + \\frac{C}{D} e$ (ARX, ARMAX, OE, BJ).
 
@@ -67,7 +77,7 @@ class Polynomial(AbstractModel):
         if b is None:
             if ny is None or nu is None:
                 raise ModelError("Polynomial: give `b` (ny, nu, nb) or both `ny` and `nu`")
-            b = jnp.zeros((ny, nu, 0))
+            b = _zeros((ny, nu, 0), float)
         b = jnp.asarray(b)
         if b.ndim != 3:
             raise ModelError(f"Polynomial: `b` must be (ny, nu, nb), got shape {b.shape}")
@@ -75,14 +85,14 @@ class Polynomial(AbstractModel):
         dt = b.dtype if jnp.issubdtype(b.dtype, jnp.floating) else jnp.result_type(float)
         b = b.astype(dt)
         self.b = b
-        self.a = jnp.zeros((ny, 1, 0), dt) if a is None else jnp.asarray(a, dt)
+        self.a = _zeros((ny, 1, 0), dt) if a is None else jnp.asarray(a, dt)
         if self.a.ndim == 2:          # (ny, na): diagonal A
             self.a = self.a[:, None, :]
-        self.c = jnp.zeros((ny, 0), dt) if c is None else jnp.asarray(c, dt)
-        self.d = jnp.zeros((ny, 0), dt) if d is None else jnp.asarray(d, dt)
-        self.f = jnp.zeros((ny, nu, 0), dt) if f is None else jnp.asarray(f, dt)
-        self.u0 = jnp.zeros(nu, dt) if u0 is None else jnp.asarray(u0, dt)
-        self.y0 = jnp.zeros(ny, dt) if y0 is None else jnp.asarray(y0, dt)
+        self.c = _zeros((ny, 0), dt) if c is None else jnp.asarray(c, dt)
+        self.d = _zeros((ny, 0), dt) if d is None else jnp.asarray(d, dt)
+        self.f = _zeros((ny, nu, 0), dt) if f is None else jnp.asarray(f, dt)
+        self.u0 = _zeros(nu, dt) if u0 is None else jnp.asarray(u0, dt)
+        self.y0 = _zeros(ny, dt) if y0 is None else jnp.asarray(y0, dt)
         self.nk = as_nk(nk, ny, nu)
         self.ts_ = float(ts)
 
@@ -400,6 +410,6 @@ def BoxJenkins(b, c, d, f, *, nk=1, ts: float = 1.0, u0=None, y0=None) -> Polyno
 
 BJ = BoxJenkins
 
-__all__ = ["Polynomial", "ARX", "ARMAX", "OE", "BoxJenkins", "BJ", "poly_from_reflection",
+__all__ = ["placed", "Polynomial", "ARX", "ARMAX", "OE", "BoxJenkins", "BJ", "poly_from_reflection",
            "reflection_from_poly", "stabilize", "ar_filter", "ar_matrix_filter", "fir_monic", "lagged",
            "rational_sum", "as_nk", "delay_onehot"]
