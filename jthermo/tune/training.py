@@ -107,22 +107,37 @@ def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4242]))
     out, tries = [printer], 0
     n_z = printer.zones
+    # the factors are applied in NumPy (the same products as in jnp) and the steady input is
+    # one compiled program for every copy: no eager op compiles once per copy
+    host = lambda a: np.asarray(a) if eqx.is_array(a) else a
+    cap, loss, gain, sur = (host(printer.capacity), host(printer.loss), host(printer.gain),
+                            host(printer.surroundings))
+    rad = printer.has("radiative_loss")
+    emis = host(printer.effects["radiative_loss"]["emissivity"]) if rad else None
+    dev = lambda a, like: jnp.asarray(a, like.dtype) if eqx.is_array(like) else a
     while len(out) < n + 1 and tries < 20 * (n + 1):
         tries += 1
         f = 1.0 + spread * rng.uniform(-1, 1, 3)
         jit_ = lambda: 1.0 + spread / 3 * rng.uniform(-1, 1, n_z)
+        new = (cap * f[0] * jit_(), loss * f[1] * jit_(), gain * f[2] * jit_()[None, :],
+               sur + shift_c * rng.uniform(-1, 1))
         p = eqx.tree_at(lambda q: (q.capacity, q.loss, q.gain, q.surroundings), printer,
-                        (printer.capacity * f[0] * jit_(), printer.loss * f[1] * jit_(),
-                         printer.gain * f[2] * jit_()[None, :],
-                         printer.surroundings + shift_c * rng.uniform(-1, 1)))
-        if printer.has("radiative_loss"):
+                        tuple(dev(a, like) for a, like in zip(new, (
+                            printer.capacity, printer.loss, printer.gain, printer.surroundings))))
+        if rad:
             p = eqx.tree_at(lambda q: q.effects["radiative_loss"]["emissivity"], p,
-                            p.effects["radiative_loss"]["emissivity"]
-                            * (1.0 + 0.5 * spread * rng.uniform(-1, 1)))
-        u = np.asarray(p.steady_input())[:n_z]
+                            dev(emis * (1.0 + 0.5 * spread * rng.uniform(-1, 1)),
+                                printer.effects["radiative_loss"]["emissivity"]))
+        u = np.asarray(_steady_input(p))[:n_z]
         if np.all(np.isfinite(u)) and np.all((u > 0.1) & (u < 0.9)):
             out.append(p)
     return out
+
+
+@eqx.filter_jit
+def _steady_input(printer):
+    """`Printer.steady_input()` as one compiled program (eager, it compiles every op)."""
+    return printer.steady_input()
 
 
 def loop_ms(model, controller) -> float | None:
