@@ -36,6 +36,9 @@ def add_parsers(sub) -> None:
     sp.add_argument("--common-denominator", action="store_true",
                     help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
                     "instead of one per input-output pair (MATLAB's)")
+    sp.add_argument("--engine", choices=("jax", "numpy"),
+                    help="armax/oe/bj: the PEM solver, compiled (jax, the default) or NumPy "
+                    "(nothing compiled: faster for a first call on small problems; diagonal A)")
     sp.add_argument("--rest-level", metavar="T[,T...]",
                     help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
                     "(e.g. the measured ambient, °C; one number or one per output)")
@@ -68,13 +71,17 @@ def _parse_orders(family: str, text: str | None) -> dict | None:
 
 
 def _fit_options(args) -> dict:
-    """The fitter's keyword options from `--common-denominator` and `--rest-level`."""
+    """The fitter's keyword options from `--common-denominator`, `--engine` and `--rest-level`."""
     family = args.model
     extra = {}
     if args.common_denominator:
         if family not in ("oe", "bj"):
             raise ConfigError(f"--common-denominator: only for oe and bj, not {family}")
         extra["common_f"] = True
+    if args.engine is not None:
+        if family not in ("armax", "oe", "bj"):
+            raise ConfigError(f"--engine: only for armax, oe and bj, not {family}")
+        extra["engine"] = args.engine
     if args.rest_level is not None:
         if family not in ("arx", "armax", "oe", "bj"):
             raise ConfigError(f"--rest-level: only for arx, armax, oe and bj, not {family}")
@@ -125,6 +132,10 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "fit_on": "validation" if val is not None else "estimation",
         "seconds": getattr(res, "seconds", None) or seconds,
         "converged": bool(getattr(res, "converged", True)),
+        # per output (PEM families): converged, and the relative cost decrease the Gauss-Newton
+        # step from the result would still give (converged below 1e-4)
+        "converged_outputs": (getattr(res, "extra", None) or {}).get("row_converged"),
+        "expected_improvement": (getattr(res, "extra", None) or {}).get("expected_improvement"),
         "cost": getattr(res, "cost", None),
         "criterion_table": getattr(res, "criterion_table", None),
         "checks": (getattr(res, "extra", None) or {}).get("check"),
@@ -159,6 +170,12 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
                f"(mean {cmp['mean_fit_percent']:.2f} % on {report['fit_on']} data), "
                f"{report['seconds']:.1f} s")
+    rows = report["converged_outputs"] or []
+    if not all(rows):
+        gains = report["expected_improvement"]
+        info(args, "not converged on output(s) " + ", ".join(
+            f"{i + 1} (a Gauss-Newton step would lower its cost by {100 * gains[i]:.3g} %)"
+            for i, ok in enumerate(rows) if not ok))
     return report
 
 

@@ -374,6 +374,9 @@ def fit_polynomial_family(data: IOData, family: str, orders: dict, *, seed: int 
     model, check, repaired = guard_polynomial(model, info, data, family, orders)
     extra = {"start_costs": info["start_costs"], "n_steps": info["n_steps"],
              "offset": info["offset"], "check": check.to_dict()}
+    if "row_converged" in info:     # PEM: per output row, and what its GN step would still gain
+        extra["row_converged"] = [bool(c) for c in info["row_converged"]]
+        extra["expected_improvement"] = [float(g) for g in info["expected_improvement"]]
     if repaired:
         extra["repaired"] = repaired
     return FitResult(model=model, family=family, orders=orders,

@@ -3,6 +3,8 @@ residual equals the compiled `poly_residual`, the written-out Jacobian equals JA
 one and central differences, and a fit reaches the compiled engine's optimum (cost, coefficients,
 covariance) while compiling nothing."""
 
+import json
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
@@ -110,3 +112,42 @@ def test_engine_errors():
     data = _bj_data(300, 2)
     with pytest.raises(ConfigError, match="engine"):
         fit_polynomial(data.y, data.u, nb=1, nf=1, engine="torch")
+
+
+def test_cli_engine_option(tmp_path, capsys):
+    """`jthermo fit --engine numpy` fits an OE model; on a family without PEM it is refused."""
+    from jthermo import cli
+    from jthermo.data import save_csv
+
+    data = _bj_data(600, 3)
+    save_csv(from_arrays(np.asarray(data.u), 20.0 + np.asarray(data.y)), tmp_path / "est.csv")
+    js = tmp_path / "fit.json"
+    rc = cli.main(["fit", str(tmp_path / "est.csv"), "--model", "oe", "--orders", "1,1,1",
+                   "--engine", "numpy", "--json", str(js), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    assert json.loads(js.read_text())["converged"]
+    rc = cli.main(["fit", str(tmp_path / "est.csv"), "--model", "arx", "--engine", "numpy",
+                   "--quiet"])
+    assert rc == 2 and "--engine" in capsys.readouterr().err
+
+
+def test_per_output_convergence_is_reported(tmp_path, capsys):
+    """The fit JSON lists convergence and the remaining Gauss–Newton gain per output; a step
+    cap that stops a row early shows there (and in `converged`)."""
+    from jthermo import cli
+    from jthermo.data import save_csv
+
+    data = _bj_data(600, 4)
+    save_csv(from_arrays(np.asarray(data.u), 20.0 + np.asarray(data.y)), tmp_path / "est.csv")
+    reports = []
+    for steps in (200, 1):
+        res = fit(data, "oe", (1, 1, 1), engine="numpy", max_steps=steps, n_starts=1)
+        reports.append((res.converged, res.extra["row_converged"], res.extra["expected_improvement"]))
+    (ok, rows, gains), (ok1, rows1, gains1) = reports
+    assert ok and all(rows) and max(gains) < 1e-4
+    assert not ok1 and not all(rows1) and max(gains1) >= 1e-4
+    js = tmp_path / "fit.json"
+    assert cli.main(["fit", str(tmp_path / "est.csv"), "--model", "oe", "--orders", "1,1,1",
+                     "--json", str(js), "--quiet"]) == 0
+    rep = json.loads(js.read_text())
+    assert rep["converged_outputs"] == [True, True] and len(rep["expected_improvement"]) == 2
