@@ -12,7 +12,7 @@ fit call only.
 
 Usage:
     python benchmarks/identification.py [--quick] [--peers none|sippy|all] [--n 4 16]
-        [--families arx armax oe bj ss] [--peer-timeout 900] [--json PATH]
+        [--families arx armax oe bj ss] [--engines jax numpy] [--peer-timeout 900] [--json PATH]
     python benchmarks/identification.py --default-path --n 16 --families oe bj
         (the default path a user takes: `jthermo fit` with automatic orders, cold, from the
         shell, wall time and peak RSS, gap to the true model; `default_path`)
@@ -158,8 +158,14 @@ def simulate_from_rest(model, u: np.ndarray) -> np.ndarray:
     return np.asarray(ss.simulate(u, x0=x0))
 
 
-def jthermo_fit(family: str, data, N: int, seed: int = 0):
+#: families with a PEM engine choice (`fit_polynomial(engine=...)`)
+ENGINE_FAMILIES = ("armax", "oe", "bj")
+
+
+def jthermo_fit(family: str, data, N: int, seed: int = 0, engine: str = "jax"):
     from jthermo.identify.fit import fit
+
+    eng = {"engine": engine} if family in ENGINE_FAMILIES else {}
 
     if family == "n4sid":   # subspace only (CVA weighting), no PEM
         from types import SimpleNamespace
@@ -175,11 +181,11 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0):
     if family in ("oe", "bj"):
         # SIPPY's MIMO OE/BJ structure: one denominator F per output, shared by its inputs
         return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4, common_f=True,
-                   rest_level=REST_LEVEL, **({} if N <= 4 else {"screen_steps": 5}))
+                   rest_level=REST_LEVEL, **eng, **({} if N <= 4 else {"screen_steps": 5}))
     # N = 16: at most 20 LM steps per output row, MATLAB pem's default MaxIterations, and 5
     # screening steps per start
     return fit(data, family, JT_ORDERS[family], seed=seed, n_starts=4, rest_level=REST_LEVEL,
-               **({} if N <= 4 else {"max_steps": 20, "screen_steps": 5}))
+               **eng, **({} if N <= 4 else {"max_steps": 20, "screen_steps": 5}))
 
 
 def timed(fn):
@@ -190,7 +196,7 @@ def timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def jthermo_child(family: str, N: int, cache: str, warm: bool) -> dict:
+def jthermo_child(family: str, N: int, cache: str, warm: bool, engine: str = "jax") -> dict:
     """One fresh process with the persistent compilation cache at `cache` (what `jthermo fit`
     uses): the first fit call (`cold_*`, compilation or cache loads included; imports and data
     excluded), then a second call on the same data (`warm_*`), then the validation fit."""
@@ -205,10 +211,10 @@ def jthermo_child(family: str, N: int, cache: str, warm: bool) -> dict:
     W = load_workloads()
     est, val = W.estimation_validation(N, T, 0)
     data = from_arrays(est["u"], est["y"])
-    row = {"tool": "jthermo", "family": family, "N": N}
+    row = {"tool": jthermo_tool(engine), "family": family, "N": N}
     for key in ("cold", "warm")[:2 if warm else 1]:
         res, row[f"{key}_s"], row[f"{key}_cpu"] = timed(
-            lambda: jax.block_until_ready(jthermo_fit(family, data, N)))
+            lambda: jax.block_until_ready(jthermo_fit(family, data, N, engine=engine)))
     row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
     row["note"] = "" if res.converged else "not converged"
     return row
@@ -230,18 +236,23 @@ def run_child(python: str, args: list[str], timeout: float) -> dict:
     return json.loads(lines[-1])
 
 
-def run_jthermo(family: str, N: int, timeout: float) -> dict:
+def jthermo_tool(engine: str) -> str:
+    """The tool column of a jthermo row: `jthermo` (compiled PEM), `jthermo numpy` (NumPy PEM)."""
+    return "jthermo" if engine == "jax" else f"jthermo {engine}"
+
+
+def run_jthermo(family: str, N: int, timeout: float, engine: str = "jax") -> dict:
     """Two fresh processes sharing one new cache directory: the first meets an empty cache
     (cold, then warm), the second the cache the first wrote (`cached_*`: a user's repeat call)."""
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="jthermo-bench-cache-") as cache:
         level = "zero" if REST_LEVEL == 0.0 else "estimated"
-        row = {"tool": "jthermo", "family": family, "N": N, **run_child(
-            sys.executable, ["jthermo", family, str(N), cache, level, "warm"], timeout)}
+        row = {"tool": jthermo_tool(engine), "family": family, "N": N, **run_child(
+            sys.executable, ["jthermo", family, str(N), cache, level, "warm", engine], timeout)}
         if "error" not in row:
-            again = run_child(sys.executable, ["jthermo", family, str(N), cache, level, "cold"],
-                              timeout)
+            again = run_child(sys.executable, ["jthermo", family, str(N), cache, level, "cold",
+                                               engine], timeout)
             row.update({"cached_s": again.get("cold_s"), "cached_cpu": again.get("cold_cpu")})
             if "error" in again:
                 row["note"] = f"cached process: {again['error']}"
@@ -346,12 +357,16 @@ def _ratio(num, den) -> str:
     return "—" if num is None or not den else f"{num / den:.1f}×"
 
 
-def _speedups(r: dict, ref: dict | None, unit: str) -> str:
-    """Peer time / jthermo time: cold (empty cache) / cold with the cache warm / warm."""
-    if r["tool"] == "jthermo" or not ref or "cold_" + unit not in r:
+def _speedups(r: dict, refs: list[dict], unit: str) -> str:
+    """Peer time / jthermo time: cold (empty cache) / cold with the cache warm / warm, against
+    each jthermo row of the family and N (one line per PEM engine)."""
+    if r["tool"].startswith("jthermo") or not refs or "cold_" + unit not in r:
         return "—"
-    return " / ".join(_ratio(r[f"{p}_{unit}"], ref.get(f"{j}_{unit}")) for p, j in
-                      (("cold", "cold"), ("cold", "cached"), ("warm", "warm")))
+    cells = [" / ".join(_ratio(r[f"{p}_{unit}"], ref.get(f"{j}_{unit}")) for p, j in
+                        (("cold", "cold"), ("cold", "cached"), ("warm", "warm"))) for ref in refs]
+    if len(refs) == 1:
+        return cells[0]
+    return "<br>".join(f"{ref['tool']}: {c}" for ref, c in zip(refs, cells))
 
 
 def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
@@ -382,7 +397,10 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
         "Peers run in their own environment (`make bench-peers`: "
         "`benchmarks/requirements-peers.txt`). Load = 1-minute load average when the row "
         "finished (2-core machine shared with other jobs). Every tool runs with one BLAS "
-        "thread (OPENBLAS_NUM_THREADS=1).",
+        "thread (OPENBLAS_NUM_THREADS=1). `jthermo` = the compiled PEM (`engine=\"jax\"`, the "
+        "default); `jthermo numpy` = `fit(..., engine=\"numpy\")`, the same criterion, starts "
+        "and screening solved in NumPy (`jthermo/identify/pem_numpy.py`), nothing compiled, for "
+        "ARMAX/OE/BJ.",
         "",
         f"Machine: {meta['machine']}; {meta['date']}; command: `{meta['command']}`",
         "",
@@ -390,17 +408,20 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
          "| speed-up by wall, cold / cached / warm | by CPU s | load | note |"),
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    jt = {(r["family"], r["N"]): r for r in rows if r["tool"] == "jthermo"}
+    jt: dict = {}
+    for r in rows:
+        if r["tool"].startswith("jthermo"):
+            jt.setdefault((r["family"], r["N"]), []).append(r)
 
     def cell(r, key):
         return f"{_fmt(r.get(key + '_s'))} ({_fmt(r.get(key + '_cpu'))})"
 
     for r in rows:
-        ref = jt.get((r["family"], r["N"]))
+        ref = jt.get((r["family"], r["N"]), [])
         note = r.get("error", r.get("note", ""))
-        cached = cell(r, "cached") if r["tool"] == "jthermo" else "—"
+        cached = cell(r, "cached") if r["tool"].startswith("jthermo") else "—"
         lines.append(f"| {r['family'].upper()} | {r['N']} | {r['tool']} | {cell(r, 'cold')} | "
-                     f"{cached} | {cell(r, 'warm')} | {_fmt(r.get('fit'), 1)} | "
+                     f"{cached} | {cell(r, 'warm')} | {_fmt(r.get('fit'), 3)} | "
                      f"{_fmt(oracle[r['N']], 1)} | {_speedups(r, ref, 's')} | "
                      f"{_speedups(r, ref, 'cpu')} | {_fmt(r.get('load'), 1)} | {note} |")
     return "\n".join(lines) + "\n"
@@ -501,6 +522,8 @@ def main(argv=None) -> int:
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     ap.add_argument("--peer-families", nargs="+", default=list(FAMILIES), choices=FAMILIES,
                     help="families the peers are run for (SIPPY OE/BJ are slow)")
+    ap.add_argument("--engines", nargs="+", default=["jax"], choices=("jax", "numpy"),
+                    help="jthermo PEM engines timed for armax/oe/bj (fit_polynomial(engine=...))")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
     ap.add_argument("--estimate-level", action="store_true",
@@ -510,11 +533,12 @@ def main(argv=None) -> int:
                     "and --families; writes results/identification_default_n<N>.md/.json")
     args = ap.parse_args(argv)
     global REST_LEVEL
-    if args.child:   # jthermo FAMILY N CACHE zero|estimated warm|cold, or peer TOOL FAMILY N
+    if args.child:   # jthermo FAMILY N CACHE zero|estimated warm|cold ENGINE, or peer TOOL FAMILY N
         kind, *rest = args.child
         if kind == "jthermo":
             REST_LEVEL = 0.0 if rest[3] == "zero" else None
-            row = jthermo_child(rest[0], int(rest[1]), rest[2], warm=rest[4] == "warm")
+            row = jthermo_child(rest[0], int(rest[1]), rest[2], warm=rest[4] == "warm",
+                                engine=rest[5] if len(rest) > 5 else "jax")
         else:
             row = peer_child(rest[0], rest[1], int(rest[2]))
         print(json.dumps(row), flush=True)
@@ -550,9 +574,10 @@ def main(argv=None) -> int:
         _, val = W.estimation_validation(N, T, 0)
         oracle[N] = W.fit_percent(val["y"], val["y_clean"])
         for fam in args.families:
-            print(f"[W1] N={N} {fam}: jthermo ...", file=sys.stderr, flush=True)
-            rows.append(run_jthermo(fam, N, args.peer_timeout))
-            save()
+            for engine in args.engines if fam in ENGINE_FAMILIES else ["jax"]:
+                print(f"[W1] N={N} {fam}: {jthermo_tool(engine)} ...", file=sys.stderr, flush=True)
+                rows.append(run_jthermo(fam, N, args.peer_timeout, engine))
+                save()
             if args.peers in ("sippy", "all") and fam in SIPPY_METHOD:
                 if (args.quick and fam in ("oe", "bj")) or fam not in args.peer_families:
                     rows.append({"tool": "SIPPY", "family": fam, "N": N, "note": "skipped"})
