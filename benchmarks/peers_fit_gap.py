@@ -1,7 +1,8 @@
 """Why jthermo's fixed-order W1 fits end hundredths of a point below SIPPY's (issue 12): both
 models scored on the same two yardsticks, over several data seeds.
 
-For each seed, family (ARMAX, OE, BJ at the W1 orders of `benchmarks/identification.py`) and N:
+For each seed, family (ARMAX, OE, BJ at the W1 orders of `benchmarks/identification.py`, and
+the N4SID subspace estimate, which has no V) and N:
 jthermo's fit (`identification.jthermo_fit`, the NumPy PEM engine and the compiled one) and
 SIPPY's (`identification._sippy_fit`, in the peers' environment, `make bench-peers`), each in a
 fresh process. Columns: the validation simulation fit % from rest (the benchmark's figure) and
@@ -35,7 +36,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import identification as B  # noqa: E402
 
-FAMILIES = ("armax", "oe", "bj")
+FAMILIES = ("armax", "oe", "bj", "n4sid")
 
 
 def pem_cost(num, den, num_h, den_h, y: np.ndarray, u: np.ndarray) -> float:
@@ -74,10 +75,12 @@ def jthermo_child(family: str, N: int, seed: int, engine: str) -> dict:
     t0 = time.process_time()
     res = B.jthermo_fit(family, from_arrays(est["u"], est["y"]), N, engine=engine)
     cpu = time.process_time() - t0
-    eps = polynomial_numpy.residuals(res.model, est["y"], est["u"])
-    return {"tool": B.jthermo_tool(engine), "fit": W.fit_percent(val["y"], B.simulate_from_rest(
-        res.model, val["u"])), "V": float(np.mean(eps ** 2)), "cpu": cpu,
-        "converged": bool(res.converged)}
+    row = {"tool": B.jthermo_tool(engine) if family in B.ENGINE_FAMILIES else "jthermo",
+           "fit": W.fit_percent(val["y"], B.simulate_from_rest(res.model, val["u"])), "cpu": cpu,
+           "converged": bool(res.converged)}
+    if polynomial_numpy.supported(res.model):
+        row["V"] = float(np.mean(polynomial_numpy.residuals(res.model, est["y"], est["u"]) ** 2))
+    return row
 
 
 def sippy_child(family: str, N: int, seed: int) -> dict:
@@ -86,11 +89,13 @@ def sippy_child(family: str, N: int, seed: int) -> dict:
     t0 = time.process_time()
     model = B._sippy_fit(family, est, N)
     cpu = time.process_time() - t0
-    hs = [_sippy_h(model, i) for i in range(N)]
-    V = pem_cost(model.NUMERATOR, model.DENOMINATOR, [h[0] for h in hs], [h[1] for h in hs],
-                 est["y"], est["u"])
-    return {"tool": "SIPPY", "fit": W.fit_percent(val["y"], B._sippy_sim(model, family, val["u"])),
-            "V": V, "cpu": cpu}
+    row = {"tool": "SIPPY", "fit": W.fit_percent(val["y"], B._sippy_sim(model, family, val["u"])),
+           "cpu": cpu}
+    if family != "n4sid":
+        hs = [_sippy_h(model, i) for i in range(N)]
+        row["V"] = pem_cost(model.NUMERATOR, model.DENOMINATOR, [h[0] for h in hs],
+                            [h[1] for h in hs], est["y"], est["u"])
+    return row
 
 
 def run(python: str, args: list[str], timeout: float) -> dict:
@@ -122,7 +127,8 @@ def markdown(rows: list[dict], command: str) -> str:
         d_fit = d_v = "—"
         if r["tool"] != "SIPPY" and "fit" in s and "fit" in r:
             d_fit = f"{r['fit'] - s['fit']:+.4f}"
-            d_v = f"{(r['V'] - s['V']) / s['V']:+.2e}"
+            if "V" in r and "V" in s:
+                d_v = f"{(r['V'] - s['V']) / s['V']:+.2e}"
         fit = f"{r['fit']:.4f}" if "fit" in r else "—"
         V = f"{r['V']:.8f}" if "V" in r else "—"
         cpu = f"{r['cpu']:.2f}" if "cpu" in r else "—"
@@ -153,13 +159,15 @@ def main(argv=None) -> int:
     rows = []
     for seed in args.seeds:
         for fam in args.families:
-            jobs = [("jthermo", sys.executable, [e]) for e in args.engines]
+            engines = args.engines if fam in B.ENGINE_FAMILIES else ["jax"]
+            jobs = [("jthermo", sys.executable, [e]) for e in engines]
             jobs.append(("sippy", str(B.PEERS_PYTHON), []))
             for kind, python, extra in jobs:
                 print(f"[fit gap] N={args.n} seed {seed} {fam} {kind} {extra}", file=sys.stderr,
                       flush=True)
                 r = run(python, [kind, fam, str(args.n), str(seed), *extra], args.timeout)
-                r.setdefault("tool", B.jthermo_tool(extra[0]) if extra else "SIPPY")
+                r.setdefault("tool", "SIPPY" if not extra else
+                             B.jthermo_tool(extra[0]) if fam in B.ENGINE_FAMILIES else "jthermo")
                 rows.append({"family": fam, "N": args.n, "seed": seed, **r,
                              "load": os.getloadavg()[0]})
                 atomic_write_text(out, markdown(rows, command))
