@@ -29,9 +29,13 @@ from .common import (
 
 #: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
 #: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
-#: for pi and 30 for lqg; with 60, pi returns the same controller and lqg 47.5 % below lambda
-#: PI instead of 46.8 % (benchmarks/results/tuning_profile_default*.md, tuning_optimisers.json)
-SHORT_STEPS = {"pi_lambda": 60, "lqg": 60}
+#: for pi and 30 for lqg; with 60, pi returns the same controller (benchmarks/results/
+#: tuning_profile_default*.md, tuning_optimisers.json); lqg at 30 steps of learning rate 0.1
+#: (`SHORT_LR`) gives 47.7 % below lambda PI, against 47.5 % at 60 steps of 0.05 and 46.8 %
+#: at 150 (benchmarks/results/tuning_rollouts.jsonl); pi at 40 steps of 0.075 only 13.0 %
+SHORT_STEPS = {"pi_lambda": 60, "lqg": 30}
+#: ... and their Adam learning rate where it is not `tune_report`'s 0.05
+SHORT_LR = {"lqg": 0.1}
 #: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
 #: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
 DEFAULT_STEPS = 150
@@ -76,8 +80,9 @@ def add_parsers(sub) -> None:
                     help="powder preset tuned on (default PA12); the report adds the other one")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
     sp.add_argument("--steps", type=positive_int(100000), default=None,
-                    help=f"Adam iterations (default {DEFAULT_STEPS}; "
-                         f"{SHORT_STEPS['pi_lambda']} for pi and lqg on the virtual printer)")
+                    help=f"Adam iterations (default {DEFAULT_STEPS}; on the virtual printer "
+                         f"{SHORT_STEPS['pi_lambda']} for pi, {SHORT_STEPS['lqg']} at learning "
+                         f"rate {SHORT_LR['lqg']} for lqg)")
     sp.add_argument("--setpoint", type=setpoints, metavar="T[,T...]",
                     help="set point, °C: one value or one per output (a fitted plant only; "
                          "default: the middle of the recorded range)")
@@ -309,6 +314,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         if args.validation_plant is not None:
             input_file(args.validation_plant, "--validation-plant")
             validation = io.load_model(args.validation_plant)
+    short = args.steps is None and not own
     if args.steps is None:
         args.steps = DEFAULT_STEPS if own else SHORT_STEPS.get(args.controller, DEFAULT_STEPS)
     bar = progress_bar(args, f"tune {args.controller}", total=args.steps)
@@ -320,9 +326,11 @@ def cmd_tune(args: argparse.Namespace) -> dict:
                                       rollouts=args.rollouts, steps=args.steps, seed=args.seed,
                                       progress=bar)
         else:
+            lr = SHORT_LR.get(args.controller) if short else None
             rep = tune.tune_report(args.controller, plant=plant, model=model,
                                    rollouts=args.rollouts, steps=args.steps, seed=args.seed,
-                                   zones=args.zones, powder=args.powder, progress=bar)
+                                   zones=args.zones, powder=args.powder, progress=bar,
+                                   **({} if lr is None else {"lr": lr}))
     finally:
         bar.close()
     rep = dict(rep)

@@ -1,0 +1,35 @@
+"""`jthermo tune`'s defaults on the virtual printer: 60 Adam steps at the library's learning
+rate for pi, 30 steps at 0.1 for lqg (`cli.control.SHORT_STEPS`, `SHORT_LR`); an explicit
+`--steps` keeps the library's learning rate."""
+
+import json
+
+import pytest
+
+from jthermo import cli
+from jthermo.cli.control import SHORT_LR, SHORT_STEPS
+
+
+@pytest.mark.parametrize("family, argv, steps, lr", [
+    ("pi", [], 60, None),
+    ("lqg", [], 30, 0.1),
+    ("lqg", ["--steps", "60"], 60, None),
+])
+def test_tune_defaults_per_family(family, argv, steps, lr, tmp_path, monkeypatch, capsys):
+    from jthermo import tune
+
+    seen = {}
+
+    def fake_tune_report(fam, **kw):
+        seen.update(kw)
+        return {"controller": fam, "start_cost": 2.0, "tuned_cost": 1.0, "lambda_pi_cost": 2.0,
+                "improvement_percent": 50.0, "scenarios": {}, "history": [2.0], "seconds": 0.1}
+
+    monkeypatch.setattr(tune, "tune_report", fake_tune_report)
+    js = tmp_path / "t.json"
+    rc = cli.main(["tune", "--controller", family, *argv, "--json", str(js), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    assert seen["steps"] == steps
+    assert seen.get("lr") == lr
+    assert json.loads(js.read_text())["improvement_percent"] == 50.0
+    assert SHORT_STEPS["lqg"] == 30 and SHORT_LR == {"lqg": 0.1}
