@@ -28,6 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optax
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
@@ -215,17 +216,18 @@ def _check(theta0, solver, max_steps, batch_dims, batch="vmap"):
         raise ConfigError(f"minimize: solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     if int(max_steps) < 1:
         raise ConfigError(f"minimize: max_steps must be >= 1, got {max_steps}")
-    theta0 = jnp.asarray(theta0)
-    if not jnp.issubdtype(theta0.dtype, jnp.floating):
+    # checked in NumPy and placed by a transfer: eager jnp ops would compile per shape
+    theta0 = np.asarray(theta0)
+    if not np.issubdtype(theta0.dtype, np.floating):
         theta0 = theta0.astype(float)
     if theta0.ndim == batch_dims + 1:
-        theta0 = jnp.expand_dims(theta0, batch_dims)
+        theta0 = np.expand_dims(theta0, batch_dims)
     if theta0.ndim != batch_dims + 2 or theta0.shape[-1] == 0:
         raise ConfigError(f"minimize: start points must have shape {'(M, ' * batch_dims}(K, p) "
                           f"or (p,), got {theta0.shape}")
-    if not bool(jnp.all(jnp.isfinite(theta0))):
+    if not bool(np.all(np.isfinite(theta0))):
         raise FitError("minimize: a start point is not finite")
-    return theta0
+    return jax.device_put(theta0)
 
 
 def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = None, *,

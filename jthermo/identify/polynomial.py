@@ -123,7 +123,7 @@ def poly_args(dy, du, spec: PolySpec, nk, full_a: bool):
     yi = np.moveaxis(dy, 1, 0)                                        # (ny, T)
     ysrc = np.broadcast_to(dy[None], (ny,) + dy.shape) if spec.m > 1 else yi[:, :, None]
     ub = np.broadcast_to(du[None], (ny,) + du.shape)
-    return tuple(jnp.asarray(x) for x in (yi, ysrc, ub, sel)) + (spec,)
+    return tuple(placed(x) for x in (yi, ysrc, ub, sel)) + (spec,)
 
 
 def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int = 0, nb: int = 1,
@@ -266,8 +266,8 @@ def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **
         starts = padded
         mask = np.zeros((ny, big.n_params))
         mask[:, idx] = 1.0
-        args = args + (jnp.asarray(mask, dt),)
-    res = minimize_many(poly_residual, jnp.asarray(starts, dt), args, throw=False, **kw)
+        args = args + (placed(mask, dt),)
+    res = minimize_many(poly_residual, placed(starts, dt), args, throw=False, **kw)
     if shape_orders is not None:
         # back to the structure's own parameters; the covariance's noise variance divides by
         # T - p: rescaled from the shared shape's p to the structure's own
