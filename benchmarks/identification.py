@@ -171,7 +171,11 @@ def jthermo_fit(family: str, data, N: int, seed: int = 0, engine: str = "jax"):
         from types import SimpleNamespace
 
         from jthermo.identify.subspace import n4sid
-        return SimpleNamespace(model=n4sid(data, N, rest_level=REST_LEVEL)[0], converged=True)
+        # SIPPY's N4SID method: W1 = I, the oblique projection itself (`weighting="n4sid"`;
+        # jthermo's default CVA scores 0.007-0.018 points lower on W1 N = 4,
+        # `benchmarks/results/peers_fit_gap_n4.md`)
+        return SimpleNamespace(model=n4sid(data, N, rest_level=REST_LEVEL, weighting="n4sid")[0],
+                               converged=True)
     if family == "ss":
         # N4SID start + PEM of the simulation error (the workload's fit % is a simulation fit,
         # and jax-sysid fits the simulation error too); one start and few steps at N = 16,
@@ -390,7 +394,9 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
            if REST_LEVEL is None else
            "0 °C for ARX/ARMAX/OE/BJ/N4SID (`rest_level=0`: W1's outputs are °C above ambient "
            "and start at ambient, which SIPPY assumes too by fitting the raw data). ")
-        + "N4SID = subspace estimate only (order N, 20 block rows); SS = N4SID start + PEM "
+        + "N4SID = subspace estimate only (order N, 20 block rows; N4SID weighting, "
+        "`weighting=\"n4sid\"`, as SIPPY's method; before 2026-11-24 22:40 UTC jthermo's "
+        "default CVA); SS = N4SID start + PEM "
         "of the simulation error (order N; MATLAB `ssest` with focus simulation), against "
         "jax-sysid's simulation-error fit configured as its documentation recommends (scaled "
         "data, rho_th 1e-2, rho_x0 1e-3, 1000 L-BFGS epochs; `benchmarks/peers_fair.py` 'doc'). "

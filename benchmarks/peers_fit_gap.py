@@ -144,6 +144,8 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
     ap.add_argument("--engines", nargs="+", default=["numpy", "jax"], choices=("jax", "numpy"))
     ap.add_argument("--timeout", type=float, default=900.0)
+    ap.add_argument("--out", type=Path, default=None,
+                    help="default benchmarks/results/peers_fit_gap_n<N>.md")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -154,7 +156,7 @@ def main(argv=None) -> int:
         return 0
     from jthermo.data import atomic_write_text
 
-    out = ROOT / "benchmarks" / "results" / f"peers_fit_gap_n{args.n}.md"
+    out = args.out or ROOT / "benchmarks" / "results" / f"peers_fit_gap_n{args.n}.md"
     command = "python benchmarks/peers_fit_gap.py " + " ".join(argv or sys.argv[1:])
     rows = []
     for seed in args.seeds:

@@ -35,7 +35,9 @@ from ..models._base import StateSpace
 from ..models.statespace import project_stable
 from .operating_point import OPERATING_POINTS, known_rest_level, rest_window
 
-WEIGHTINGS = ("cva", "moesp")
+WEIGHTINGS = ("cva", "moesp", "n4sid")
+#: the weightings `n4sid_variants` returns by default (the state-space fit's start points)
+START_WEIGHTINGS = ("cva", "moesp")
 #: eigenvalues of the returned A lie inside this radius
 MAX_RADIUS = 0.9995
 
@@ -198,7 +200,9 @@ def _estimate(L: np.ndarray, gram: np.ndarray, j: int, i: int, us: np.ndarray, y
         W1, W1inv = _inv_sqrt_psd((gram[np.ix_(yf, yf)] - Kf @ Gfu.T) / j)
     else:
         W1 = W1inv = np.eye(i * ny)
-    Operp = O - Ko @ L[uf, :p]
+    # N4SID (Van Overschee & De Moor 1996, Theorem 12: W1 = I, W2 = I) decomposes the oblique
+    # projection itself; CVA and MOESP its part orthogonal to the future inputs (W2 = Π⊥)
+    Operp = O if weighting == "n4sid" else O - Ko @ L[uf, :p]
     # left singular vectors and values of the wide W1 O Π⊥ = R^T Q^T: those of the square R^T
     Uo, s, _ = np.linalg.svd(np.linalg.qr((W1 @ Operp).T / np.sqrt(j), mode="r").T)
     if weighting == "cva":
@@ -324,7 +328,9 @@ def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
     - `data`: estimation data; measured signals `w` are treated as extra inputs (→ `Bw`).
     - `n`: state order; `None` chooses it with `choose_order` from the singular values.
     - `horizon`: block rows of the past and future Hankel matrices (default `default_horizon`).
-    - `weighting`: `"cva"` (canonical variate analysis) or `"moesp"`.
+    - `weighting`: `"cva"` (canonical variate analysis), `"moesp"` or `"n4sid"` (W1 = I and
+      no projection orthogonal to the future inputs: the oblique projection itself, as
+      SIPPY's N4SID).
     - `feedthrough`: estimate D (default False: thermal plants are strictly proper).
     - `max_order`: largest order `choose_order` may pick.
     - `operating_point`: `"mean"` (deviations from the data's means; the record is taken to
@@ -343,7 +349,7 @@ def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
 
 
 def n4sid_variants(data: IOData, n: int | None, horizon: int | None = None, *,
-                   weightings=WEIGHTINGS, feedthrough: bool = False, max_order: int | None = None,
+                   weightings=START_WEIGHTINGS, feedthrough: bool = False, max_order: int | None = None,
                    max_radius: float = MAX_RADIUS, operating_point: str = "mean",
                    rest_level=None) -> list[tuple[StateSpace, np.ndarray]]:
     """`n4sid` for several weightings sharing one Hankel factorisation (multi-start points)."""

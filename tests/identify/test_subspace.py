@@ -44,7 +44,7 @@ def _noise_free(T=1000, seed=0, nx=3):
 
 def test_noise_free_poles_recovered():
     data, (_, _, _, poles) = _noise_free()
-    for weighting in ("cva", "moesp"):
+    for weighting in ("cva", "moesp", "n4sid"):
         model, svals = n4sid(data, 3, weighting=weighting)
         est = np.sort_complex(np.linalg.eigvals(np.asarray(model.A)))
         np.testing.assert_allclose(est, poles, atol=1e-7)
