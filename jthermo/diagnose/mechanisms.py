@@ -38,6 +38,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .recurrence import radiative
+
 MECHANISMS = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag",
               "input_delay", "input_nonlinearity", "recoat_cooling", "ambient_variation")
 KELVIN = 273.15
@@ -347,14 +349,8 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     sk4 = (ts_seq + KELVIN) ** 4
     s0 = jnp.concatenate([x0, w0, p0])
 
-    def body(s, inp):
-        fk, s4 = inp
-        q = a_rad * s[:n] - r * ((s[:n] + KELVIN) ** 4 - s4)
-        sn = jnp.sum(E * s[None, :], axis=1) + jnp.sum(Pz * q[None, :], axis=1) + fk
-        return sn, s[:n]
-
-    _, ys = jax.lax.scan(body, s0, (Fz, sk4), unroll=UNROLL)
-    return ys
+    # the scan, with a forward-mode derivative that batches the tangents: `recurrence.radiative`
+    return radiative(E, Pz, a_rad, r, Fz, sk4, s0)
 
 
 def baseline_on() -> np.ndarray:

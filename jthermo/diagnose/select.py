@@ -595,7 +595,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         measured=amb is not None, measured_var=measured_var, level=level,
                         neutral=_joint_start(y, u, ts, level if amb is not None else float(y[0].mean()), lay),
                         u_pad_v=rec_v["u_pad"], uv=rec_v["u"],
-                        n_iter=JOINT_ITER, slots=K + 1,
+                        n_iter=JOINT_ITER, slots=1 + (amb is None) + len(pool),
                         n_active=_joint_active(n, lay, chosen[0], pool))
         aug, added, chosen = _forward_select(js, validate, k_val, chosen[0], pool, fit_of)
         if not D.not_worse(yv, aug["e"], e_c[kt]):
