@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,12 +28,22 @@ from jax import monitoring
 
 from jthermo.tune import report, training
 
-_events: list[tuple[str, float]] = []
+#: compile events `(event, seconds, thread id)`: a phase counts those of its own thread
+#: (`tune_report` runs the fixed designs' held-out simulations in a second thread)
+_events: list[tuple[str, float, int]] = []
 monitoring.register_event_duration_secs_listener(
-    lambda ev, dur, **_: _events.append((ev, dur)) if ev.startswith("/jax/core/compile") else None)
+    lambda ev, dur, **_: _events.append((ev, dur, threading.get_ident()))
+    if ev.startswith("/jax/core/compile") else None)
 
-_stack: list[str] = []
+_local = threading.local()
 _rows: dict[str, dict] = {}
+
+
+def _thread_stack() -> list[str]:
+    """This thread's stack of open phases."""
+    if not hasattr(_local, "stack"):
+        _local.stack = []
+    return _local.stack
 
 
 def _wrap(mod, name, label):
@@ -41,20 +52,24 @@ def _wrap(mod, name, label):
     fn = getattr(mod, name)
 
     def timed(*a, **k):
-        _stack.append(label)
+        _stack = _thread_stack()
+        second = threading.current_thread() is not threading.main_thread()
+        lab_here = f"{label} — second thread, overlaps the others" if second else label
+        _stack.append(lab_here)
         n0, t0 = len(_events), time.perf_counter()
         try:
             return fn(*a, **k)
         finally:
             dt = time.perf_counter() - t0
             _stack.pop()
-            ev = _events[n0:]
+            me = threading.get_ident()
+            ev = [(e, d) for e, d, t in _events[n0:] if t == me]
             c = sum(d for e, d in ev if e.startswith("/jax/core/compile"))
             nc = sum(1 for e, _ in ev if "backend_compile" in e)
-            for lab, sign in ((label, 1.0), *((p, -1.0) for p in _stack)):
+            for lab, sign in ((lab_here, 1.0), *((p, -1.0) for p in _stack)):
                 # a parent phase's figures are exclusive of its nested phases
                 row = _rows.setdefault(lab, {"calls": 0, "wall": 0.0, "compile": 0.0,
-                                             "compiles": 0})
+                                             "compiles": 0, "second_thread": second})
                 row["calls"] += sign > 0
                 row["wall"] += sign * dt
                 row["compile"] += sign * c
@@ -82,7 +97,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     rep = report.tune_report(args.controller, rollouts=args.rollouts, steps=args.steps, **kw)
     total = time.perf_counter() - t0
-    all_compile = sum(d for _, d in _events)
+    all_compile = sum(d for _, d, _ in _events)
     load = os.getloadavg()[0]
     lines = [(f"# tune_report profile: {args.controller}, rollouts {args.rollouts}, "
               f"steps {args.steps}{'' if args.optimiser is None else ', ' + args.optimiser}"),
@@ -99,7 +114,7 @@ def main(argv=None) -> int:
         lines.append(f"| {k} | {r['calls']} | {r['wall']:.1f} | {r['compile']:.1f} | "
                      f"{r['compiles']} |")
     lines += ["", (f"total {total:.1f} s, compile (trace + lower + backend, all phases) "
-                   f"{all_compile:.1f} s, {sum(1 for e, _ in _events if 'backend_compile' in e)} "
+                   f"{all_compile:.1f} s, {sum(1 for e, _, _ in _events if 'backend_compile' in e)} "
                    f"backend compiles; held-out improvement vs lambda PI "
                    f"{rep['improvement_percent']:.1f} %, vs best classical "
                    f"{rep.get('improvement_vs_best_classical_percent', float('nan')):.1f} %, "

@@ -46,6 +46,8 @@ def child(args) -> int:
     tp._wrap(report, "classical_designs", "classical designs")
     tp._wrap(report, "held_out_terms", "held-out, changed powder, gain ±20 % (held_out_terms)")
     tp._wrap(report, "robustness", "robustness (Ms)")
+    if hasattr(report, "_fixed_held_out"):
+        tp._wrap(report, "_fixed_held_out", "fixed designs on held-out seeds (_fixed_held_out)")
     argv = ["tune", "--controller", args.controller, "--json", args.json, "--quiet",
             *args.cli.split()]
     prof = cProfile.Profile() if args.cprofile else None
@@ -56,8 +58,8 @@ def child(args) -> int:
     if prof is not None:
         prof.disable()
     total = time.perf_counter() - t0
-    compile_s = sum(d for e, d in tp._events)
-    n_backend = sum(1 for e, _ in tp._events if "backend_compile" in e)
+    compile_s = sum(d for _, d, _ in tp._events)
+    n_backend = sum(1 for e, _, _ in tp._events if "backend_compile" in e)
     out = {"rc": rc, "total": total, "compile_s": compile_s, "backend_compiles": n_backend,
            "rows": tp._rows}
     if prof is not None:
@@ -118,7 +120,8 @@ def table(controller: str, runs: dict, cli: str = "") -> str:
                   "|---|---|---|---|---|"]
         accounted = 0.0
         for k, row in ph["rows"].items():
-            accounted += row["wall"]
+            second = row.get("second_thread", False)
+            accounted += 0.0 if second else row["wall"]
             lines.append(f"| {k} | {row['calls']} | {row['wall']:.1f} | {row['compile']:.1f} | "
                          f"{row['compiles']} |")
         lines.append(f"| rest (imports, scenario building, CLI, report) | — | "

@@ -35,6 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--eval-rollouts", type=int, default=16)
     ap.add_argument("--lr", type=float, default=0.05)
+    ap.add_argument("--train-dtype", default=None, choices=("float32",),
+                    help="training rollouts in this precision (held-out in float64)")
     ap.add_argument("--cache", action="store_true",
                     help="use the jthermo persistent compilation cache (CPU s then exclude most "
                          "compiles; the held-out figures do not depend on it)")
@@ -47,9 +49,9 @@ def main(argv=None) -> int:
         load = os.getloadavg()[0]
         t0, c0 = time.perf_counter(), time.process_time()
         rep = tune_report(args.controller, rollouts=r, steps=args.steps, lr=args.lr,
-                          eval_rollouts=args.eval_rollouts)
+                          eval_rollouts=args.eval_rollouts, train_dtype=args.train_dtype)
         row = {"controller": rep["controller"], "rollouts": r, "steps": args.steps,
-               "lr": args.lr,
+               "lr": args.lr, "train_dtype": args.train_dtype,
                "eval_rollouts": args.eval_rollouts,
                "improvement_percent": rep["improvement_percent"],
                "changed_powder_improvement_percent":

@@ -23,7 +23,17 @@ from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
 from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
-from .training import DURATION, HELD_OUT, SCENARIOS, as_kinds, loop_ms, plant_ensemble, tune
+from .training import (
+    DURATION,
+    HELD_OUT,
+    SCENARIOS,
+    VALIDATION,
+    as_kinds,
+    loop_ms,
+    make_batches,
+    plant_ensemble,
+    tune,
+)
 
 
 @eqx.filter_jit
@@ -193,6 +203,18 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
     return {name: done[id(c)] for name, c in which.items()}
 
 
+def _training_sets(plants, rollouts: int, duration: float, seed: int):
+    """`(batches, validation)` as `tune` draws them for `plants` in the three scenarios: the
+    training batch from `seed`, the guard's from `seed + VALIDATION` with the same rollouts
+    and length."""
+    train = make_batches(plants, SCENARIOS, rollouts=rollouts, duration=duration, seed=seed)
+    sc = train[0][0][2]
+    B, T = sc.r.shape[:2]
+    val = make_batches(plants, SCENARIOS, rollouts=int(B), duration=float(T * sc.ts),
+                       seed=int(seed) + VALIDATION)[0]
+    return train, val
+
+
 def _fixed_held_out(model, start, lam_pi, plants: dict, seeds, kw: dict):
     """`(classical, study, terms)` for `tune_report`: the classical designs on `model`
     (`classical_designs`, with `lam_pi` as pi_lambda), the held-out study (`held_out_study`)
@@ -268,7 +290,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
                 references: Sequence[str] = ("pi_lambda",), changed_powder: str | None = "auto",
                 check_robustness: bool = True, ff_init: bool = True,
                 ms_max: float | None = 2.0, optimiser: str = "adam", ms_weight: float = 0.0,
-                params: Sequence[str] | str | None = "auto",
+                params: Sequence[str] | str | None = "auto", train_dtype: str | None = None,
                 progress: Callable[[int, float], None] | None = None) -> dict:
     """Tune one controller family against the virtual printer and report on held-out seeds.
 
@@ -292,6 +314,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     `ms_weight` > 0 also penalises the soft peak sensitivity above `ms_max` inside the tuning
     objective (`tune`, `sensitivity.ms_penalty`). `params`: the fields tuned (`tune`; None:
     every array leaf; `"auto"`: `ff_init.tuned_fields`, the taps alone for `pi_ff`, `lqg_ff`).
+    `train_dtype`: `"float32"` for the training rollouts only (`tune`); the guard and every
+    held-out figure stay in the plant's precision.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -307,39 +331,44 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
     if changed_powder == "auto":
         changed_powder = "PA11" if powder != "PA11" else "PA12"
-    if model is None:
-        model = pl if isinstance(pl, AbstractModel) else _printer_model(pl)
-    start = design(controller_family, model)
-    if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
-        # schedule feed-forward taps from the printer's response to each event (`ff_init`)
-        start = init_schedule_ff(start, pl)
-    start = _rescaled(start)
-    lam_pi = design("pi_lambda", model)
-    refs = [design(f, model) for f in references if f != controller_family]
     ens = plant_ensemble(pl, ensemble, seed=plant_seed) if isinstance(pl, Printer) and \
         ensemble else [pl]
-    seeds = (int(seed) + HELD_OUT,)
-    er = eval_rollouts or rollouts
-    plants = {"plant": pl}
-    if isinstance(plant, str) and changed_powder:
-        # the same controllers on the printer with the other powder, never seen in tuning
-        plants["changed"] = _plant_from("printer", zones=zones, powder=changed_powder,
-                                        plant_seed=plant_seed)
-    if check_robustness and isinstance(pl, Printer):
-        plants.update(_gain_plants(pl, 0.2))
-    # every controller on every plant, scenario and seed: one program per controller structure
-    # in batches of the training's item count: the tuned structure's (and the references')
-    # compiled simulation serves again (same plants structure, rollouts and duration)
-    chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
-    kw = dict(rollouts=er, duration=duration, weights=weights, chunk=chunk)
+    # a second thread draws the training and validation scenarios while this one linearises
+    # the printer and designs, then simulates the designs that tuning does not change on the
+    # held-out seeds while the tuning loop runs: their compiles and runs overlap this thread's
     with ThreadPoolExecutor(max_workers=1) as pool:
-        # the designs that tuning does not change run on the held-out seeds in a second thread
-        # while the tuning loop runs: their compiles and simulations overlap it
+        drawn = pool.submit(_training_sets, ens, rollouts, duration, seed)
+        if model is None:
+            model = pl if isinstance(pl, AbstractModel) else _printer_model(pl)
+        start = design(controller_family, model)
+        if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
+            # schedule feed-forward taps from the printer's response to each event (`ff_init`)
+            start = init_schedule_ff(start, pl)
+        start = _rescaled(start)
+        lam_pi = design("pi_lambda", model)
+        refs = [design(f, model) for f in references if f != controller_family]
+        seeds = (int(seed) + HELD_OUT,)
+        er = eval_rollouts or rollouts
+        plants = {"plant": pl}
+        if isinstance(plant, str) and changed_powder:
+            # the same controllers on the printer with the other powder, never seen in tuning
+            plants["changed"] = _plant_from("printer", zones=zones, powder=changed_powder,
+                                            plant_seed=plant_seed)
+        if check_robustness and isinstance(pl, Printer):
+            plants.update(_gain_plants(pl, 0.2))
+        # every controller on every plant, scenario and seed: one program per controller
+        # structure in batches of the training's item count: the tuned structure's (and the
+        # references') compiled simulation serves again (same plants structure, rollouts and
+        # duration)
+        chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
+        kw = {"rollouts": er, "duration": duration, "weights": weights, "chunk": chunk}
         fixed = pool.submit(_fixed_held_out, model, start, lam_pi, plants, seeds, kw)
-        res = tune(start, pl, plants=ens, rollouts=rollouts, steps=steps, lr=lr, seed=seed,
-                   duration=duration, weights=weights, references=refs, progress=progress,
+        train, val = drawn.result()
+        res = tune(start, pl, plants=ens, scenarios=train, validation=val, lr=lr, steps=steps,
+                   weights=weights, references=refs, progress=progress,
                    ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
-                   params=tuned_fields(start) if params == "auto" else params)
+                   params=tuned_fields(start) if params == "auto" else params,
+                   train_dtype=train_dtype)
         classical, study, terms = fixed.result()
     ms_c = (res.guard or {}).get("ms_constraint")
     if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
@@ -367,7 +396,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
             "ensemble": len(plants),
             "history": [float(h) for h in res.history], "rollouts": int(rollouts),
             "optimiser": res.method, "evaluations": res.evaluations,
-            "ms_weight": float(ms_weight),
+            "ms_weight": float(ms_weight), "train_dtype": train_dtype,
             "steps": int(steps), "seed": int(seed), "held_out_seeds": list(seeds),
             "duration": float(duration), "zones": int(getattr(pl, "zones", 0) or 0),
             "powder": powder, "ff_init": bool(ff_init and isinstance(start, ScheduleFF)),

@@ -84,9 +84,12 @@ def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"
                                                        - jnp.log(rm.size))
 
 
-def _reference_terms(refs, batch, weights):
-    """Per item, the best (smallest finite) cost and mse over the reference controllers."""
-    vals = np.stack([np.asarray(batch_terms(c, batch, weights)) for c in refs])
+def _reference_terms(refs, batch, weights, known=None):
+    """Per item, the best (smallest finite) cost and mse over the reference controllers;
+    `known`: `{id(controller): terms}` already simulated on `batch` (not simulated again)."""
+    known = known or {}
+    vals = np.stack([known[id(c)] if id(c) in known else np.asarray(batch_terms(c, batch, weights))
+                     for c in refs])
     vals = np.where(np.isfinite(vals) & (vals > 0), vals, np.inf)
     return vals, np.min(vals, axis=0)
 
@@ -158,8 +161,8 @@ def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms
     to `start`. With `ms_max` and `ms_model`, a candidate must also keep its peak sensitivity
     on `ms_model` at or below `ms_max` (`loop_ms`; unconstrained where it cannot be computed),
     reported as `ms_constraint`."""
-    _, best = _reference_terms(refs, batch, weights)
     start_vals = np.asarray(batch_terms(start, batch, weights))
+    _, best = _reference_terms(refs, batch, weights, known={id(start): start_vals})
     rows = []
     for i, (it, _, c) in enumerate(candidates):
         v = np.asarray(batch_terms(c, batch, weights))
@@ -210,6 +213,20 @@ def _penalty(ms_model, ms_max, weight) -> Callable:
     return lambda c: ms_penalty(c, z, G, float(ms_max), float(weight))
 
 
+def _caster(dtype: str | None) -> Callable:
+    """`tree -> tree` with every floating array leaf cast to `dtype` (None: the identity);
+    differentiable, so a gradient flows back to the leaves' own precision."""
+    if dtype is None:
+        return lambda t: t
+    if dtype != "float32":
+        raise ControlError(f"tune: train_dtype must be None or 'float32', got {dtype!r}")
+
+    def cast(x):
+        return x.astype(jnp.float32) if eqx.is_inexact_array(x) else x
+
+    return lambda t: jax.tree.map(cast, t)
+
+
 def _field_filter(controller, names):
     """`eqx.partition` filter selecting the array leaves of the named fields (all: None)."""
     if names is None:
@@ -234,7 +251,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          margin: float = 0.01, tau: float = 0.02, snapshots: int = 10, validation=None,
          ms_max: float | None = None, ms_model=None,
          params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
-         optimiser: str = "adam", ms_weight: float = 0.0,
+         optimiser: str = "adam", ms_weight: float = 0.0, train_dtype: str | None = None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -272,6 +289,11 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       "tau_r")` for an LQG: its weights, not its design model or operating point); default
       every array leaf.
     - `scenario_kw`: passed to `make_scenario` (a fitted model's `envelope`, `setpoint`).
+    - `train_dtype`: `"float32"` runs the training rollouts (value and gradient) in single
+      precision: the batches, the reference terms and the controller are cast inside the
+      objective, the parameters and the optimiser stay in their own precision, and the
+      reference designs, the guard's validation and any evaluation stay as they are; None
+      (default): as given.
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (training costs relative to the references when normalised).
@@ -290,19 +312,21 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
     refs = [controller, *references]
     pen = _penalty(ms_model, ms_max, ms_weight)
+    low = _caster(train_dtype)
     if normalise:
         # the references' best cost and mse per (plant, scenario), fixed (no gradient)
         pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
         if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
             raise ControlError("tune: the reference designs give no finite cost on the training set")
-        res = minimise(lambda c, br: robust_objective(batch_terms(c, br[0], weights), br[1], tau)
-                       + pen(c),
-                       controller, pairs, steps=steps, lr=lr, progress=progress,
-                       snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
+        res = minimise(lambda c, br: robust_objective(batch_terms(low(c), br[0], weights), br[1],
+                                                      tau) + pen(c),
+                       controller, [low(p) for p in pairs], steps=steps, lr=lr,
+                       progress=progress, snapshots=snapshots if guard else 0, filter_spec=spec,
+                       method=optimiser)
     else:
-        res = minimise(lambda c, b: jnp.mean(batch_terms(c, b, weights)[:, 0]) + pen(c),
+        res = minimise(lambda c, b: jnp.mean(batch_terms(low(c), b, weights)[:, 0]) + pen(c),
                        controller,
-                       batches, steps=steps, lr=lr, progress=progress,
+                       [low(b) for b in batches], steps=steps, lr=lr, progress=progress,
                        snapshots=snapshots if guard else 0, filter_spec=spec, method=optimiser)
     if not guard:
         return res
