@@ -40,7 +40,7 @@ def sim_zones(theta, on, per, shared, lay):
     return jax.vmap(lambda t, o, p: simulate_zone(t, o, {**shared, **p}, lay))(theta, on, per)
 
 
-def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_active, rtol=None):
+def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_active):
     """Masked LM on one coupled model's vector $[\\mathrm{vec}\\,\\Theta;\\ r]$ (zone parameters,
     record parameters): residual $w_k (y_k - \\hat y_k(\\Theta, r))$, $w$ the per-sample weight."""
     f = {**f_shared, **fp}
@@ -51,20 +51,20 @@ def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_
         Th, r = split(v)
         return (weight[:, None] * (y - simulate_full(Th, on, f, lay, r))).reshape(-1)
 
-    v, c, _ = masked_lm(res, jnp.concatenate([Theta.reshape(-1), rec0]), mask, n_iter, n_active, rtol)
+    v, c, _ = masked_lm(res, jnp.concatenate([Theta.reshape(-1), rec0]), mask, n_iter, n_active)
     Th, r = split(v)
     return Th, r, simulate_full(Th, on, f, lay, r), c
 
 
-@partial(jax.jit, static_argnames=("lay", "n_iter", "n_active", "rtol"))
-def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None, rtol=None):
+@partial(jax.jit, static_argnames=("lay", "n_iter", "n_active"))
+def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
     """Fit M coupled models jointly over all zones by simulation error (output error): the zones'
     parameters `Theta0 (M, n, P)` and the record parameters `rec0 (M, R)` (initial states, drift,
     surroundings level offset; see `simulate_full`), `mask (M, n P + R)` 1 where free, `on (M, 8)`,
     `y (T, n)`, `weight (T,)` per-sample weights (0 for padding), `f_per` per-model entries of the
-    simulation's dict; `rtol` `masked_lm`'s early stop (None: `n_iter` iterations). Returns
+    simulation's dict. Returns
     (Θ (M, n, P), rec (M, R), yhat (M, T, n), cost (M,))."""
-    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active, rtol))(
+    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active))(
         Theta0, on, rec0, mask, f_per)
 
 
