@@ -1,21 +1,22 @@
 """`jthermo tune`'s defaults on the virtual printer: 60 Adam steps at the library's learning
-rate for pi, 30 steps at 0.1 for lqg (`cli.control.SHORT_STEPS`, `SHORT_LR`); an explicit
-`--steps` keeps the library's learning rate."""
+rate with float32 training rollouts for pi, 30 steps at 0.1 in float64 for lqg
+(`cli.control.SHORT_STEPS`, `SHORT_LR`, `TRAIN_DTYPE`); an explicit `--steps` keeps the
+library's learning rate."""
 
 import json
 
 import pytest
 
 from jthermo import cli
-from jthermo.cli.control import SHORT_LR, SHORT_STEPS
+from jthermo.cli.control import SHORT_LR, SHORT_STEPS, TRAIN_DTYPE
 
 
-@pytest.mark.parametrize("family, argv, steps, lr", [
-    ("pi", [], 60, None),
-    ("lqg", [], 30, 0.1),
-    ("lqg", ["--steps", "60"], 60, None),
+@pytest.mark.parametrize("family, argv, steps, lr, dtype", [
+    ("pi", [], 60, None, "float32"),
+    ("lqg", [], 30, 0.1, None),
+    ("lqg", ["--steps", "60"], 60, None, None),
 ])
-def test_tune_defaults_per_family(family, argv, steps, lr, tmp_path, monkeypatch, capsys):
+def test_tune_defaults_per_family(family, argv, steps, lr, dtype, tmp_path, monkeypatch, capsys):
     from jthermo import tune
 
     seen = {}
@@ -31,5 +32,7 @@ def test_tune_defaults_per_family(family, argv, steps, lr, tmp_path, monkeypatch
     assert rc == 0, capsys.readouterr().err
     assert seen["steps"] == steps
     assert seen.get("lr") == lr
+    assert seen["train_dtype"] == dtype
     assert json.loads(js.read_text())["improvement_percent"] == 50.0
     assert SHORT_STEPS["lqg"] == 30 and SHORT_LR == {"lqg": 0.1}
+    assert TRAIN_DTYPE == {"pi_lambda": "float32"}
