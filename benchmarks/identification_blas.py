@@ -2,8 +2,10 @@
 
 The default-path records of `benchmarks/identification.py` (W1, absolute °C, 6000 + 3000
 samples) fitted by `jthermo fit EST --model M --validation VAL --json OUT` in fresh processes,
-alternately with the BLAS/OpenMP thread variables unset (OpenBLAS then starts one thread per
-core) and set to 1 (`OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1`), each
+alternately with one BLAS thread per core (`cores`: OpenBLAS's default when no variable is set;
+since `jthermo.cli.one_blas_thread` the command sets 1 itself when none is, so `cores` sets
+the variables to the core count) and one thread (`1`:
+`OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1`), each
 `--repeats` times, the persistent compilation cache warm (a first, untimed run fills it), so
 that compilation does not drown the BLAS part. Wall, CPU (user + system) and peak RSS by
 /usr/bin/time; the 1-minute load before each run (2 shared cores).
@@ -29,10 +31,10 @@ BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def run_fit(folder: Path, fam: str, threads: str, cache: Path) -> dict:
-    """One `jthermo fit` in a fresh process; `threads` "unset" or "1"."""
+    """One `jthermo fit` in a fresh process; `threads` "cores" or "1"."""
     env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
-    if threads != "unset":
-        env.update({k: threads for k in BLAS_VARS})
+    n = str(os.cpu_count()) if threads == "cores" else threads
+    env.update({k: n for k in BLAS_VARS})
     env["JTHERMO_CACHE_DIR"] = str(cache)
     tm = folder / "time.txt"
     load = os.getloadavg()[0]
@@ -52,11 +54,12 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", default=["arx", "oe"])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/identification_blas.md")
+    ap.add_argument("--merge", type=Path, help="rows of an earlier run (JSON) listed first")
     args = ap.parse_args(argv)
     import identification as B
     from jthermo.data import atomic_write_text
 
-    rows = []
+    rows = json.loads(args.merge.read_text()) if args.merge else []
     for N in args.n:
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
@@ -65,13 +68,13 @@ def main(argv=None) -> int:
                 cache = tmp / f"cache_{fam}"
                 run_fit(tmp, fam, "1", cache)                  # fills the cache, untimed
                 for rep in range(args.repeats):
-                    for threads in (("unset", "1") if rep % 2 == 0 else ("1", "unset")):
+                    for threads in (("cores", "1") if rep % 2 == 0 else ("1", "cores")):
                         print(f"[blas] N={N} {fam} threads={threads} rep {rep}", file=sys.stderr,
                               flush=True)
                         rows.append({"N": N, "family": fam, "threads": threads, "rep": rep,
                                      **run_fit(tmp, fam, threads, cache)})
                         atomic_write_text(args.out.with_suffix(".json"), json.dumps(rows, indent=1))
-    lines = ["# `jthermo fit` from the shell: BLAS threads unset vs 1", "",
+    lines = ["# `jthermo fit` from the shell: one BLAS thread per core vs 1", "",
              __doc__.split("\n\n")[1].replace("\n", " "), "",
              f"Command: `python benchmarks/identification_blas.py {' '.join(argv or sys.argv[1:])}`; "
              f"{os.cpu_count()} CPU cores.", "",
