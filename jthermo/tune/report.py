@@ -215,15 +215,17 @@ def _training_sets(plants, rollouts: int, duration: float, seed: int):
     return train, val
 
 
-def _fixed_held_out(model, start, lam_pi, plants: dict, seeds, kw: dict):
+def _fixed_held_out(model, start, lam_pi, refs, plants: dict, seeds, kw: dict):
     """`(classical, study, terms)` for `tune_report`: the classical designs on `model`
     (`classical_designs`, with `lam_pi` as pi_lambda), the held-out study (`held_out_study`)
     and `held_out_terms` of the start, the lambda PI and every classical design on it,
-    structures other than the start's simulated first (the tuning compiles the start's)."""
+    structures other than those of the start and `refs` simulated first (the tuning compiles
+    those itself meanwhile: not both threads at once)."""
     classical = {**classical_designs(model), "pi_lambda": lam_pi}
     ctrls = {"start": start, "lambda_pi": lam_pi, **classical}
-    own = jax.tree_util.tree_structure(start)
-    ctrls = dict(sorted(ctrls.items(), key=lambda kv: jax.tree_util.tree_structure(kv[1]) == own))
+    tuning = [jax.tree_util.tree_structure(c) for c in (start, *refs)]
+    ctrls = dict(sorted(ctrls.items(),
+                        key=lambda kv: jax.tree_util.tree_structure(kv[1]) in tuning))
     study = held_out_study(plants, seeds, rollouts=kw["rollouts"], duration=kw["duration"],
                            chunk=kw["chunk"])
     return classical, study, held_out_terms(ctrls, plants, seeds, study=study, **kw)
@@ -362,7 +364,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         # duration)
         chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
         kw = {"rollouts": er, "duration": duration, "weights": weights, "chunk": chunk}
-        fixed = pool.submit(_fixed_held_out, model, start, lam_pi, plants, seeds, kw)
+        fixed = pool.submit(_fixed_held_out, model, start, lam_pi, refs, plants, seeds, kw)
         train, val = drawn.result()
         res = tune(start, pl, plants=ens, scenarios=train, validation=val, lr=lr, steps=steps,
                    weights=weights, references=refs, progress=progress,
