@@ -447,12 +447,14 @@ def write_default_records(W, N: int, seed: int, folder: Path) -> tuple[dict, dic
     return est, val
 
 
-def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> list[dict]:
+def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
+                 engine: str = "jax") -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
     automatic orders, in a fresh process with an empty compilation cache (JTHERMO_CACHE_DIR),
     on W1 records in absolute °C (ambient 25 °C, 6000 estimation + 3000 validation samples).
     Wall time and peak RSS from /usr/bin/time; gap = validation fit minus the true model's
-    (the noise-free W1 plant simulated from rest vs measured)."""
+    (the noise-free W1 plant simulated from rest vs measured). `engine`: `--engine` for
+    armax/oe/bj (`"jax"`: the default, no flag)."""
     import subprocess
     import tempfile
 
@@ -471,18 +473,22 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None) -> lis
                 cmd = ["/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
                        "fit", str(tmp / "est.csv"), "--model", fam, "--validation",
                        str(tmp / "val.csv"), "--json", str(js)]
+                if engine != "jax" and fam in ENGINE_FAMILIES:
+                    cmd += ["--engine", engine]
                 load0 = os.getloadavg()[0]
                 p = subprocess.run(cmd, env=env, capture_output=True, text=True)
                 wall, rss, user, system = (float(v) for v in tm.read_text().split()[-4:])
                 row = {"family": fam, "N": N, "exit": p.returncode, "wall_s": wall,
                        "cpu_s": user + system, "peak_rss_mb": rss / 1024, "true_fit": truth,
                        "load": os.getloadavg()[0], "load_before": load0,
-                       "blas_threads": env.get("OPENBLAS_NUM_THREADS", "default")}
+                       "blas_threads": env.get("OPENBLAS_NUM_THREADS", "default"),
+                       "engine": engine if fam in ENGINE_FAMILIES else "—"}
                 if p.returncode == 0:
                     r = json.loads(js.read_text())
                     row.update(orders=r["orders"], fit=r["mean_fit_percent"],
                                gap=r["mean_fit_percent"] - truth, converged=r["converged"],
-                               repaired=r.get("repaired"))
+                               repaired=r.get("repaired"),
+                               converged_outputs=r.get("converged_outputs"))
                 else:
                     row["error"] = (p.stderr.strip().splitlines() or [""])[-1][:160]
                 rows.append(row)
@@ -507,7 +513,11 @@ def default_markdown(rows: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())
-        note = r.get("error") or r.get("repaired") or ""
+        rows_ok = r.get("converged_outputs") or []
+        note = "; ".join(n for n in (
+            r.get("error") or r.get("repaired") or "",
+            f"engine {r['engine']}" if r.get("engine", "jax") not in ("jax", "—") else "",
+            f"{sum(rows_ok)}/{len(rows_ok)} outputs converged" if not all(rows_ok) else "") if n)
         lines.append(f"| {r['family']} | {r['N']} | {o} | {_fmt(r.get('fit'))} | {_fmt(r['true_fit'])} | "
                      f"{_fmt(r.get('gap'))} | {r.get('converged', '—')} | {_fmt(r['wall_s'], 1)} | "
                      f"{_fmt(r.get('cpu_s'), 1)} | {_fmt(r['peak_rss_mb'], 0)} | "
@@ -552,8 +562,10 @@ def main(argv=None) -> int:
     if args.default_path:
         fams = [f for f in args.families if f != "n4sid"]
         for N in args.n or [4]:
-            default_path(load_workloads(), [N], fams,
-                         out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}.md")
+            for engine in args.engines:
+                tag = "" if engine == "jax" else f"_{engine}"
+                default_path(load_workloads(), [N], fams, engine=engine,
+                             out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}{tag}.md")
         return 0
     if "greybox" in args.families:
         ap.error("--families greybox: only with --default-path (no fixed-order W1 grey-box)")
