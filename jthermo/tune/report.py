@@ -319,6 +319,11 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     `train_dtype`: `"float32"` for the training rollouts only (`tune`); the guard and every
     held-out figure stay in the plant's precision.
 
+    Two threads: while this one linearises the printer, designs and tunes, a second one draws
+    the training and validation scenarios, then designs the classical controllers and
+    simulates every controller tuning does not change on the held-out seeds, so that on two
+    cores their compiles and runs overlap the tuning loop; the results are those of one thread.
+
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
     `best_classical_cost`, `improvement_vs_best_classical_percent`, `classical_costs`,
