@@ -501,7 +501,7 @@ def main(argv=None):
     if args.combine:
         parts = [json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in args.combine.split(",")]
         rows = sorted((r for p in parts for r in p["records"]), key=lambda r: r["case"])
-        meta = {"args": "; ".join(p["meta"]["args"] for p in parts) + " (shards in parallel)",
+        meta = {"args": "; ".join(p["meta"]["args"] for p in parts) + " (shards, merged)",
                 "wall_s": max(p["meta"]["wall_s"] for p in parts), "cpu_s": sum(p["meta"]["cpu_s"] for p in parts),
                 "load": " / ".join(p["meta"]["load"] for p in parts)}
         write(rows, meta, out, f"_{args.tag}")
