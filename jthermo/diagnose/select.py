@@ -193,6 +193,7 @@ class _JointFits:
     uv: np.ndarray
     n_iter: int
     slots: int
+    val_slots: int
     n_active: int
 
     def setup(self, free: bool, validation: bool = False) -> dict:
@@ -225,7 +226,8 @@ class _JointFits:
 
     def fit(self, models, validate) -> list[dict]:
         """Fit `(θ start, mechanism set, free level)` models jointly on the estimation record
-        (padded to `slots`: one compiled shape for every round), then validate them."""
+        (padded to `slots`: one compiled shape for every round), then validate them (padded to
+        `val_slots`, the candidates' validation shape: no compile of its own)."""
         n, lay, T = self.n, self.lay, self.y.shape[0]
         nd = lay.n_drift
         S = self.slots
@@ -256,7 +258,8 @@ class _JointFits:
         th[:, :, lay.sl("x0")] = rec[:, :n, None]
         th[:, :, lay.sl("ts0")] = rec[:, -1:, None] * free[:, None, None]
         th[:, :, lay.sl("drift")] = rec[:, None, 2 * n:2 * n + nd]
-        yhv = validate([(th[j], st, self.setup(fr, True)) for j, (_, st, fr) in enumerate(models)])
+        yhv = validate([(th[j], st, self.setup(fr, True)) for j, (_, st, fr) in enumerate(models)]
+                       + [(th[-1], models[-1][1], self.setup(models[-1][2], True))] * (self.val_slots - S))
         return [{"theta": th[j], "set": st, "free": bool(free[j]), "res": self.y - yh[j],
                  "e": self.yv - yhv[j], "yhat": yhv[j]} for j, (_, st, _) in enumerate(models)]
 
@@ -595,7 +598,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         measured=amb is not None, measured_var=measured_var, level=level,
                         neutral=_joint_start(y, u, ts, level if amb is not None else float(y[0].mean()), lay),
                         u_pad_v=rec_v["u_pad"], uv=rec_v["u"],
-                        n_iter=JOINT_ITER, slots=1 + (amb is None) + len(pool),
+                        n_iter=JOINT_ITER, slots=1 + (amb is None) + len(pool), val_slots=K + 1,
                         n_active=_joint_active(n, lay, chosen[0], pool))
         aug, added, chosen = _forward_select(js, validate, k_val, chosen[0], pool, fit_of)
         if not D.not_worse(yv, aug["e"], e_c[kt]):
