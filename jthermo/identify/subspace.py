@@ -32,6 +32,7 @@ import scipy.linalg as sla
 from ..data import IOData
 from ..errors import DataError, ModelError
 from ..models._base import StateSpace
+from ..models.polynomial import placed
 from ..models.statespace import project_stable
 from .operating_point import OPERATING_POINTS, known_rest_level, rest_window
 
@@ -311,8 +312,13 @@ def _assemble(parts, scaling, ts, max_radius):
     Bfull = Bs / su[None, :]
     Bw = np.zeros((A.shape[0], nw_all))
     Bw[:, active] = Bfull[:, nu:]
-    return StateSpace(A, Bfull[:, :nu], sy[:, None] * C, (sy[:, None] * Ds / su[None, :])[:, :nu],
-                      K / sy[None, :], ts=ts, Bw=Bw if nw_all else None, u0=u0, w0=w0, y0=y0)
+    # every array placed by a transfer (`placed`): jnp.asarray / jnp.zeros in the constructor
+    # would compile a small program per shape in a fresh process
+    parts = (A, Bfull[:, :nu], sy[:, None] * C, (sy[:, None] * Ds / su[None, :])[:, :nu],
+             K / sy[None, :])
+    return StateSpace(*(placed(x, np.float64) for x in parts), ts=ts,
+                      Bw=placed(Bw, np.float64), u0=placed(u0, np.float64),
+                      w0=placed(w0, np.float64), y0=placed(y0, np.float64))
 
 
 def n4sid(data: IOData, n: int | None = None, horizon: int | None = None, *,
