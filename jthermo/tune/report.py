@@ -21,6 +21,7 @@ from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
+from ..runtime import ONE_SHOT
 from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
 from .training import (
@@ -94,8 +95,9 @@ def _design_point(printer):
     return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0), u0, printer.output(x0)
 
 
-#: `printer_model` as one compiled program (eager, its conversions compiled a dozen small ones)
-_printer_model = eqx.filter_jit(printer_model)
+#: `printer_model` as one compiled program (eager, its conversions compiled a dozen small ones),
+#: compiled at -O0 (`runtime.ONE_SHOT`: it runs once)
+_printer_model = eqx.filter_jit(printer_model, compiler_options=ONE_SHOT)
 
 
 def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):

@@ -1,0 +1,77 @@
+"""Compile time of a program run once (`runtime.ONE_SHOT`): the printer's design model.
+
+Each row is a fresh process with no compilation cache: it builds the N-zone virtual printer and
+compiles and runs `tune.printer_model` (the Jacobians of the one-sample map) as one program,
+once with XLA's default options and once with `runtime.ONE_SHOT` (LLVM at -O0). Reported: wall
+and CPU seconds (user + system of the process, import excluded), and the largest difference of
+the model's A matrix between the two (what the controller design downstream sees).
+
+    python benchmarks/one_shot_compile.py [--zones 16] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+CHILD = r"""
+import json, sys, time
+import jax
+jax.config.update("jax_enable_x64", True)
+import equinox as eqx, numpy as np
+from jthermo import closedloop as cl, runtime, tune
+from jthermo.printer import make_printer
+p = make_printer(int(sys.argv[1]), cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
+opts = runtime.ONE_SHOT if sys.argv[2] == "one_shot" else {}
+t, w = time.process_time(), time.perf_counter()
+m = eqx.filter_jit(tune.printer_model, compiler_options=opts)(p)
+A = np.asarray(jax.block_until_ready(m.A))
+out = {"wall": time.perf_counter() - w, "cpu": time.process_time() - t}
+np.save(sys.argv[3], A)
+print(json.dumps(out))
+"""
+
+
+def _run(zones: int, mode: str, npy: str) -> dict:
+    env = dict(os.environ, JTHERMO_NO_CACHE="1", OPENBLAS_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", CHILD, str(zones), mode, npy], env=env,
+                         check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def main() -> None:
+    import numpy as np
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--zones", type=int, default=16)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=str(HERE / "results" / "one_shot_compile.md"))
+    args = ap.parse_args()
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for mode in ("default", "one_shot"):
+            runs = [_run(args.zones, mode, f"{tmp}/{mode}.npy") for _ in range(args.repeats)]
+            rows[mode] = {k: float(np.median([r[k] for r in runs])) for k in ("wall", "cpu")}
+        diff = float(np.max(np.abs(np.load(f"{tmp}/default.npy") - np.load(f"{tmp}/one_shot.npy"))))
+    load = os.getloadavg()[0]
+    lines = ["# Compile options of a program run once: the printer's design model", "",
+             f"`python benchmarks/one_shot_compile.py --zones {args.zones} --repeats {args.repeats}`: "
+             "a fresh process, no compilation cache, median of the repeats; seconds exclude the "
+             f"imports. 1-minute load {load:.2f} at the end (2 shared cores).", "",
+             "| XLA options | wall s | CPU s |", "|---|---|---|"]
+    for mode, r in rows.items():
+        lines.append(f"| {mode} | {r['wall']:.2f} | {r['cpu']:.2f} |")
+    lines += ["", f"Largest difference of the design model's A matrix: {diff:.3g}."]
+    Path(args.out).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
