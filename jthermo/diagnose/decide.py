@@ -222,6 +222,30 @@ def body_drift_tied(names, z_input: float) -> bool:
                 and not input_dependent(z_input))
 
 
+def common_drift_z(drifts: np.ndarray) -> float:
+    """$z$ that the zones' own fitted surroundings drifts `drifts (n, K)` (knot values, one row
+    per zone's fit) are one common signal: the mean pairwise correlation $\\bar r$ of the
+    mean-free rows, as Fisher's $z = \\operatorname{atanh}(\\bar r)\\sqrt{K - 3}$ (0 when $K \\le 3$
+    or fewer than two zones: no evidence either way). Unmeasured surroundings are one temperature
+    that every zone sees through its loss; drifts that disagree are a stand-in for something else."""
+    d = np.asarray(drifts, float)
+    n, K = d.shape
+    if n < 2 or K <= 3:
+        return 0.0
+    x = d - d.mean(axis=1, keepdims=True)
+    s = np.linalg.norm(x, axis=1)
+    if np.any(s < 1e-12):
+        return 0.0
+    c = (x / s[:, None]) @ (x / s[:, None]).T
+    r = float(np.mean(c[np.triu_indices(n, 1)]))
+    return float(np.arctanh(np.clip(r, -0.999999, 0.999999)) * math.sqrt(K - 3))
+
+
+def common_drift(z_common: float) -> bool:
+    """Whether the zones' drifts agree (`common_drift_z` at the one-sided `RIVAL_LEVEL`)."""
+    return bool(z_common >= norm.isf(RIVAL_LEVEL))
+
+
 #: a top finding whose confidence is below this is reported as uncertain: its improvement on the
 #: baseline, or its lead on the runner-up, is not established at the one-sided `RIVAL_LEVEL`
 #: (the same level that makes two explanations rivals)
@@ -253,6 +277,7 @@ def is_rival(z_top_vs_other: float) -> bool:
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
-__all__ = ["ALPHA", "BODY_TAUS", "CONFIDENT", "ar_filter", "body_drift_tied", "confidence", "input_dependence",
+__all__ = ["ALPHA", "BODY_TAUS", "CONFIDENT", "ar_filter", "body_drift_tied", "common_drift", "common_drift_z",
+           "confidence", "input_dependence",
            "input_dependent", "is_rival", "lag_filter", "likelihood_ratio", "not_worse", "order_body_drift",
            "p_value", "predictive_z", "thresholds", "uncertain", "whiten"]

@@ -554,6 +554,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                       "parameters": M.physical_parameters(thc[k], m, lay, ts, extra), "k": k})
     # the tests decide what is significant; the size of the improvement (validation MSE) ranks
     ranked = sorted(table, key=lambda r: -r["val_reduction"] if np.isfinite(r["val_reduction"]) else np.inf)
+    if "ambient_variation" in cands and amb is None and n > 1:
+        # unmeasured surroundings are one temperature every zone sees: the zones' own drifts (the
+        # per-zone fits) must agree, or the slow misfit the drift absorbs is something else
+        loc["drift_agreement_z"] = D.common_drift_z(thc[cands.index("ambient_variation")][:, lay.sl("drift")])
+        if not D.common_drift(loc["drift_agreement_z"]):
+            forbidden = {**forbidden, "ambient_variation": "the zones' own fitted surroundings drifts do not "
+                                                           "agree: not one surroundings signal"}
     flagged = [{"mechanism": r["mechanism"], "reason": forbidden[r["mechanism"]],
                 "validation_z": r["validation_z"], "parameters": r["parameters"]}
                for r in ranked if r["significant"] and r["mechanism"] in forbidden]

@@ -78,3 +78,17 @@ def test_uncertain_below_the_rival_level():
     line = summary("ambient_variation", [1], {}, True, ["heat_accumulation"])
     assert line.startswith("Uncertain") and "heat_accumulation" in line
     assert not summary("ambient_variation", [1], {}).startswith("Uncertain")
+
+
+def test_common_drift_needs_the_zones_to_agree():
+    """One surroundings signal: the zones' own drifts agree (noisy copies pass); opposite or
+    unrelated drifts, or too few knots to tell, do not."""
+    rng = np.random.default_rng(3)
+    k = np.linspace(0.0, 1.0, 13)
+    d = 2.0 * (0.5 * (k - 0.5) + 0.5 * np.sin(2 * np.pi * k / 0.8 + 1.0))
+    same = np.stack([d + 0.1 * rng.normal(size=k.size) for _ in range(3)])
+    assert D.common_drift(D.common_drift_z(same))
+    assert not D.common_drift(D.common_drift_z(np.stack([d, -d])))
+    unrelated = [D.common_drift_z(rng.normal(size=(2, k.size))) for _ in range(200)]
+    assert np.mean([D.common_drift(z) for z in unrelated]) <= 0.1      # about the 5 % level
+    assert D.common_drift_z(same[:, :3]) == 0.0 and D.common_drift_z(same[:1]) == 0.0
