@@ -58,7 +58,7 @@ WHY = {
              "SAE 690.5, below the published 840.95; for a linear loss a sensor lag and a heater lag give "
              "the same input-output response, so `heater_lag` stands for the published sensor lag) and "
              "flags `ambient_variation`: the zones' own fitted drifts do not agree (`decide.common_drift`, "
-             "from 71aa95f+1). At 71aa95f the drift was named first (96.5/94.7 %, SAE 588.9), and it is not "
+             "from f5d38b8). At 71aa95f the drift was named first (96.5/94.7 %, SAE 588.9), and it is not "
              "a room drift (`python experiments/diagnose_cace2_drift.py`, `diagnose_cace2_drift.md`): the "
              "two zones' own drifts span 46.6 and 15.2 °C over the 10-minute run in opposite directions "
              "(correlation -0.66, their difference larger than the drift), and 83 % of each one's variance "
