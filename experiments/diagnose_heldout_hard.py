@@ -354,7 +354,9 @@ def write(rows, meta, out, tag):
 
 def pooled(res_dir: Path) -> dict:
     """Nulls and top findings of every diagnosis study whose JSON is in `res_dir`: the measured
-    false-alarm rate against the stated one, and the confidence calibration, pooled."""
+    false-alarm rate against the stated one, and the confidence calibration, pooled. A record
+    (case, seed set, zones) counts once, from the first file that holds it; development files
+    (`_dev*`) are left out."""
     nulls, found, sources = [], [], []
     old = res_dir / "diagnose_heldout.json"                       # printer held-out study
     if old.is_file():
@@ -367,9 +369,13 @@ def pooled(res_dir: Path) -> dict:
         rows = json.loads(fa.read_text())["records"]
         sources.append(f"{fa.name} (nulls of {len(rows)} records)")
         nulls += [r["alarm"] for r in rows if r["effect"] is None]
-    hard = []
+    hard, seen = [], set()
     for f in sorted(res_dir.glob("diagnose_heldout_hard*.json")):
-        rows = json.loads(f.read_text())["records"]
+        if f.stem.startswith("diagnose_heldout_hard_dev"):      # development records: not held out
+            continue
+        rows = [r for r in json.loads(f.read_text())["records"]
+                if (r["case"], r.get("seed_set") or 0, r["zones"]) not in seen]
+        seen.update((r["case"], r.get("seed_set") or 0, r["zones"]) for r in rows)
         sources.append(f"{f.name} ({len(rows)} records)")
         nulls += [r["top"] is not None for r in rows if r["kind"] == "null"]
         found += [(r["confidence"], r["correct"]) for r in rows if r["top"] is not None]
