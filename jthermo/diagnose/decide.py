@@ -226,8 +226,10 @@ def common_drift_z(drifts: np.ndarray) -> float:
     """$z$ that the zones' own fitted surroundings drifts `drifts (n, K)` (knot values, one row
     per zone's fit) are one common signal: the mean pairwise correlation $\\bar r$ of the
     mean-free rows, as Fisher's $z = \\operatorname{atanh}(\\bar r)\\sqrt{K - 3}$ (0 when $K \\le 3$
-    or fewer than two zones: no evidence either way). Unmeasured surroundings are one temperature
-    that every zone sees through its loss; drifts that disagree are a stand-in for something else."""
+    or fewer than two zones: no evidence of agreement, so `common_drift` is False and a drift is
+    not named, e.g. on a multi-zone record of 10 min or less with knots every 300 s). Unmeasured
+    surroundings are one temperature that every zone sees through its loss; drifts that disagree
+    are a stand-in for something else."""
     d = np.asarray(drifts, float)
     n, K = d.shape
     if n < 2 or K <= 3:
