@@ -158,15 +158,28 @@ def _expm(Mt, squarings: int = 10, order: int = 10):
     return out
 
 
-def _zoh(A, Bc, ts):
+def _zoh(A, Bc, ts, squarings: int = 10, order: int = 10):
     """Exact zero-order-hold matrices of $\\dot s = A s + B_c w$: $(E, B_d, P_1)$ with
-    $P_1 = \\int_0^{t_s} e^{A\\tau} d\\tau$ (what a rate held over the sample adds)."""
+    $E = e^{A t_s}$ and $P_1 = \\int_0^{t_s} e^{A\\tau} d\\tau$ (what a rate held over the sample adds).
+
+    Both are the top blocks of $e^{M t_s}$, $M = \\begin{pmatrix} A & I \\\\ 0 & 0 \\end{pmatrix}$, by
+    `_expm`'s fixed Taylor series and squaring, written on the $m \\times m$ blocks (the bottom
+    rows stay $(0, I)$): with $h = t_s / 2^s$, $X = A h$,
+    $E_h = \\sum_{k=0}^{K} X^k / k!$, $P_h = h \\sum_{k=1}^{K} X^{k-1} / k!$, then $s$ times
+    $(E, P) \\leftarrow (E^2, E P + P)$. A quarter of the dense $2m \\times 2m$ products, and of
+    their tangents in the fits' forward-mode Jacobians."""
     m = A.shape[0]
-    dt = A.dtype
-    Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
-    F = _expm(Mt * ts)
-    E, P1 = F[:m, :m], F[:m, m:]
-    return E, P1 @ Bc, P1
+    h = ts / (2.0 ** squarings)
+    X = A * h
+    eye = jnp.eye(m, dtype=A.dtype)
+    term, E, P = eye, eye, jnp.zeros_like(A)
+    for k in range(1, order + 1):
+        P = P + term * h / k
+        term = term @ X / k
+        E = E + term
+    for _ in range(squarings):
+        E, P = E @ E, E @ P + P
+    return E, P @ Bc, P
 
 
 def _safe_pow(u, e):
