@@ -164,18 +164,10 @@ def _lbfgs_iterates(objective, z, batch, steps: int, lr: float, memory: int = 10
             return
 
 
-def _avals(tree):
-    """Shapes and dtypes of the array leaves of `tree`, with its structure."""
-    leaves, struct = jax.tree_util.tree_flatten(eqx.filter(tree, eqx.is_array))
-    return struct, [(x.shape, x.dtype) for x in leaves]
-
-
-def _adam_iterates(objective, z, batches, steps: int, lr: float, template=None):
+def _adam_iterates(objective, z, batches, steps: int, lr: float):
     """Yield `(z, cost of z on its batch, evaluations so far)` for each Adam iterate (the
     batches cycled), then the last finite iterate with its cost on `batches[0]` (evaluations
-    None). `batches` may be a callable returning them; with a `template` batch (their shapes
-    and static parts), the step is compiled ahead of time on it before `batches()` is called,
-    so that another thread can still be making them."""
+    None)."""
     opt = optax.adam(lr)
     opt_state = opt.init(eqx.filter(z, eqx.is_inexact_array))
 
@@ -186,26 +178,21 @@ def _adam_iterates(objective, z, batches, steps: int, lr: float, template=None):
         updates, opt_state = opt.update(grads, opt_state, z)
         return eqx.apply_updates(z, updates), opt_state, val
 
-    step = make_step if template is None else make_step.lower(z, opt_state, template).compile()
-    batches = batches() if callable(batches) else batches
-    if template is not None and any(_avals(b) != _avals(template) for b in batches):
-        step = make_step                  # not the template's shapes: compiled on first call
     for i in range(steps):
-        z_new, opt_state, val = step(z, opt_state, batches[i % len(batches)])
+        z_new, opt_state, val = make_step(z, opt_state, batches[i % len(batches)])
         yield z, float(val), i + 1
         if not _finite_tree(z_new):
             break
         z = z_new
     # the last iterate has not been evaluated yet; with several batches judge all on batch 0
     # (by the compiled step itself, its update unused: no second program to compile)
-    yield z, float(step(z, opt_state, batches[0])[2]), None
+    yield z, float(make_step(z, opt_state, batches[0])[2]), None
 
 
-def minimise(loss: Callable[[Any, Any], jax.Array], controller,
-             batches: Sequence[Any] | Callable[[], Sequence[Any]], *,
+def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequence[Any], *,
              steps: int = 100, lr: float = 0.05, progress: Callable[[int, float], None] | None
              = None, filter_spec=eqx.is_inexact_array, snapshots: int = 0,
-             method: str = "adam", template=None) -> TuneResult:
+             method: str = "adam") -> TuneResult:
     """Minimise `loss(controller, batch)` over the controller's array leaves with Adam or
     L-BFGS (module docstring).
 
@@ -219,27 +206,15 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller,
     - `snapshots`: keep about this many finite iterates along the way (plus the start, the
       best and the last) in `TuneResult.snapshots`, for a validation guard.
     - `method`: `"adam"` or `"lbfgs"`.
-    - `template`: with `batches` a callable returning them, a batch of their shapes and static
-      parts: Adam's step is compiled on it before `batches()` is called (e.g. while another
-      thread simulates what they hold); a batch of other shapes compiles the step again.
 
     **Returns:** `TuneResult` with the best finite iterate (by training cost).
     """
     if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ControlError(f"tune: steps must be >= 0, got {steps}")
+    if not batches:
+        raise ControlError("tune: no training batch")
     if method not in METHODS:
         raise ControlError(f"tune: unknown optimiser {method!r} (known: {', '.join(METHODS)})")
-    got = [] if callable(batches) else list(batches)
-
-    def fetch():                  # the batches, made on the first call when a callable
-        if not got and callable(batches):
-            got.extend(batches())
-        if not got:
-            raise ControlError("tune: no training batch")
-        return got
-
-    if method == "lbfgs" or template is None or not callable(batches):
-        fetch()
     t0 = time.perf_counter()
     params, static = eqx.partition(controller, filter_spec)
     mask = _log_mask(params)
@@ -249,11 +224,11 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller,
         return loss(eqx.combine(_from_z(z, mask), static), batch)
 
     if method == "lbfgs":
-        many = len(got) > 1
+        many = len(batches) > 1
         obj = (lambda z, bs: sum(objective(z, b) for b in bs) / len(bs)) if many else objective
-        its = _lbfgs_iterates(obj, z0, tuple(got) if many else got[0], steps, lr)
+        its = _lbfgs_iterates(obj, z0, tuple(batches) if many else batches[0], steps, lr)
     else:
-        its = _adam_iterates(objective, z0, fetch if not got else got, steps, lr, template)
+        its = _adam_iterates(objective, z0, batches, steps, lr)
     iterates, evals = [], 0           # (z_k, f_k), k = 0..K; f_K of Adam on batches[0]
     for z, val, n in its:
         if not iterates and not np.isfinite(val):
@@ -263,7 +238,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller,
         iterates.append((z, val))
         evals = n or evals
     return _result(iterates, evals, method, snapshots,
-                   comparable=method == "lbfgs" or len(got) == 1,
+                   comparable=method == "lbfgs" or len(batches) == 1,
                    rebuild=lambda zz: eqx.combine(_from_z(zz, mask), static), t0=t0)
 
 

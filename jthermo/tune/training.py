@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
@@ -315,27 +314,15 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     pen = _penalty(ms_model, ms_max, ms_weight)
     low = _caster(train_dtype)
     if normalise:
-        # the references' best cost and mse per (plant, scenario), fixed (no gradient), are
-        # simulated in a second thread while this one compiles the training step on
-        # placeholders of their shape (`minimise`'s template): both compile at once
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            best = pool.submit(lambda: [jnp.asarray(_reference_terms(refs, b, weights)[1])
-                                        for b in batches])
-
-            def pairs():
-                r = best.result()
-                if not all(bool(jnp.all(jnp.isfinite(x))) for x in r):
-                    raise ControlError("tune: the reference designs give no finite cost on "
-                                       "the training set")
-                return [low(p) for p in zip(batches, r)]
-
-            items = sum(len(g.index) for g in batches[0])
-            like = low((batches[0], np.ones((items, 2), jnp.result_type(float))))
-            res = minimise(lambda c, br: robust_objective(batch_terms(low(c), br[0], weights),
-                                                          br[1], tau) + pen(c),
-                           controller, pairs, steps=steps, lr=lr, progress=progress,
-                           snapshots=snapshots if guard else 0, filter_spec=spec,
-                           method=optimiser, template=like)
+        # the references' best cost and mse per (plant, scenario), fixed (no gradient)
+        pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
+        if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
+            raise ControlError("tune: the reference designs give no finite cost on the training set")
+        res = minimise(lambda c, br: robust_objective(batch_terms(low(c), br[0], weights), br[1],
+                                                      tau) + pen(c),
+                       controller, [low(p) for p in pairs], steps=steps, lr=lr,
+                       progress=progress, snapshots=snapshots if guard else 0, filter_spec=spec,
+                       method=optimiser)
     else:
         res = minimise(lambda c, b: jnp.mean(batch_terms(low(c), b, weights)[:, 0]) + pen(c),
                        controller,
