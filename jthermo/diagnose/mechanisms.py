@@ -143,27 +143,13 @@ def lamp_tau(log_tauh):
     return TAUH_MIN + xp.exp(log_tauh)
 
 
-def _expm(Mt, squarings: int = 10, order: int = 10):
-    """$e^{M}$ by a fixed Taylor series and squaring: branch-free (cheap to compile and vmap);
-    accurate to round-off for $\\|M\\| \\lesssim 100$, far above the rates used here."""
-    n = Mt.shape[-1]
-    X = Mt / (2.0 ** squarings)
-    eye = jnp.eye(n, dtype=Mt.dtype)
-    term, out = eye, eye
-    for k in range(1, order + 1):
-        term = term @ X / k
-        out = out + term
-    for _ in range(squarings):
-        out = out @ out
-    return out
-
-
 def _zoh(A, Bc, ts, squarings: int = 10, order: int = 10):
     """Exact zero-order-hold matrices of $\\dot s = A s + B_c w$: $(E, B_d, P_1)$ with
     $E = e^{A t_s}$ and $P_1 = \\int_0^{t_s} e^{A\\tau} d\\tau$ (what a rate held over the sample adds).
 
     Both are the top blocks of $e^{M t_s}$, $M = \\begin{pmatrix} A & I \\\\ 0 & 0 \\end{pmatrix}$, by
-    `_expm`'s fixed Taylor series and squaring, written on the $m \\times m$ blocks (the bottom
+    a fixed Taylor series and squaring (branch-free: cheap to compile and vmap; accurate to
+    round-off for $\\|A t_s\\| \\lesssim 100$), written on the $m \\times m$ blocks (the bottom
     rows stay $(0, I)$): with $h = t_s / 2^s$, $X = A h$,
     $E_h = \\sum_{k=0}^{K} X^k / k!$, $P_h = h \\sum_{k=1}^{K} X^{k-1} / k!$, then $s$ times
     $(E, P) \\leftarrow (E^2, E P + P)$. A quarter of the dense $2m \\times 2m$ products, and of

@@ -173,12 +173,3 @@ def test_radiation_share_keeps_the_tangent_loss():
         np.testing.assert_allclose(a_lin, (1 - share) * 0.02, rtol=1e-12)
     a_lin, r = M.loss_split(log_a, 3.0, 0.0, t_ref)          # switched off: all linear
     assert r == 0.0 and np.isclose(a_lin, 0.02)
-
-
-def test_expm_matches_scipy():
-    from scipy.linalg import expm
-
-    rng = np.random.default_rng(2)
-    for scale in (0.01, 1.0, 20.0):
-        A = scale * rng.normal(size=(6, 6)) - scale * 3 * np.eye(6)
-        np.testing.assert_allclose(np.asarray(M._expm(jnp.asarray(A))), expm(A), rtol=1e-9, atol=1e-12)

@@ -1,6 +1,6 @@
 """`mechanisms._zoh` on the m × m blocks: equal to the exact hold (scipy's exponential of the
-block matrix) and to `_expm` of the dense 2m × 2m matrix it replaced; its forward-mode derivative
-against central differences."""
+block matrix) and to the same Taylor series on the dense 2m × 2m matrix it replaced (`_expm`, here
+as the reference); its forward-mode derivative against central differences."""
 
 import jax
 import jax.numpy as jnp
@@ -19,10 +19,31 @@ def _rates(m, seed):
     return -np.diag(0.002 + 0.3 * rng.random(m)) + 0.01 * rng.random((m, m)) * (1 - np.eye(m))
 
 
+def _expm(Mt, squarings: int = 10, order: int = 10):
+    """$e^{M}$ by the fixed Taylor series and squaring that `_zoh` writes on blocks (dense form)."""
+    n = Mt.shape[-1]
+    X = Mt / (2.0 ** squarings)
+    eye = jnp.eye(n, dtype=Mt.dtype)
+    term, out = eye, eye
+    for k in range(1, order + 1):
+        term = term @ X / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def test_expm_matches_scipy():
+    rng = np.random.default_rng(2)
+    for scale in (0.01, 1.0, 20.0):
+        A = scale * rng.normal(size=(6, 6)) - scale * 3 * np.eye(6)
+        np.testing.assert_allclose(np.asarray(_expm(jnp.asarray(A))), expm(A), rtol=1e-9, atol=1e-12)
+
+
 def _dense(A, Bc, ts):
     m = A.shape[0]
     Mt = jnp.zeros((2 * m, 2 * m)).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m))
-    F = M._expm(Mt * ts)
+    F = _expm(Mt * ts)
     return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]
 
 
