@@ -447,6 +447,16 @@ def write_default_records(W, N: int, seed: int, folder: Path) -> tuple[dict, dic
     return est, val
 
 
+def with_noise(W, std: float | None = None, pole: float | None = None):
+    """W1 with another coloured sensor noise (std °C, AR(1) pole); None keeps W1's own. The
+    shared module reads its module constants, the re-creation its class attributes: both are
+    set on the object `load_workloads` returned."""
+    for name, value in (("NOISE_STD", std), ("NOISE_POLE", pole)):
+        if value is not None:
+            setattr(W, name, float(value))
+    return W
+
+
 def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
                  engine: str = "jax") -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
@@ -482,6 +492,7 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
                        "cpu_s": user + system, "peak_rss_mb": rss / 1024, "true_fit": truth,
                        "load": os.getloadavg()[0], "load_before": load0,
                        "blas_threads": env.get("OPENBLAS_NUM_THREADS", "default"),
+                       "seed": seed, "noise_std": W.NOISE_STD, "noise_pole": W.NOISE_POLE,
                        "engine": engine if fam in ENGINE_FAMILIES else "—"}
                 if p.returncode == 0:
                     r = json.loads(js.read_text())
@@ -508,6 +519,10 @@ def default_markdown(rows: list[dict]) -> str:
              "OpenBLAS threads: OPENBLAS_NUM_THREADS as this script sets it (1 unless set before "
              f"it ran; here {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}): a shell without "
              "it uses one thread per core, which made small LAPACK calls much slower under load.",
+             "",
+             f"Records: W1 seed {rows[0].get('seed', 0)}, coloured sensor noise std "
+             f"{_fmt(rows[0].get('noise_std', 0.1), 3)} °C, AR(1) pole "
+             f"{_fmt(rows[0].get('noise_pole', 0.7), 2)}.",
              "",
              "| family | N | orders | fit % | true % | gap | converged | wall s | CPU s | peak RSS MB | load | note |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -547,6 +562,14 @@ def main(argv=None) -> int:
     ap.add_argument("--default-path", action="store_true",
                     help="time `jthermo fit` with automatic orders from the shell (cold), per --n "
                     "and --families; writes results/identification_default_n<N>.md/.json")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="--default-path: W1 seed of the plant and records (held-back checks use "
+                    "seeds never used in development; results file tagged _seed<S>)")
+    ap.add_argument("--noise-std", type=float, default=None,
+                    help="--default-path: stationary std of W1's coloured sensor noise, °C "
+                    "(W1: 0.1; results file tagged _noise<X>)")
+    ap.add_argument("--noise-pole", type=float, default=None,
+                    help="--default-path: AR(1) pole of that noise (W1: 0.7; tagged _pole<X>)")
     args = ap.parse_args(argv)
     global REST_LEVEL
     if args.child:   # jthermo FAMILY N CACHE zero|estimated warm|cold ENGINE, or peer TOOL FAMILY N
@@ -561,10 +584,13 @@ def main(argv=None) -> int:
         return 0
     if args.default_path:
         fams = [f for f in args.families if f != "n4sid"]
+        W = with_noise(load_workloads(), args.noise_std, args.noise_pole)
+        variant = "".join(f"_{k}{v:g}" for k, v in (("seed", args.seed or None),
+                          ("noise", args.noise_std), ("pole", args.noise_pole)) if v is not None)
         for N in args.n or [4]:
             for engine in args.engines:
-                tag = "" if engine == "jax" else f"_{engine}"
-                default_path(load_workloads(), [N], fams, engine=engine,
+                tag = ("" if engine == "jax" else f"_{engine}") + variant
+                default_path(W, [N], fams, seed=args.seed, engine=engine,
                              out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}{tag}.md")
         return 0
     if "greybox" in args.families:
