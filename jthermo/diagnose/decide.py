@@ -222,6 +222,26 @@ def body_drift_tied(names, z_input: float) -> bool:
                 and not input_dependent(z_input))
 
 
+def slow_order_confidence(top: str, z_input: float) -> float:
+    """Chance that `top`, the slow body (`heat_accumulation`) or the surroundings drift
+    (`ambient_variation`) named ahead of the other, is the right one of the two, from the only
+    test that separates them: $\\Phi(z)$ for the body, $\\Phi(-z)$ for the drift, $z$ the
+    `input_dependence` statistic. Their validation comparison cannot: the drift's knots are
+    re-estimated on the validation record (charged one unit each, the chance gain of a correct
+    model), so a drift there absorbs whatever slow error a body's model leaves."""
+    z = float(z_input) if np.isfinite(z_input) else 0.0
+    return float(norm.cdf(z if top == "heat_accumulation" else -z))
+
+
+def slow_rival(top: str, other_fits_estimation: bool, z_input: float) -> bool:
+    """The other slow explanation is `top`'s rival: it improves the estimation record
+    significantly (its likelihood-ratio test) and the drift's input dependence (`input_dependent`)
+    does not decide for a body named first (nothing decides for a drift named first: the test
+    can only show dependence)."""
+    return bool(top in ("heat_accumulation", "ambient_variation") and other_fits_estimation
+                and (top == "ambient_variation" or not input_dependent(z_input)))
+
+
 def common_drift_z(drifts: np.ndarray) -> float:
     """$z$ that the zones' own fitted surroundings drifts `drifts (n, K)` (knot values, one row
     per zone's fit) are one common signal: the mean pairwise correlation $\\bar r$ of the
@@ -282,4 +302,5 @@ def is_rival(z_top_vs_other: float) -> bool:
 __all__ = ["ALPHA", "BODY_TAUS", "CONFIDENT", "ar_filter", "body_drift_tied", "common_drift", "common_drift_z",
            "confidence", "input_dependence",
            "input_dependent", "is_rival", "lag_filter", "likelihood_ratio", "not_worse", "order_body_drift",
-           "p_value", "predictive_z", "thresholds", "uncertain", "whiten"]
+           "p_value", "predictive_z", "slow_order_confidence", "slow_rival", "thresholds", "uncertain",
+           "whiten"]

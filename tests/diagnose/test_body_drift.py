@@ -80,6 +80,22 @@ def test_uncertain_below_the_rival_level():
     assert not summary("ambient_variation", [1], {}).startswith("Uncertain")
 
 
+def test_slow_rival_and_its_confidence_come_from_input_dependence():
+    body, drift = "heat_accumulation", "ambient_variation"
+    # the other slow explanation must improve the estimation record to be a rival
+    assert not D.slow_rival(drift, False, 0.0) and not D.slow_rival("heater_lag", True, 0.0)
+    assert D.slow_rival(drift, True, 0.0) and D.slow_rival(body, True, 0.0)
+    # input dependence decides for a body named first, never for a drift named first
+    assert not D.slow_rival(body, True, 2.0) and D.slow_rival(drift, True, 2.0)
+    # no evidence either way: even odds; the two confidences are complementary
+    assert D.slow_order_confidence(body, 0.0) == D.slow_order_confidence(drift, 0.0) == 0.5
+    for z in (-1.0, 0.7, 2.5):
+        assert abs(D.slow_order_confidence(body, z) + D.slow_order_confidence(drift, z) - 1.0) < 1e-12
+    assert D.uncertain(D.slow_order_confidence(body, 1.0)) and not D.uncertain(D.slow_order_confidence(body, 2.0))
+    assert D.uncertain(D.slow_order_confidence(drift, -1.0))
+    assert D.slow_order_confidence(body, float("nan")) == 0.5
+
+
 def test_common_drift_needs_the_zones_to_agree():
     """One surroundings signal: the zones' own drifts agree (noisy copies pass); opposite or
     unrelated drifts, or too few knots to tell, do not."""
