@@ -44,10 +44,11 @@ MIN_COMPILE_SECONDS = 0.0
 MAX_CACHE_BYTES = 4 * 1024**3
 
 #: XLA options for a program a process runs once, on small arrays (the printer's design point):
-#: LLVM at -O0 compiles it in about two thirds of the CPU time (N = 16 design model 3.05 ->
-#: 1.80 CPU s cold, `benchmarks/one_shot_compile.py`), and its run time is negligible either
-#: way. Never for a program inside a loop: -O0 code runs several times slower.
-ONE_SHOT = {"xla_backend_optimization_level": 0}
+#: LLVM at -O0 and XLA's older (non-MLIR) CPU fusion emitters compile it in a fraction of the
+#: CPU time (`python benchmarks/one_shot_compile.py`, benchmarks/results/one_shot_compile*.md),
+#: and its run time is negligible either way. Never for a program inside a loop: -O0 code runs
+#: several times slower.
+ONE_SHOT = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
