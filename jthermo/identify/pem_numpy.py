@@ -38,6 +38,9 @@ from .pem import EXPECTED_IMPROVEMENT_TOL, PEMResult
 
 #: the solve continues until the Gauss–Newton step would gain less than this fraction of the cost
 POLISH_TOL = 1e-12
+#: `extend_rows`: further rounds of `max_steps` steps for a row stopped at its step cap while its
+#: Gauss–Newton step would still gain at least `EXPECTED_IMPROVEMENT_TOL` (default of `fit_polynomial`)
+EXTEND_ROUNDS = 4
 
 
 def step_up(kappa: np.ndarray) -> np.ndarray:
@@ -73,6 +76,14 @@ def _monic(tail: np.ndarray) -> np.ndarray:
     return np.concatenate([[1.0], tail])
 
 
+def _filt(b, a, x: np.ndarray) -> np.ndarray:
+    """`lfilter(b, a, x)` along axis 0; the identity filter (`b = a = [1]`, e.g. $D/C$ of an
+    OE row) returns `x` itself (lfilter would convolve every column separately)."""
+    if len(b) == 1 and len(a) == 1 and b[0] == 1.0 and a[0] == 1.0:
+        return x
+    return lfilter(b, a, x, axis=0)
+
+
 def _blocks(theta: np.ndarray, s):
     """Split a row's parameter vector (`polynomial.PolySpec` layout): `a (m * na,)`,
     `b (nu, nb)`, `rho_c`, `rho_d`, `rho_f (1 or nu, nf)`, `kappa0` (0 without offset)."""
@@ -94,7 +105,7 @@ def row_residual(theta: np.ndarray, y: np.ndarray, u: np.ndarray, nk, s, jacobia
     C, D = _monic(step_up(np.tanh(rc))), _monic(step_up(np.tanh(rd)))
     f = step_up(np.tanh(rf))                                         # (1 or nu, nf)
     if s.common_f or s.nf == 0:
-        uf = lfilter([1.0], _monic(f[0]) if s.nf else [1.0], u, axis=0)
+        uf = _filt([1.0], _monic(f[0]) if s.nf else [1.0], u)
     else:
         uf = np.stack([lfilter([1.0], _monic(f[j]), u[:, j]) for j in range(s.nu)], axis=1)
     lag = [[_shift(uf[:, j], nk[j] + k) for k in range(s.nb)] for j in range(s.nu)]
@@ -102,17 +113,17 @@ def row_residual(theta: np.ndarray, y: np.ndarray, u: np.ndarray, nk, s, jacobia
     v = y - kappa0 - z.sum(axis=1)
     for k in range(s.na):
         v = v + a[k] * _shift(y, k + 1)
-    eps = lfilter(D, C, v)
+    eps = _filt(D, C, v)
     if not jacobian:
         return eps
-    dc = lambda x: lfilter(D, C, x, axis=0)  # noqa: E731
+    dc = lambda x: _filt(D, C, x)  # noqa: E731
     cols = [_shift(dc(y), k + 1) for k in range(s.na)]
     uff = dc(uf)
     cols += [-_shift(uff[:, j], nk[j] + k) for j in range(s.nu) for k in range(s.nb)]
     blocks = [np.stack(cols, axis=1) if cols else np.zeros((y.size, 0))]
     T = y.size
-    blocks.append(_reflected([_shift(lfilter([1.0], C, -eps), k + 1) for k in range(s.nc)], rc, T))
-    blocks.append(_reflected([_shift(lfilter([1.0], C, v), k + 1) for k in range(s.nd)], rd, T))
+    blocks.append(_reflected([_shift(_filt([1.0], C, -eps), k + 1) for k in range(s.nc)], rc, T))
+    blocks.append(_reflected([_shift(_filt([1.0], C, v), k + 1) for k in range(s.nd)], rd, T))
     if s.nf:
         fz = np.stack([lfilter([1.0], _monic(f[0 if s.common_f else j]), z[:, j])
                        for j in range(s.nu)], axis=1)
@@ -139,6 +150,12 @@ def _gn_quantities(eps: np.ndarray, J: np.ndarray):
     g, H = J.T @ eps, J.T @ J
     H_pinv = np.linalg.pinv(H, hermitian=True)
     return g, H, H_pinv, float(g @ H_pinv @ g) / max(float(eps @ eps), np.finfo(float).tiny)
+
+
+def _covariance(eps: np.ndarray, H_pinv: np.ndarray, p: int) -> np.ndarray:
+    """$\\hat\\sigma^2 (J^\\top J)^{+}$, $\\hat\\sigma^2 = \\sum\\varepsilon^2 / (T - p)$ (NaN-free)."""
+    cov = float(eps @ eps) / max(eps.size - p, 1) * H_pinv
+    return np.where(np.isfinite(cov), cov, np.inf)
 
 
 def lm_row(theta0: np.ndarray, y, u, nk, s, max_steps: int):
@@ -188,7 +205,6 @@ def minimize_rows(starts: np.ndarray, y: np.ndarray, u: np.ndarray, nkt, s, *, m
     **Returns:** a `PEMResult` of NumPy arrays with a leading row axis.
     """
     ny, K, p = starts.shape
-    T = y.shape[0]
     screen = K > 1 and 0 < screen_steps < max_steps
     out = {k: [] for k in ("theta", "cost", "converged", "n_steps", "start_costs", "covariance",
                            "std", "best_start", "start_steps", "expected_improvement")}
@@ -211,8 +227,7 @@ def minimize_rows(starts: np.ndarray, y: np.ndarray, u: np.ndarray, nkt, s, *, m
         if covariance and np.isfinite(costs[best]):
             eps, J = row_residual(theta, *args)
             _, _, H_pinv, gain = _gn_quantities(eps, J)
-            cov = float(eps @ eps) / max(T - p, 1) * H_pinv
-            cov = np.where(np.isfinite(cov), cov, np.inf)
+            cov = _covariance(eps, H_pinv, p)
         out["theta"].append(theta)
         out["cost"].append(costs[best])
         out["converged"].append(bool(np.isfinite(costs[best]) and gain < EXPECTED_IMPROVEMENT_TOL))
@@ -224,6 +239,45 @@ def minimize_rows(starts: np.ndarray, y: np.ndarray, u: np.ndarray, nkt, s, *, m
         out["start_steps"].append(steps)
         out["expected_improvement"].append(gain)
     return PEMResult(**{k: np.asarray(v) for k, v in out.items()})
+
+
+def extend_rows(res: PEMResult, y: np.ndarray, u: np.ndarray, nkt, s, *, max_steps: int,
+                rounds: int = EXTEND_ROUNDS) -> PEMResult:
+    """Continue the rows of `res` (either engine's `PEMResult`, with covariance, rows in `s`'s
+    own parameters) that stopped at `max_steps` while still improving, i.e. not converged:
+    the Gauss–Newton step from their result would lower the cost by
+    $g^\\top (J^\\top J)^{+} g / \\|\\varepsilon\\|^2 \\geq$ `EXPECTED_IMPROVEMENT_TOL`. Each gets
+    up to `rounds` more runs of `lm_row` (`max_steps` steps each) until that gain falls below
+    the tolerance or a run stops on its own; its theta, cost, steps, covariance, expected
+    improvement and `converged` are then those of the new point. Rows that converged, or that
+    stopped before the cap, are returned as they were. A NumPy `PEMResult`.
+    """
+    out = {k: np.array(getattr(res, k)) for k in PEMResult.__dataclass_fields__}
+    if rounds < 1:
+        return PEMResult(**out)
+    p = out["theta"].shape[1]
+    stalled = ~out["converged"] & (out["n_steps"] >= max_steps) & np.isfinite(out["cost"])
+    for i in np.flatnonzero(stalled):
+        args = (y[:, i], u, np.asarray(nkt[i]), s)
+        th, gain, steps = out["theta"][i], np.inf, 0
+        for _ in range(int(rounds)):
+            th, cost, n = lm_row(th, *args, max_steps)
+            steps += n
+            eps, J = row_residual(th, *args)
+            _, _, H_pinv, gain = _gn_quantities(eps, J)
+            if gain < EXPECTED_IMPROVEMENT_TOL or n < max_steps:
+                break
+        if not np.isfinite(cost) or cost > out["cost"][i]:
+            continue
+        b = out["best_start"][i]
+        cov = _covariance(eps, H_pinv, p)
+        out["theta"][i], out["cost"][i], out["start_costs"][i, b] = th, cost, cost
+        out["n_steps"][i] += steps
+        out["start_steps"][i, b] += steps
+        out["covariance"][i], out["std"][i] = cov, np.sqrt(np.clip(np.diagonal(cov), 0.0, None))
+        out["expected_improvement"][i] = gain
+        out["converged"][i] = gain < EXPECTED_IMPROVEMENT_TOL
+    return PEMResult(**out)
 
 
 def coefficient_jacobian(theta: np.ndarray, s) -> np.ndarray:
@@ -244,5 +298,5 @@ def coefficient_jacobian(theta: np.ndarray, s) -> np.ndarray:
     return Jt
 
 
-__all__ = ["POLISH_TOL", "coefficient_jacobian", "lm_row", "minimize_rows", "row_residual",
-           "step_up", "step_up_jacobian"]
+__all__ = ["EXTEND_ROUNDS", "POLISH_TOL", "coefficient_jacobian", "extend_rows", "lm_row",
+           "minimize_rows", "row_residual", "step_up", "step_up_jacobian"]

@@ -33,7 +33,7 @@ from .operating_point import (
     OFFSETS, estimate_rest_level, known_rest_level, offset_mode, operating_point,
 )
 from .pem import minimize_many
-from .pem_numpy import coefficient_jacobian, minimize_rows, step_up
+from .pem_numpy import EXTEND_ROUNDS, coefficient_jacobian, extend_rows, minimize_rows, step_up
 from .result import FitResult, register_fitter
 
 #: the model families `fit_polynomial` serves
@@ -132,7 +132,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
                    screen_steps: int = 10, batch: str = "map", common_f: bool = False,
-                   rest_level=None, shape_orders: dict | None = None, engine: str = "jax"):
+                   rest_level=None, shape_orders: dict | None = None, engine: str = "jax",
+                   extend_rounds: int = EXTEND_ROUNDS):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
     Operating point (`offset`): `"mean"` fits deviations from the data's means (`u0`, `y0` =
@@ -163,6 +164,11 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     `atol`, `batch`) or `"numpy"` (`pem_numpy.minimize_rows`, diagonal A only: the same
     residual, starts and screening, nothing compiled, solved until the Gauss–Newton step would
     gain less than `pem_numpy.POLISH_TOL`; `shape_orders` is not needed there).
+    `extend_rounds`: with either engine (LM or GN, diagonal A, `covariance`), an output row that
+    stops at `max_steps` while its Gauss–Newton step would still gain ≥ 0.01 % of its cost gets
+    up to this many further rounds of `max_steps` NumPy LM steps (`pem_numpy.extend_rows`), so
+    that a row reported converged is converged and one that is still improving is not cut off
+    (0: the step cap is final, the row reported not converged).
 
     **Returns:** `(model, info)` where `info` has `converged` (every output row), `cost`,
     `covariance`, `std`, `start_costs`, `start_steps`, `n_steps`, `offset`, and per output row
@@ -177,6 +183,9 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     nkt = as_nk(nk, ny, nu)
     if engine not in ENGINES:
         raise ConfigError(f"fit: engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if isinstance(extend_rounds, bool) or not isinstance(extend_rounds, (int, np.integer)) \
+            or extend_rounds < 0:
+        raise ConfigError(f"fit: extend_rounds must be an integer >= 0, got {extend_rounds!r}")
     if engine == "numpy" and full_a and ny > 1 and nf == 0 and (nc or nd):
         raise ConfigError("fit: engine 'numpy' needs a diagonal A (full_a=False)")
     if full_a and ny > 1 and (nd or nf):
@@ -235,6 +244,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         res = _minimize_compiled(starts, dy, du, nkt, spec, shape_orders, dt, solver=solver,
                                  max_steps=max_steps, rtol=rtol, atol=atol,
                                  covariance=covariance, screen_steps=screen_steps, batch=batch)
+    if covariance and m == 1 and solver in ("lm", "gn") and extend_rounds > 0:
+        res = extend_rows(res, dy, du, nkt, spec, max_steps=max_steps, rounds=extend_rounds)
     cost = np.asarray(res.cost)
     if not np.all(np.isfinite(cost)):
         bad = int(np.argmax(~np.isfinite(cost)))

@@ -141,7 +141,8 @@ def test_per_output_convergence_is_reported(tmp_path, capsys):
     save_csv(from_arrays(np.asarray(data.u), 20.0 + np.asarray(data.y)), tmp_path / "est.csv")
     reports = []
     for steps in (200, 1):
-        res = fit(data, "oe", (1, 1, 1), engine="numpy", max_steps=steps, n_starts=1)
+        res = fit(data, "oe", (1, 1, 1), engine="numpy", max_steps=steps, n_starts=1,
+                  extend_rounds=0)
         reports.append((res.converged, res.extra["row_converged"], res.extra["expected_improvement"]))
     (ok, rows, gains), (ok1, rows1, gains1) = reports
     assert ok and all(rows) and max(gains) < 1e-4
@@ -151,3 +152,23 @@ def test_per_output_convergence_is_reported(tmp_path, capsys):
                      "--json", str(js), "--quiet"]) == 0
     rep = json.loads(js.read_text())
     assert rep["converged_outputs"] == [True, True] and len(rep["expected_improvement"]) == 2
+
+
+@pytest.mark.parametrize("engine", ["numpy", "jax"])
+def test_rows_stopped_while_improving_are_continued(engine):
+    """A row stopped at `max_steps` while its Gauss–Newton step would still gain ≥ 0.01 % gets
+    further rounds (`extend_rounds`, `pem_numpy.extend_rows`) until it converges: lower cost,
+    more steps, `converged` only where the remaining gain is below the tolerance; with
+    `extend_rounds=0` the cap is final and the row is reported not converged."""
+    data = _bj_data(600, 4)
+    kw = dict(nb=1, nf=1, nk=1, n_starts=1, max_steps=1, engine=engine)
+    _, cut = fit_polynomial(data.y, data.u, extend_rounds=0, **kw)
+    _, cont = fit_polynomial(data.y, data.u, extend_rounds=200, **kw)
+    assert not cut["converged"] and np.max(cut["expected_improvement"]) >= 1e-4
+    assert cont["converged"] and np.all(cont["row_converged"])
+    assert np.max(cont["expected_improvement"]) < 1e-4
+    assert np.all(np.asarray(cont["n_steps"]) > 1) and cont["cost"] < cut["cost"]
+    # the continued covariance is that of the new point: sigma^2 (J'J)^+ from its Jacobian
+    assert np.all(np.isfinite(np.asarray(cont["std"])))
+    with pytest.raises(ConfigError, match="extend_rounds"):
+        fit_polynomial(data.y, data.u, extend_rounds=-1, **kw)
