@@ -1,7 +1,9 @@
 """What the measurement noise of `jthermo simulate` costs, and what cheaper draws of the same
-distribution would cost (issue 13; not adopted: they change the random stream of every
-printer scenario and of `generate`, so every published closed-loop and identification figure
-would move within its noise).
+distribution cost (issue 13). `Printer.sample_noise` (every printer scenario of
+`make_scenario`, and `generate`) keeps its three float64 draws; since 2026-11-25 `closedloop.run`
+on the printer (`jthermo simulate`) draws its noise inside the scan with `Printer.noise_stream`
+(last row), which changed its random stream (mse 0.08304 -> the value in
+benchmarks/results/latency.md) but not the distribution.
 
 The noise of one rollout (`Printer.sample_noise` with the scenario's white 0.05 °C and the
 `sensor_noise` effect) is three standard-normal draws: the scenario's white part, the
@@ -11,7 +13,10 @@ effect's white part and the AR(1) innovations. Options timed over B rollouts of 
 - `fused white`: the two white parts as one draw of std $\\sqrt{s_1^2 + s_2^2}$ (the same
   distribution), two float64 draws;
 - `fused, float32 draws`: the same two draws made in float32 and cast (24-bit normals, far
-  finer than the 0.05 °C noise).
+  finer than the 0.05 °C noise);
+- `in-scan stream`: `Printer.noise_stream(key, 0.05).sample(T)`, what `run` draws one sample
+  at a time inside its scan: one float32 normal vector per sample from `fold_in(key, k)`,
+  the white parts fused (`jthermo.printer.noise`).
 
 Threefry unrolled as in the command (`runtime.unroll_threefry`). Each row: the second call
 (compiled), CPU seconds of the process beside the wall seconds and the 1-minute load, and the
@@ -68,7 +73,9 @@ def main() -> None:
 
     options = {"as is (3 float64 draws)": lambda k: pr.sample_noise(k, T, white),
                "fused white (2 float64 draws)": lambda k: fused(k, jnp.float64),
-               "fused, float32 draws (2)": lambda k: fused(k, jnp.float32)}
+               "fused, float32 draws (2)": lambda k: fused(k, jnp.float32),
+               "in-scan stream (`Printer.noise_stream`, run's since 2026-11-25)":
+                   lambda k: pr.noise_stream(k, white).sample(T)}
     load0 = load()
     lines = [f"# Measurement-noise draws: N = {args.zones}, B = {args.rollouts}, T = {T}", "",
              (f"`python benchmarks/simulate_noise_options.py --zones {args.zones} --rollouts "

@@ -19,7 +19,7 @@ from ..control._base import AbstractController
 from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
-from ..printer.noise import NoiseStream, in_scan_supported
+from ..printer.noise import NoiseStream
 from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
@@ -209,8 +209,7 @@ def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
     of the full integration (benchmarks/results/simulate_substeps.md).
 
     `noise` (`Printer.noise_stream`): the measurement noise drawn inside the scan instead of
-    read from `scenario.v` (the same draws, equal to round-off, when it is the stream
-    `scenario.v` was drawn from: `run` does this)."""
+    read from `scenario.v` (`run` does this: the distribution of `scenario.v`, other draws)."""
     scorer = RunningMetrics.of(scenario, smoothing=smoothing)
     acc, _ = _closed_loop(plant, controller, scenario, x0,
                           lambda acc, k, y, u, temps, r: (scorer.update(acc, k, y, u, temps, r), None),
@@ -385,9 +384,9 @@ RUN_NOISE_STD = 0.05
 
 def rollout_noise(plant: Printer, key, n_rollouts: int, noise_std: float = RUN_NOISE_STD):
     """The `NoiseStream` of each rollout of `make_scenario(kind, plant, ..., key,
-    n_rollouts=n_rollouts, noise_std=noise_std)` (a leading rollout axis): rollout b draws
-    from the second of four keys split from the b-th of `split(key, n_rollouts)`, as the
-    scenario builder does (`tests/closedloop/test_noise_in_scan.py` holds the two equal)."""
+    n_rollouts=n_rollouts, noise_std=noise_std)` (a leading rollout axis), with the noise's
+    distribution (`printer.noise`): rollout b's stream is keyed by the second of four keys
+    split from the b-th of `split(key, n_rollouts)`, the key of the scenario's own noise."""
     def one(k):
         return plant.noise_stream(jax.random.split(k, 4)[1], noise_std)
 
@@ -395,15 +394,26 @@ def rollout_noise(plant: Printer, key, n_rollouts: int, noise_std: float = RUN_N
 
 
 @eqx.filter_jit
+def run_scenario(kind: str, plant: Printer, duration, key, n_rollouts: int) -> Scenario:
+    """The batch of printer scenarios `run(kind, ..., plant, rollouts=n_rollouts, seed=...)`
+    simulates, materialised (for checks and figures): `make_scenario`'s with the measurement
+    noise `v` of `run`'s in-scan streams (`rollout_noise`) in place of its own draw."""
+    sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
+    T = sc.r.shape[1]
+    v = jax.vmap(lambda s: s.sample(T))(rollout_noise(plant, key, n_rollouts))
+    return eqx.tree_at(lambda s: s.v, sc, v)
+
+
+@eqx.filter_jit
 def _scenario_metrics(kind, plant, controller, duration, key, n_rollouts):
     """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
-    traced: one compile for every seed). Where it can (`noise.in_scan_supported`), the
-    measurement noise is drawn inside the scan, sample by sample, from the same bits: the
-    scenario's `(B, T, ny)` noise is never formed (XLA drops it unread): `jthermo simulate`'s
-    run program before and after in benchmarks/results/simulate_stages*.md."""
+    traced: one compile for every seed). The measurement noise is drawn inside the scan,
+    sample by sample (`rollout_noise`: the scenario's noise distribution, about a quarter of
+    its cost): the scenario's `(B, T, ny)` noise is never formed (XLA drops it unread):
+    `jthermo simulate`'s run program before and after in benchmarks/results/simulate_stages*.md."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
-    noise = rollout_noise(plant, key, n_rollouts) if in_scan_supported(sc.r.dtype) else None
+    noise = rollout_noise(plant, key, n_rollouts)
     return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise)
 
 

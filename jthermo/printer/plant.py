@@ -13,7 +13,7 @@ from ..errors import ModelError
 from .effects import EFFECTS
 from .geometry import KELVIN, NOMINAL_INPUT, SIGMA, grid_edges, grid_positions, grid_shape
 from .integration import PhiMatrices, phi_matrices
-from .noise import NoiseStream, in_scan_supported
+from .noise import NoiseStream
 
 #: sub-steps per sample for radiation alone (no recoat sweep): its T^4 term changes little over
 #: a sample, so one ETD2RK step stays within 1e-3 °C of 100 sub-steps in closed loop
@@ -401,15 +401,13 @@ class Printer(eqx.Module):
         return v
 
     def noise_stream(self, key, white_std: float = 0.0) -> NoiseStream:
-        """`sample_noise(key, T, white_std)` drawn one sample at a time inside a scan
-        (`NoiseStream.at`): the same draws, equal to round-off, without the `(T, ny)` array. Float64 under the
-        partitionable Threefry only (`noise.in_scan_supported`)."""
-        if not in_scan_supported(self.capacity.dtype):
-            raise ModelError("Printer.noise_stream: needs float64 and jax_threefry_partitionable "
-                             "(use sample_noise)")
+        """The noise of `sample_noise(key, T, white_std)` drawn one sample at a time inside a
+        scan (`NoiseStream.at`): the same distribution per channel (std, AR(1) autocorrelation),
+        other draws (fused white parts, float32 normals: `printer.noise`), no `(T, ny)` array."""
         sensor = self.effects["sensor_noise"] if self.has("sensor_noise") else None
-        return NoiseStream(keys=jax.random.split(key, 3), white_std=float(white_std),
-                           sensor=sensor, ny=self.n_outputs, zones=self.zones)
+        return NoiseStream(key=key, white_std=float(white_std), sensor=sensor,
+                           ny=self.n_outputs, zones=self.zones,
+                           dtype=jnp.dtype(self.capacity.dtype).name)
 
 
 @eqx.filter_jit

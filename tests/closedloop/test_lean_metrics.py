@@ -17,6 +17,7 @@ from jthermo.closedloop import (
     simulate,
     simulate_metrics,
 )
+from jthermo.closedloop.engine import run_scenario
 from jthermo.control.pi import DiagonalPI
 from jthermo.errors import ConfigError
 from jthermo.printer import make_printer
@@ -67,7 +68,7 @@ def test_run_reports_the_dense_figures_and_lean_path_checks_batching():
     plant = make_printer(3, EFFECTS, seed=1)
     ctrl = DiagonalPI.untuned(3)
     out = run("ensemble", ctrl, plant, rollouts=2, duration=120.0, seed=5)
-    sc = make_scenario("ensemble", plant, 120.0, jax.random.key(5), n_rollouts=2)
+    sc = run_scenario("ensemble", plant, 120.0, jax.random.key(5), 2)   # with run's noise
     traj = eqx.filter_jit(rollouts)(plant, ctrl, sc)
     dense = metrics(traj, sc)
     assert set(out["metrics"]) == set(METRICS)

@@ -1,6 +1,8 @@
 """`run` draws the printer's measurement noise inside the scan (`Printer.noise_stream`), one
-sample at a time: the same normal draws as the whole-run draw (`Printer.sample_noise`, bit for
-bit), so the run's figures equal those of the materialised scenario to round-off."""
+sample at a time: the distribution of the whole-run draw (`Printer.sample_noise`), other
+draws. Checked here: the statistics per channel (std, lag-1 autocorrelation, no correlation
+between channels), determinism from the key, and that the run's figures equal those of the
+scenario materialised with the same stream."""
 
 import equinox as eqx
 import jax
@@ -15,60 +17,84 @@ from jthermo.closedloop.engine import (
     _run_metrics,
     _scenario_metrics,
     rollout_noise,
+    run_scenario,
 )
 from jthermo.control.pi import DiagonalPI
-from jthermo.errors import ModelError
 from jthermo.printer import make_printer
-from jthermo.printer.noise import in_scan_supported, normal_row
 
 
-@pytest.mark.parametrize("shape,rows", [((7, 3), (0, 6)), ((5000, 16), (0, 1, 4096, 4999))])
-def test_normal_row_is_jax_normal_bit_for_bit(shape, rows):
-    key = jax.random.key(11)
-    whole = np.asarray(jax.random.normal(key, shape, jnp.float64))
-    one = jax.jit(normal_row, static_argnums=2)
-    for t in rows:
-        assert np.array_equal(np.asarray(one(key, t, shape[1])), whole[t])
+def _lag1(x):
+    x = x - x.mean(axis=0)
+    return (x[1:] * x[:-1]).mean(axis=0) / (x * x).mean(axis=0)
+
+
+def _expected(pr, white):
+    """Per-channel std and lag-1 autocorrelation of `sample_noise(key, T, white)`."""
+    ny, nz = pr.n_outputs, pr.zones
+    var = np.full(ny, white ** 2)
+    rho = np.zeros(ny)
+    if pr.has("sensor_noise"):
+        p = {k: float(v) for k, v in pr.effects["sensor_noise"].items()}
+        var += p["white_std_C"] ** 2
+        var[:nz] += p["coloured_std_C"] ** 2
+        rho[:nz] = p["pole"] * p["coloured_std_C"] ** 2 / var[:nz]
+    return np.sqrt(var), rho
 
 
 @pytest.mark.parametrize("effects,areas", [(REALISTIC_EFFECTS, False), (REALISTIC_EFFECTS, True),
                                            (("lateral_conduction",), False)])
-def test_stream_equals_sample_noise(effects, areas):
+def test_stream_has_the_distribution_of_sample_noise(effects, areas):
     pr = make_printer(4, effects, seed=0, areas=areas)
-    key, T = jax.random.key(5), 50
-    whole = np.asarray(pr.sample_noise(key, T, 0.05))
-    stream = pr.noise_stream(key, 0.05)
+    T, white = 40000, 0.05
+    stream = np.asarray(eqx.filter_jit(lambda s: s.sample(T))(pr.noise_stream(jax.random.key(5), white)))
+    whole = np.asarray(pr.sample_noise(jax.random.key(5), T, white))
+    std, rho = _expected(pr, white)
+    for v in (stream, whole):   # the same checks hold the old draw
+        # sampling error of a std over 40000 samples of an AR(1) with pole 0.9: ~1.5 %
+        np.testing.assert_allclose(v.std(axis=0), std, rtol=0.05)
+        np.testing.assert_allclose(_lag1(v), rho, atol=0.03)
+        # channels independent: the standard error of a correlation between two AR(1) channels
+        # of pole 0.9 over 40000 samples is ~0.015
+        corr = np.corrcoef(v.T) - np.eye(v.shape[1])
+        assert np.abs(corr).max() < 0.06
+        assert np.abs(v.mean(axis=0)).max() < 0.02
+    # a measurably different stream would fail: the old and new draws are not the same numbers
+    assert not np.allclose(stream[:10], whole[:10])
 
-    def body(c, k):
-        v, c = stream.at(k, c)
-        return c, v
 
-    _, rows = jax.lax.scan(body, stream.init(), jnp.arange(T))
-    # the same normal draws (bit for bit, above); scaling and the AR(1) filter may round
-    # differently inside another fusion: equal to a few float64 ulps
-    np.testing.assert_allclose(np.asarray(rows), whole, rtol=1e-14, atol=1e-16)
+def test_stream_is_deterministic_per_key():
+    pr = make_printer(3, REALISTIC_EFFECTS, seed=0)
+    sample = eqx.filter_jit(lambda s: s.sample(64))
+    a = np.asarray(sample(pr.noise_stream(jax.random.key(1), 0.05)))
+    b = np.asarray(sample(pr.noise_stream(jax.random.key(1), 0.05)))
+    c = np.asarray(sample(pr.noise_stream(jax.random.key(2), 0.05)))
+    assert np.array_equal(a, b)
+    assert not np.allclose(a, c)
+    assert len(np.unique(a[:, 0])) == 64   # no sample repeats another
 
 
 @pytest.mark.parametrize("kind", ["tracking", "print"])
 def test_run_in_scan_equals_materialised(kind):
-    assert in_scan_supported(jnp.float64)   # so `_scenario_metrics` really draws in the scan
     pr = make_printer(4, REALISTIC_EFFECTS, seed=0)
     ctrl = DiagonalPI.untuned(4, ts=pr.ts)
     key, B, dur = jax.random.key(2), 3, 200.0
     lean = _scenario_metrics(kind, pr, ctrl, dur, key, B)[0]
-    sc = make_scenario(kind, pr, dur, key, n_rollouts=B, noise_std=RUN_NOISE_STD)
+    sc = run_scenario(kind, pr, dur, key, B)
+    # the scenario of `run` is `make_scenario`'s with the streams' noise in place of its own
+    plain = make_scenario(kind, pr, dur, key, n_rollouts=B, noise_std=RUN_NOISE_STD)
+    streams = eqx.filter_jit(rollout_noise)(pr, key, B)
+    np.testing.assert_array_equal(np.asarray(sc.r), np.asarray(plain.r))
+    np.testing.assert_array_equal(np.asarray(sc.v[1]), np.asarray(
+        eqx.filter_jit(lambda s: s.sample(sc.r.shape[1]))(jax.tree.map(lambda a: a[1], streams))))
     dense = _run_metrics(pr, ctrl, sc, kind not in RECOAT_FREE_KINDS)[0]
     for name in dense:
         np.testing.assert_allclose(float(lean[name]), float(dense[name]), rtol=1e-12, atol=1e-15,
                                    err_msg=name)
-    # the streams are those the scenario drew its noise from: the same first samples
-    streams = eqx.filter_jit(rollout_noise)(pr, key, B)
-    v0 = jax.vmap(lambda s: s.at(0, s.init())[0])(streams)
-    np.testing.assert_allclose(np.asarray(v0), np.asarray(sc.v[:, 0]), rtol=1e-14, atol=1e-16)
 
 
-def test_float32_printer_refuses_stream():
+def test_float32_printer_gets_float32_noise():
     pr = make_printer(2, REALISTIC_EFFECTS, seed=0)
     pr32 = jax.tree.map(lambda a: a.astype(jnp.float32) if eqx.is_inexact_array(a) else a, pr)
-    with pytest.raises(ModelError, match="needs float64"):
-        pr32.noise_stream(jax.random.key(0))
+    v = eqx.filter_jit(lambda s: s.sample(5))(pr32.noise_stream(jax.random.key(0), 0.05))
+    assert v.dtype == jnp.float32 and v.shape == (5, pr.n_outputs)
+    assert np.all(np.isfinite(np.asarray(v)))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jthermo.closedloop import REALISTIC_EFFECTS, make_scenario, rollout_metrics, run
-from jthermo.closedloop.engine import RECOAT_FREE_KINDS
+from jthermo.closedloop.engine import RECOAT_FREE_KINDS, run_scenario
 from jthermo.control.pi import DiagonalPI
 from jthermo.printer import SMOOTH_SUBSTEPS, make_printer
 
@@ -41,7 +41,7 @@ def test_sub_steps_by_scenario():
 
 def test_recoat_free_run_matches_fine_steps():
     # tracking (preheat: benchmarks/results/simulate_substeps.md)
-    sc = make_scenario("tracking", _printer(), 300.0, jax.random.key(5), n_rollouts=2)
+    sc = run_scenario("tracking", _printer(), 300.0, jax.random.key(5), 2)  # run's noise
     now = _metrics(_printer(), sc, recoat=False)
     # the sweep term is exactly zero without a recoat: same sub-steps, same run
     np.testing.assert_allclose(now, _metrics(_printer(SMOOTH_SUBSTEPS), sc), rtol=1e-10)
