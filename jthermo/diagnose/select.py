@@ -38,6 +38,7 @@ from scipy.stats import chi2
 
 from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
+from . import baseline
 from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
@@ -413,13 +414,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                     xw0=(y[0].mean() - level) / 2.0)
                     for i in range(n)])
 
-    # ---- 1. baseline -----------------------------------------------------------------------
-    per = _problems(rec_e, 1)
-    on0 = np.zeros((n, 8))
-    thb, _, _ = fit_zones(jnp.asarray(th0), jnp.asarray(np.tile(base_mask, (n, 1))),
-                           jnp.asarray(on0), per, sh_e, lay, n_iter, int(base_mask.sum()))
-    thb = np.asarray(thb)
-    yb_e = np.asarray(sim_zones(jnp.asarray(thb), jnp.asarray(on0), per, sh_e, lay)).T
+    # ---- 1. baseline (first order: variable projection in NumPy, `baseline.py`) -------------
+    thb = baseline.fit(th0, y, u, ts, level, ts_free, lay)
+    yb_e = baseline.simulate(thb, u, rec_e["u_pad"], ts, level, ts_free, lay)
     R_e = y - yb_e
     tick({"stage": "baseline"})
 
@@ -435,12 +432,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     # dead time: simulate the baseline with each delay on a grid of fractions of a sample
     max_d = min(M.PAD - 3.0, max(float(MAX_DELAY), math.ceil(MAX_DELAY_S / ts)))
     dgrid = np.arange(DELAY_STEP, max_d + 1e-9, DELAY_STEP)
-    perd = _problems(rec_e, len(dgrid), delays=dgrid)
-    ond = np.zeros((len(dgrid) * n, 8))
-    ond[:, 4] = 1.0
-    yd = np.asarray(sim_zones(jnp.asarray(np.tile(thb, (len(dgrid), 1))), jnp.asarray(ond), perd,
-                              sh_e, lay))
-    dcost = np.array([np.mean((y.T - yd[k * n:(k + 1) * n]) ** 2) for k in range(len(dgrid))])
+    dcost = np.array([np.mean((y - baseline.simulate(thb, u, rec_e["u_pad"], ts, level, ts_free, lay, d)) ** 2)
+                      for d in dgrid])
     best_delay = float(dgrid[int(np.argmin(dcost))])
     loc["delay_scan"] = {"delays_s": (dgrid * ts).tolist(), "cost": dcost.round(6).tolist(),
                          "baseline_cost": float(np.mean(R_e ** 2))}
@@ -484,12 +477,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     # recoat events on the validation record: same period, phase from its own residuals
     ev_v = np.zeros((Tv, n))
     if P:
-        pv_per = _problems({"y": yv, "ynb": rec_v["ynb"], "ybar": rec_v["ybar"]}, 1)
         thb_v = thb.copy()
         thb_v[:, lay.sl("x0")] = yv[0][:, None]
-        ybv = np.asarray(sim_zones(jnp.asarray(thb_v), jnp.asarray(on0), pv_per,
-                                   _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": rec_v["Phi"][:Tv],
-                                            "u_pad": rec_v["u_pad"]}, level, ts_free, ts, t_ref), lay)).T
+        ybv = baseline.simulate(thb_v, rec_v["u"], rec_v["u_pad"], ts, level, ts_free, lay)
         dv = detect_periodic(yv - ybv, ts, period_range=(P * ts, P * ts))
         ev_v = event_matrix(Tv, P, dv["zone_phase"])
 

@@ -160,6 +160,17 @@ def _fit_zones(y, u, w, mode, ts, capacity, max_steps, surr=0.0):
     return [_zone_fit(z, ts, capacity, max_steps) for z in zones]
 
 
+def fit_first_order_zones(y, u, ts: float, *, surroundings: float | None = None, max_steps: int = 100):
+    """Each zone (column of `y (T, n)`) of the first-order model with constant surroundings,
+    fitted by the variable projection above at capacity 1 (rates, not conductances): a list of
+    dicts with `log_loss` ($\\log a_i$, 1/s), `log_gain` ($\\log b_{ij}$, °C/s per unit input),
+    `c` ($T_i(0)$, then $T_s$ when `surroundings` is None: fitted) and `cost`, `converged`.
+    `surroundings` (°C): a known constant surroundings temperature."""
+    mode = "free" if surroundings is None else "fixed"
+    return _fit_zones(np.asarray(y, float), np.asarray(u, float), None, mode, ts, 1.0, max_steps,
+                      0.0 if surroundings is None else float(surroundings))
+
+
 def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 100,
                 use_signals: bool | None = None):
     """Fit the bed model (eq. 3.5) to `data` by simulation-error PEM (output-error).
@@ -270,5 +281,5 @@ def fit_greybox_family(data, family: str, orders: dict | None, *, seed: int = 0,
     return fit_greybox(data, **kw)
 
 
-__all__ = ["GAIN_FLOOR", "GRID_POINTS", "LOG_RATE_TOL", "RATE_TS_RANGE", "fit_greybox",
-           "fit_greybox_family"]
+__all__ = ["GAIN_FLOOR", "GRID_POINTS", "LOG_RATE_TOL", "RATE_TS_RANGE", "fit_first_order_zones",
+           "fit_greybox", "fit_greybox_family"]
