@@ -26,6 +26,7 @@ rest of the wall time.
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 import threading
@@ -49,6 +50,8 @@ MAX_CACHE_BYTES = 4 * 1024**3
 #: and its run time is negligible either way. Never for a program inside a loop: -O0 code runs
 #: several times slower.
 ONE_SHOT = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+#: the options of `ONE_SHOT` that an XLA lacking them refuses ("No such compile option")
+_NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
@@ -148,6 +151,25 @@ def cache_info() -> str:
     except OSError:
         n = 0
     return f"compilation cache {d} ({n} entries)"
+
+
+def one_shot() -> dict:
+    """`ONE_SHOT` as this XLA accepts it, for `compiler_options=`: probed once per process on
+    a scalar program; an XLA without its older CPU fusion emitters (a future one, or one
+    predating the flag) gets -O0 alone rather than an error."""
+    return dict(_one_shot())
+
+
+@functools.cache
+def _one_shot() -> tuple:
+    import jax
+    import numpy as np
+
+    try:
+        jax.block_until_ready(jax.jit(lambda x: x + 1, compiler_options=ONE_SHOT)(np.float32(1)))
+        return tuple(ONE_SHOT.items())
+    except Exception:  # noqa: BLE001  (JaxRuntimeError: INVALID_ARGUMENT, no such option)
+        return tuple((k, v) for k, v in ONE_SHOT.items() if k not in _NEWER_OPTIONS)
 
 
 # ---------------------------------------------------------------- random bits on the CPU

@@ -80,3 +80,23 @@ def test_union_of_compile_spans_counts_nested_spans_once():
     assert runtime.union_seconds(spans, 0.0, 10.0) == pytest.approx(7.0)
     assert runtime.union_seconds(spans, 5.0, 8.5) == pytest.approx(1.5)
     assert runtime.union_seconds([], 0.0, 1.0) == 0.0
+
+
+def test_one_shot_options_compile_and_an_unknown_option_is_dropped(monkeypatch):
+    import jax
+    import numpy as np
+
+    runtime._one_shot.cache_clear()
+    opts = runtime.one_shot()   # ONE_SHOT, less what this XLA lacks (-O0 stays)
+    assert opts.items() <= runtime.ONE_SHOT.items() and "xla_backend_optimization_level" in opts
+    out = jax.jit(lambda x: 2 * x, compiler_options=runtime.one_shot())(np.float64(3))
+    assert float(out) == 6.0
+    # an XLA without an option refuses to compile: `one_shot` leaves it out instead
+    monkeypatch.setattr(runtime, "ONE_SHOT", dict(runtime.ONE_SHOT, xla_cpu_no_such_option=True))
+    monkeypatch.setattr(runtime, "_NEWER_OPTIONS",
+                        runtime._NEWER_OPTIONS + ("xla_cpu_no_such_option",))
+    runtime._one_shot.cache_clear()
+    try:
+        assert runtime.one_shot() == {"xla_backend_optimization_level": 0}
+    finally:
+        runtime._one_shot.cache_clear()

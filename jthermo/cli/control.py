@@ -188,13 +188,13 @@ def _one_trajectory(cl, kind, controller, plant, duration, seed, scenario_kw=Non
 def _printer_model(printer):
     """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
     many small ones, each traced, lowered and looked up in the cache on every run. It runs
-    once, so it is compiled at -O0 (`runtime.ONE_SHOT`)."""
+    once, so it is compiled with `runtime.one_shot()` options (-O0)."""
     import equinox as eqx
 
-    from ..runtime import ONE_SHOT
+    from ..runtime import one_shot
 
     tune = require("jthermo.tune", "the printer's design model")
-    return eqx.filter_jit(tune.printer_model, compiler_options=ONE_SHOT)(printer)
+    return eqx.filter_jit(tune.printer_model, compiler_options=one_shot())(printer)
 
 
 # ---------------------------------------------------------------- commands

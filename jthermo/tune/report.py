@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -21,7 +23,7 @@ from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
-from ..runtime import ONE_SHOT
+from ..runtime import one_shot
 from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
 from .training import (
@@ -95,9 +97,15 @@ def _design_point(printer):
     return jax.jacfwd(f, 0)(x0.z, u0), jax.jacfwd(f, 1)(x0.z, u0), u0, printer.output(x0)
 
 
-#: `printer_model` as one compiled program (eager, its conversions compiled a dozen small ones),
-#: compiled at -O0 (`runtime.ONE_SHOT`: it runs once)
-_printer_model = eqx.filter_jit(printer_model, compiler_options=ONE_SHOT)
+@functools.cache
+def _one_shot_printer_model():
+    return eqx.filter_jit(printer_model, compiler_options=one_shot())
+
+
+def _printer_model(printer):
+    """`printer_model` as one compiled program (eager, its conversions compiled a dozen small
+    ones), compiled with `runtime.one_shot()` options (-O0: it runs once)."""
+    return _one_shot_printer_model()(printer)
 
 
 def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
