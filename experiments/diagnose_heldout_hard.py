@@ -77,6 +77,10 @@ COUNTED = {"null": (), "convection_hT": ("radiative_loss",), "distributed_heater
            "ambient_drift": ("ambient_variation",), "lamp_saturation": ("input_nonlinearity",),
            "conduction": ("lateral_conduction",), "recoat_sweep": ("recoat_cooling",)}
 SLOW = ("slow_body", "ambient_drift")
+#: the records before 2026-11-25 (sets 0-3 as scored) read the sensor at the *end* of each
+#: sample, after u_k acted: y_k = x(t_{k+1}), one sample ahead of the models' y_k = x(t_k), so a
+#: dead time of d samples looked like d - 1 (`--sample-at-end` makes those records again)
+SAMPLE_AT_END = False
 
 
 def case_seed(i: int, seed_set: int = 0) -> np.random.SeedSequence:
@@ -228,6 +232,10 @@ def simulate(c, u) -> np.ndarray:
     ts_s = c.get("sensor_tau", 0.0)
     y = np.empty((T, n))
     for k in range(T * sub):
+        if not SAMPLE_AT_END and k % sub == 0:
+            # the sensor reads at the start of sample k, before u_k acts (y_k = x(t_k), as the
+            # printer and the diagnosis models); before 2026-11-25 it read at the end
+            y[k // sub] = s if ts_s else x
         dx = rate(x, h1, h2, w, qf[k], tinf[k])
         if t1:
             h1n = h1 + dt * (qf[k] - h1) / t1
@@ -238,7 +246,7 @@ def simulate(c, u) -> np.ndarray:
         if ts_s:
             s = s + dt * (x - s) / ts_s
         x = x + dt * dx - ev[k]
-        if k % sub == sub - 1:
+        if SAMPLE_AT_END and k % sub == sub - 1:
             y[k // sub] = s if ts_s else x
     return y
 
@@ -495,7 +503,11 @@ def main(argv=None):
                     help="no diagnosis: the comma-separated sets' JSON side by side in --tag's .md")
     ap.add_argument("--pooled", action="store_true",
                     help="only pool the studies' JSON in --out: false alarms and confidence calibration")
+    ap.add_argument("--sample-at-end", action="store_true",
+                    help="the records as before 2026-11-25: y_k read after u_k acted (one sample early)")
     args = ap.parse_args(argv)
+    global SAMPLE_AT_END
+    SAMPLE_AT_END = args.sample_at_end
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.pooled:
