@@ -5,6 +5,7 @@ one-call test of a controller (one compiled program, no `(B, T, n)` array)."""
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -20,6 +21,7 @@ from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
+from ..runtime import quick_compile
 from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
@@ -355,7 +357,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     key = jax.random.key(int(seed))
     if isinstance(plant, Printer) and not scenario_kw:
         # the printer's scenarios are drawn inside the same compiled call
-        out = _scenario_metrics(kind, plant, ctrl, duration, key, int(rollouts))
+        out = _quick_scenario_metrics()(kind, plant, ctrl, duration, key, int(rollouts))
     else:
         sc = make_scenario(kind, plant, duration, key, n_rollouts=int(rollouts),
                            **dict(scenario_kw or {}))
@@ -404,8 +406,7 @@ def run_scenario(kind: str, plant: Printer, duration, key, n_rollouts: int) -> S
     return eqx.tree_at(lambda s: s.v, sc, v)
 
 
-@eqx.filter_jit
-def _scenario_metrics(kind, plant, controller, duration, key, n_rollouts):
+def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
     """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
     traced: one compile for every seed). The measurement noise is drawn inside the scan,
@@ -415,6 +416,16 @@ def _scenario_metrics(kind, plant, controller, duration, key, n_rollouts):
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
     return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise)
+
+
+_scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
+
+
+@functools.cache
+def _quick_scenario_metrics():
+    """`_scenario_metrics` compiled with `runtime.quick_compile()` options, as `run` calls it:
+    compiled once per cache and run once per command (the same figures bit for bit)."""
+    return eqx.filter_jit(_scenario_metrics_fn, compiler_options=quick_compile())
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
