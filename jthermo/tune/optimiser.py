@@ -24,7 +24,6 @@ import jax
 import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from ..control._base import AbstractController
 from ..errors import ControlError
@@ -168,6 +167,8 @@ def _adam_iterates(objective, z, batches, steps: int, lr: float):
     """Yield `(z, cost of z on its batch, evaluations so far)` for each Adam iterate (the
     batches cycled), then the last finite iterate with its cost on `batches[0]` (evaluations
     None)."""
+    import optax  # here, not at import: `jthermo simulate` imports tune for its design model
+
     opt = optax.adam(lr)
     opt_state = opt.init(eqx.filter(z, eqx.is_inexact_array))
 
