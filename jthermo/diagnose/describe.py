@@ -18,6 +18,9 @@ def _summary(mech, zones, params):
     if mech == "lateral_conduction":
         return f"Heat flows between neighbouring zones (lateral conduction), strongest in {where}; the isolated-zone model leaves it out."
     if mech == "radiative_loss":
+        if params.get("steeper_than_radiation", False):
+            return (f"Heat loss grows faster than linearly with temperature, more steeply than radiation "
+                    f"alone (convection h(T) or radiation with convection) in {where}.")
         return f"Heat loss grows faster than linearly with temperature (radiation, T^4 in kelvin) in {where}."
     if mech == "heat_accumulation":
         return (f"A slow shared body (walls/chamber, time constant about {params.get('time_constant_s', float('nan')):.0f} s) "

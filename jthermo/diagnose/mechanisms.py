@@ -10,7 +10,7 @@ Each mechanism adds states, terms or input transformations with physically const
 | mechanism | augmentation |
 | --- | --- |
 | `lateral_conduction` | $+\\sum_{j} k_{ij}(T_j - T_i)$, $k_{ij} = k_{ji} \\ge 0$ for every pair of zones |
-| `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$, set by its share of the tangent loss (`loss_split`) |
+| `radiative_loss` | $-r_i\\,[(T_i + 273.15)^4 - (T_s + 273.15)^4]$ (kelvin), $r_i = \\varepsilon\\sigma A_i / C_i$, set by its share of the tangent loss (`loss_split`; a share above 1 is a loss steeper than radiation alone: convection $h(T)$) |
 | `heat_accumulation` | a slow shared wall: $\\tau_w \\dot T_w = \\bar T - T_w + \\gamma (T_s - T_w)$, zones $+c_i (T_w - T_i)$; $\\tau_w > 200$ s, $0 < \\gamma < 4$ |
 | `heater_lag` | lamps $\\tau_h \\dot p_j = u_j - p_j$ drive the zones instead of $u$ |
 | `input_delay` | $u(t - d)$, $d$ in seconds, any fraction of a sample: the held input is interpolated between the two samples around $t - d$; $d$ moves within one sample of the delay scan's best (by gradient) |
@@ -203,17 +203,30 @@ def _inputs(theta, on, u, u_pad, delay, lay):
     return _safe_pow(u, e), _safe_pow(u_pad.astype(dt), e)
 
 
+#: the temperature-dependent loss's largest share of the tangent loss rate. Its curvature
+#: $\\kappa = 3\\rho/T_K$ then reaches $12/T_K \\approx 1/(25\\dots 28)$ per K at 300-330 K: the
+#: curvature of a natural-convection loss $c\\Delta^{4/3}$ ($\\kappa = 1/(3\\Delta)$) at rises down to
+#: about 9 K, where a share of 1 (radiation alone) reaches it only down to about 35 K
+RAD_SHARE_MAX = 4.0
+#: the unconstrained parameter that starts the share at 0.5 (radiation half of the tangent loss)
+RAD_SHARE_START = -math.log(RAD_SHARE_MAX / 0.5 - 1.0)
+
+
 def loss_split(log_a, rad_share, on_rad, t_ref):
     """(linear loss rate $a_{lin}$ in 1/s, radiative coefficient $r$ in 1/(s K³)) of a zone.
 
-    Radiation is parametrised by its share $\\rho = \\mathrm{sigmoid}(\\theta)$ of the *tangent*
-    loss rate $e^{\\log a}$ at the reference temperature `t_ref` (°C, the record's mean):
-    $a_{lin} = (1 - \\rho) e^{\\log a}$, $4 r (T_{ref} + 273.15)^3 = \\rho e^{\\log a}$. Moving
-    $\\rho$ keeps the small-signal dynamics and changes only the loss's curvature and level,
-    which makes the fit well conditioned (a raw coefficient trades with $a$ along a curved valley)."""
+    The $T^4$ term is parametrised by its share $\\rho = \\rho_{max}\\,\\mathrm{sigmoid}(\\theta)$
+    of the *tangent* loss rate $e^{\\log a}$ at the reference temperature `t_ref` (°C, the
+    record's mean): $a_{lin} = (1 - \\rho) e^{\\log a}$, $4 r (T_{ref} + 273.15)^3 = \\rho e^{\\log a}$.
+    Moving $\\rho$ keeps the small-signal dynamics and changes only the loss's curvature
+    $\\kappa = L''/L' = 3\\rho / T_K$ and level, which makes the fit well conditioned (a raw
+    coefficient trades with $a$ along a curved valley). $\\rho \\le 1$ is radiation beside a
+    linear loss; $1 < \\rho \\le$ `RAD_SHARE_MAX` ($a_{lin} < 0$) is a loss steeper than
+    radiation alone, as natural convection's $h \\propto \\Delta^{1/4 \\dots 1/3}$ gives
+    ($\\kappa = (1/4 \\dots 1/3)/\\Delta$, see `RAD_SHARE_MAX`)."""
     xp = jnp if isinstance(log_a, jax.Array) else np
     a = xp.exp(log_a)
-    rho = on_rad / (1.0 + xp.exp(-rad_share))
+    rho = on_rad * RAD_SHARE_MAX / (1.0 + xp.exp(-rad_share))
     return a * (1.0 - rho), rho * a / (4.0 * (t_ref + KELVIN) ** 3)
 
 
@@ -372,7 +385,7 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     th[lay.sl("ts0")] = ts0
     a = float(np.exp(log_a))
     th[lay.sl("log_k")] = np.log(0.05 * a)
-    th[lay.sl("rad_share")] = 0.0                          # half of the loss
+    th[lay.sl("rad_share")] = RAD_SHARE_START              # half of the loss
     th[lay.sl("log_tauw")] = np.log(1000.0 - TAUW_MIN)
     th[lay.sl("log_gamma")] = np.log(1.0 / (GAMMA_MAX - 1.0))      # γ = 1
     th[lay.sl("log_c")] = np.log(0.3 * a)
@@ -405,8 +418,10 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
     if mech == "radiative_loss":
         tm = extra.get("t_mean", 20.0)
         _, r = loss_split(g("log_a")[:, 0], g("rad_share")[:, 0], 1.0, tm)
-        share = 1.0 / (1.0 + np.exp(-g("rad_share")[:, 0]))
-        return {"coefficient_per_s_K3": [float(v) for v in r], "share_of_loss": med(share)}
+        share = RAD_SHARE_MAX / (1.0 + np.exp(-g("rad_share")[:, 0]))
+        curv = 3.0 * share / (tm + KELVIN)
+        return {"coefficient_per_s_K3": [float(v) for v in r], "share_of_loss": med(share),
+                "curvature_per_K": med(curv), "steeper_than_radiation": bool(med(share) > 1.0)}
     if mech == "heat_accumulation":
         tauw, gam = wall_parameters(g("log_tauw")[:, 0], g("log_gamma")[:, 0])
         c = np.exp(g("log_c")[:, 0])

@@ -167,9 +167,13 @@ def test_heater_lag_nests_the_lag_free_model():
 
 def test_radiation_share_keeps_the_tangent_loss():
     log_a, t_ref = np.log(0.02), 172.0
-    for share in (0.1, 0.5, 0.9):
-        a_lin, r = M.loss_split(log_a, np.log(share / (1 - share)), 1.0, t_ref)
+    for share in (0.1, 0.5, 0.9, 1.5, 3.0):                # above 1: steeper than radiation
+        q = share / M.RAD_SHARE_MAX
+        a_lin, r = M.loss_split(log_a, np.log(q / (1 - q)), 1.0, t_ref)
         np.testing.assert_allclose(a_lin + 4 * r * (t_ref + M.KELVIN) ** 3, 0.02, rtol=1e-12)
         np.testing.assert_allclose(a_lin, (1 - share) * 0.02, rtol=1e-12)
     a_lin, r = M.loss_split(log_a, 3.0, 0.0, t_ref)          # switched off: all linear
     assert r == 0.0 and np.isclose(a_lin, 0.02)
+    # the start is half of the tangent loss, as before the share could exceed 1
+    a_lin, _ = M.loss_split(log_a, M.RAD_SHARE_START, 1.0, t_ref)
+    np.testing.assert_allclose(a_lin, 0.5 * 0.02, rtol=1e-12)
