@@ -5,28 +5,36 @@ structures (and combinations) for every zone at once. Here a structure is a 0/1 
 flat parameter vector plus the mechanism switches, so all candidates and zones share one
 compiled solve of the masked Levenberg–Marquardt `jthermo.identify.lm.masked_lm`. The cost is
 the simulation error (output error).
+
+Each is compiled with `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on
+the latency record's diagnosis the four programs compile in 20.2 instead of 32.6 CPU s and run
+in the same time with the same fits (`python benchmarks/diagnose_compile_options.py`).
 """
 
 from __future__ import annotations
 
-from functools import partial
+import functools
 
 import jax
 import jax.numpy as jnp
 
 from ..identify.lm import masked_lm
+from ..runtime import quick_compile
 from .mechanisms import simulate_full, simulate_zone
+
+
+@functools.cache
+def _compiled(fn, static: tuple):
+    """`fn` jitted with `static` argument names and `runtime.quick_compile()` options (once per
+    process: the options are probed on first use, not at import)."""
+    return jax.jit(fn, static_argnames=static, compiler_options=quick_compile())
 
 
 def _zone_residual(theta, on, z, lay):
     return z["y"] - simulate_zone(theta, on, z, lay)
 
 
-@partial(jax.jit, static_argnames=("lay", "n_iter", "n_active"))
-def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
-    """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
-    per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
-    `n_active` (static) at least the largest number of free parameters of one problem."""
+def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     def one(t, m, o, p):
         z = {**shared, **p}
         return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active)
@@ -34,10 +42,21 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     return jax.vmap(one)(theta0, mask, on, per)
 
 
-@partial(jax.jit, static_argnames=("lay",))
+def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
+    """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
+    per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
+    `n_active` (static) at least the largest number of free parameters of one problem."""
+    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"))(theta0, mask, on, per, shared, lay, n_iter,
+                                                                 n_active)
+
+
+def _sim_zones(theta, on, per, shared, lay):
+    return jax.vmap(lambda t, o, p: simulate_zone(t, o, {**shared, **p}, lay))(theta, on, per)
+
+
 def sim_zones(theta, on, per, shared, lay):
     """Per-zone (series-parallel) simulations of B problems, `(B, T)`."""
-    return jax.vmap(lambda t, o, p: simulate_zone(t, o, {**shared, **p}, lay))(theta, on, per)
+    return _compiled(_sim_zones, ("lay",))(theta, on, per, shared, lay)
 
 
 def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_active):
@@ -56,7 +75,11 @@ def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_
     return Th, r, simulate_full(Th, on, f, lay, r), c
 
 
-@partial(jax.jit, static_argnames=("lay", "n_iter", "n_active"))
+def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
+    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active))(
+        Theta0, on, rec0, mask, f_per)
+
+
 def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
     """Fit M coupled models jointly over all zones by simulation error (output error): the zones'
     parameters `Theta0 (M, n, P)` and the record parameters `rec0 (M, R)` (initial states, drift,
@@ -64,8 +87,8 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     `y (T, n)`, `weight (T,)` per-sample weights (0 for padding), `f_per` per-model entries of the
     simulation's dict. Returns
     (Θ (M, n, P), rec (M, R), yhat (M, T, n), cost (M,))."""
-    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active))(
-        Theta0, on, rec0, mask, f_per)
+    return _compiled(_fit_joint, ("lay", "n_iter", "n_active"))(Theta0, on, rec0, mask, y, weight, f_per,
+                                                                 f_shared, lay, n_iter, n_active)
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
