@@ -175,13 +175,26 @@ def accepted(options: dict) -> dict:
     return dict(_accepted(tuple(options.items())))
 
 
+def top_level() -> bool:
+    """True outside every JAX trace (jit, grad, vmap): only there may a program compiled with
+    its own `compiler_options` be called (JAX refuses them on a nested jit). False where this
+    JAX lacks the check (then such callers take their plain jit)."""
+    try:
+        from jax._src.core import trace_state_clean
+    except ImportError:
+        return False
+    return bool(trace_state_clean())
+
+
 @functools.cache
 def _accepted(items: tuple) -> tuple:
     import jax
     import numpy as np
 
-    try:
-        jax.block_until_ready(jax.jit(lambda x: x + 1, compiler_options=dict(items))(np.float32(1)))
+    try:   # evaluated now even when the first caller is inside a trace
+        with jax.ensure_compile_time_eval():
+            out = jax.jit(lambda x: x + 1, compiler_options=dict(items))(np.float32(1))
+        jax.block_until_ready(out)
         return items
     except Exception:  # noqa: BLE001  (JaxRuntimeError: INVALID_ARGUMENT, no such option)
         return tuple((k, v) for k, v in items if k not in _NEWER_OPTIONS)

@@ -101,3 +101,12 @@ def test_one_shot_options_compile_and_an_unknown_option_is_dropped(monkeypatch):
         assert runtime.accepted({"xla_cpu_no_such_option": True}) == {}
     finally:
         runtime._accepted.cache_clear()
+
+
+def test_top_level_is_false_inside_a_trace():
+    import jax
+
+    seen = []
+    jax.jit(lambda x: seen.append(runtime.top_level()) or x)(1.0)
+    jax.grad(lambda x: seen.append(runtime.top_level()) or x ** 2)(1.0)
+    assert runtime.top_level() and seen == [False, False]

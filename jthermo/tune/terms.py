@@ -6,6 +6,7 @@ simulation per kind and plant structure (`group_batch`, `batch_terms`, `batch_pa
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -21,6 +22,7 @@ from ..control._base import AbstractController
 from ..errors import ControlError
 from ..models._base import AbstractModel
 from ..printer import Printer
+from ..runtime import quick_compile, top_level
 
 #: the cost terms of the lean path, in the order `simulate_parts` returns them: the
 #: `closedloop.cost` terms plus `overshoot` (tuning only, default weight 0)
@@ -195,10 +197,23 @@ def group_batch(batch) -> tuple[_Group, ...]:
     return tuple(out)
 
 
-@eqx.filter_jit
 def _group_terms(controller, groups, weights, parts: bool = False):
     """`(items, 2)`: mean cost and mse over the rollouts of each item of a grouped batch
-    (`parts=True`: `(items, 6)`, the mean of each term of `simulate_parts` and the mse)."""
+    (`parts=True`: `(items, 6)`, the mean of each term of `simulate_parts` and the mse), one
+    compiled program per structure, compiled with `runtime.quick_compile()` options: tune runs
+    each such evaluation program a few times per process, so compiling it faster pays
+    (benchmarks/results/tuning_latency_ab_tune_*.md). Inside a trace (the training step's
+    loss) the plain jit is inlined there: JAX refuses compile options on a nested jit."""
+    fn = _quick_group_terms() if top_level() else _plain_group_terms
+    return fn(controller, groups, weights, parts)
+
+
+@functools.cache
+def _quick_group_terms():
+    return eqx.filter_jit(_group_terms_fn, compiler_options=quick_compile())
+
+
+def _group_terms_fn(controller, groups, weights, parts: bool = False):
     out, order = [], []
     for g in groups:
         def one(p, sc):
@@ -217,6 +232,9 @@ def _group_terms(controller, groups, weights, parts: bool = False):
         order += list(g.index)
     terms = jnp.concatenate(out, axis=0)
     return terms[np.argsort(np.asarray(order))]
+
+
+_plain_group_terms = eqx.filter_jit(_group_terms_fn)
 
 
 def _groups(batch):
