@@ -27,7 +27,8 @@ on every heater around a level that steps every 12-25 min (slow input content), 
 noise (0.02-0.12 °C), a measured constant surroundings column in about half the records (never
 in `slow_body` / `ambient_drift`, where it would give the drift away). Estimation 40 min (1 h for
 the slow kinds), validation half of that, at most `MAX_EST` estimation samples. Simulated by Euler
-steps of at most 0.05 s.
+steps of at most 0.05 s; the sensor reads at the start of each sample ($y_k = x(t_k)$, before $u_k$
+acts; sets 0-3 were made reading it at the end, one sample early: `--sample-at-end`).
 
     .venv/bin/python experiments/diagnose_heldout_hard.py [--cases 19] [--first 0] [--max-zones 9]
     .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 12 --max-zones 3 --tag nulls
