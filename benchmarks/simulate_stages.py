@@ -8,7 +8,8 @@ characters, the cache entry's bytes) and the measurement noise drawn alone.
 
 One command runs the whole study: a child process with an empty compilation cache (cold),
 then a second child with the cache the first one filled (warm), both as the command runs
-(`runtime.enable_cache`, `runtime.unroll_threefry`, float64), then writes
+(`runtime.enable_cache`, `runtime.unroll_threefry`, float64, the design model with
+`runtime.one_shot()` options and the run program as `closedloop.run` compiles it), then writes
 `benchmarks/results/simulate_stages.md`:
 
     python benchmarks/simulate_stages.py                      # N = 16, B = 256, T = 3600
@@ -98,11 +99,12 @@ def child(args) -> None:
         clock.mark(f"{name}: execute")
         return out
 
-    model = program("design model (tune.printer_model)", eqx.filter_jit(printer_model), plant)
+    model = program("design model (tune.printer_model)",
+                    eqx.filter_jit(printer_model, compiler_options=runtime.one_shot()), plant)
     ctrl = jax.block_until_ready(design("pi_lambda", model))
     clock.mark("design pi_lambda (small programs, eager)")
     key = jax.random.key(0)
-    out = program("run program (scenarios + lean metrics)", engine._scenario_metrics,
+    out = program("run program (scenarios + lean metrics)", engine._quick_scenario_metrics(),
                   "tracking", plant, ctrl, args.duration, key, args.rollouts)
     T = round(args.duration / plant.ts)
     noise = eqx.filter_jit(lambda k: jax.vmap(lambda kk: plant.sample_noise(kk, T, 0.05))(
