@@ -457,6 +457,36 @@ def with_noise(W, std: float | None = None, pole: float | None = None):
     return W
 
 
+def shell_fit(tmp: Path, fam: str, tag: str, extra=(), pythonpath: Path | None = None) -> dict:
+    """`jthermo fit tmp/est.csv --model fam --validation tmp/val.csv --json ...` in a fresh
+    process with an empty compilation cache (`tmp/cache_<tag>`), under /usr/bin/time, started
+    in `tmp`; `extra`: more CLI arguments; `pythonpath`: import `jthermo` from there (another
+    source tree) instead of the installed one. Returns exit, wall_s, cpu_s (user + system),
+    peak_rss_mb, load_before / load (1-minute) and from the report orders, fit, converged,
+    repaired, converged_outputs (or error: stderr's last line)."""
+    import subprocess
+
+    js, tm = tmp / f"{tag}.json", tmp / f"{tag}.time"
+    env = {**os.environ, "JTHERMO_CACHE_DIR": str(tmp / f"cache_{tag}")}
+    if pythonpath is not None:
+        env["PYTHONPATH"] = str(pythonpath)
+    cmd = ["/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
+           "fit", str(tmp / "est.csv"), "--model", fam, "--validation", str(tmp / "val.csv"),
+           "--json", str(js), *extra]
+    load0 = os.getloadavg()[0]
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False, cwd=tmp)
+    wall, rss, user, system = (float(v) for v in tm.read_text().split()[-4:])
+    row = {"exit": p.returncode, "wall_s": wall, "cpu_s": user + system,
+           "peak_rss_mb": rss / 1024, "load_before": load0, "load": os.getloadavg()[0]}
+    if p.returncode == 0:
+        r = json.loads(js.read_text())
+        row.update(orders=r["orders"], fit=r["mean_fit_percent"], converged=r["converged"],
+                   repaired=r.get("repaired"), converged_outputs=r.get("converged_outputs"))
+    else:
+        row["error"] = (p.stderr.strip().splitlines() or [""])[-1][:160]
+    return row
+
+
 def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
                  engine: str = "jax") -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
@@ -465,7 +495,6 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
     Wall time and peak RSS from /usr/bin/time; gap = validation fit minus the true model's
     (the noise-free W1 plant simulated from rest vs measured). `engine`: `--engine` for
     armax/oe/bj (`"jax"`: the default, no flag)."""
-    import subprocess
     import tempfile
 
     from jthermo.data import atomic_write_text
@@ -478,30 +507,13 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
             truth = W.fit_percent(val["y"], val["y_clean"])
             for fam in families:
                 print(f"[default path] N={N} {fam} ...", file=sys.stderr, flush=True)
-                js, tm = tmp / f"{fam}.json", tmp / f"{fam}.time"
-                env = {**os.environ, "JTHERMO_CACHE_DIR": str(tmp / f"cache_{fam}")}
-                cmd = ["/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), str(ROOT / ".venv/bin/jthermo"),
-                       "fit", str(tmp / "est.csv"), "--model", fam, "--validation",
-                       str(tmp / "val.csv"), "--json", str(js)]
-                if engine != "jax" and fam in ENGINE_FAMILIES:
-                    cmd += ["--engine", engine]
-                load0 = os.getloadavg()[0]
-                p = subprocess.run(cmd, env=env, capture_output=True, text=True)
-                wall, rss, user, system = (float(v) for v in tm.read_text().split()[-4:])
-                row = {"family": fam, "N": N, "exit": p.returncode, "wall_s": wall,
-                       "cpu_s": user + system, "peak_rss_mb": rss / 1024, "true_fit": truth,
-                       "load": os.getloadavg()[0], "load_before": load0,
-                       "blas_threads": env.get("OPENBLAS_NUM_THREADS", "default"),
+                extra = ["--engine", engine] if engine != "jax" and fam in ENGINE_FAMILIES else []
+                row = {"family": fam, "N": N, **shell_fit(tmp, fam, fam, extra), "true_fit": truth,
+                       "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
                        "seed": seed, "noise_std": W.NOISE_STD, "noise_pole": W.NOISE_POLE,
                        "engine": engine if fam in ENGINE_FAMILIES else "—"}
-                if p.returncode == 0:
-                    r = json.loads(js.read_text())
-                    row.update(orders=r["orders"], fit=r["mean_fit_percent"],
-                               gap=r["mean_fit_percent"] - truth, converged=r["converged"],
-                               repaired=r.get("repaired"),
-                               converged_outputs=r.get("converged_outputs"))
-                else:
-                    row["error"] = (p.stderr.strip().splitlines() or [""])[-1][:160]
+                if "fit" in row:
+                    row["gap"] = row["fit"] - truth
                 rows.append(row)
                 if out is not None:
                     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1))
