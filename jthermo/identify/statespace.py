@@ -274,9 +274,8 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
       (one-step error, K estimated: a noise model for a Kalman predictor).
     - `horizon`, `max_steps`, `solver`, `covariance`: passed to `n4sid` / `minimize`.
     - `estimate_x0`: estimate the initial state and the output level `dy0` (otherwise x0 = 0,
-      the operating point, and in mean mode y0 fixed). Default: True in mean mode, and in rest
-      mode for the one-state-per-output structure (`coupling`); otherwise False in rest mode,
-      whose meaning is x0 = 0 (only the output level `dy0` is estimated).
+      the operating point, and in mean mode y0 fixed). Default: True in mean mode; False in
+      rest mode, whose meaning is x0 = 0 (only the output level `dy0` is estimated).
     - `screen_steps`: solve every start for this many steps, then the best to convergence.
     - `operating_point`: `"mean"` (u0 = the data's means, x0 and the output level estimated),
       `"rest"` (the record starts at rest with zero input: u0 = 0, x0 = 0, the output level
@@ -324,22 +323,17 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     # one start first: its size decides between the dense and the matrix-free solve
     template, theta_m = _starts(data, n, 1, seed, output_error, horizon, operating_point)
     rest = operating_point == "rest"
-    # one state per output (C = I) in simulation focus: the diagonal-A structure first
-    one_per_output = (coupling != "full" and output_error and template.fixed_c
-                      and n == data.n_outputs and n >= 2)
     if estimate_x0 is None:
-        # rest mode means x0 = 0; the diagonal-A structure estimates x0 with the output level
-        # in both modes (a superset: x0 near 0 when the record starts at rest), since the full-A
-        # PEM it replaces fits the drift of the process noise (W1 N = 16, held-back seed 31:
-        # 0.99 -> 0.45 points below the true model; `benchmarks/results/identification_default_*_ss*`)
-        estimate_x0 = not rest or one_per_output
+        estimate_x0 = not rest
     n_par = template.n_params() + (n if estimate_x0 else 0) + \
         (data.n_outputs if (estimate_x0 or rest) else 0)
     if data.n_samples * data.n_outputs <= n_par:
         raise FitError(f"fit_statespace: {data.n_samples} samples are too few for "
                        f"{n_par} parameters")
     large = int(n_starts) * data.n_samples * data.n_outputs * n_par * 8 > DENSE_JACOBIAN_BYTES
-    structured = one_per_output and estimate_x0
+    # one state per output (C = I) in simulation focus: the diagonal-A structure first
+    structured = (coupling != "full" and output_error and estimate_x0 and template.fixed_c
+                  and n == data.n_outputs and n >= 2)
     structure = {"coupling": "full"}
 
     def refine(theta0, args):
