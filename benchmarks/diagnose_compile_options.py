@@ -68,6 +68,18 @@ def _capture(est, val) -> dict:
     return got
 
 
+def capture_latency_record() -> dict:
+    """`_capture` on the latency record, written to a temporary directory (float64 on)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = []
+        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
+            p = str(Path(tmp) / name)
+            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
+                            "--seed", seed, "--out", p, "--quiet", "--no-cache"], check=True)
+            paths.append(p)
+        return _capture(*paths)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--joint-iter", type=int, default=4)
@@ -79,14 +91,7 @@ def main(argv=None) -> None:
     from jthermo.diagnose import fitting as F
     from jthermo.runtime import quick_compile
 
-    with tempfile.TemporaryDirectory() as tmp:
-        paths = []
-        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-            p = str(Path(tmp) / name)
-            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
-                            "--seed", seed, "--out", p, "--quiet", "--no-cache"], check=True)
-            paths.append(p)
-        got = _capture(*paths)
+    got = capture_latency_record()
     programs = {
         "fit_zones (candidates)": (F._fit_zones, ("lay", "n_iter", "n_active"), got["fit_zones"]),
         "sim_zones (candidates)": (F._sim_zones, ("lay",), got["sim_zones"]),

@@ -6,9 +6,13 @@ flat parameter vector plus the mechanism switches, so all candidates and zones s
 compiled solve of the masked Levenberg–Marquardt `jthermo.identify.lm.masked_lm`. The cost is
 the simulation error (output error).
 
-Each is compiled with `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on
-the latency record's diagnosis the four programs compile in 20.2 instead of 32.6 CPU s and run
-in the same time with the same fits (`python benchmarks/diagnose_compile_options.py`).
+The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
+`runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
+diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
+(validation) and 0.89 instead of 1.69 CPU s, run in the same time and give the same fits to
+5e-13 (`python benchmarks/diagnose_compile_options.py`, load 6-8). The per-zone fits
+(`fit_zones`) keep XLA's default options: with the older emitters they compiled in 5.88 instead
+of 7.36 CPU s but ran in 6.65 instead of 5.53, and they run on every call.
 """
 
 from __future__ import annotations
@@ -24,10 +28,10 @@ from .mechanisms import simulate_full, simulate_zone
 
 
 @functools.cache
-def _compiled(fn, static: tuple):
-    """`fn` jitted with `static` argument names and `runtime.quick_compile()` options (once per
-    process: the options are probed on first use, not at import)."""
-    return jax.jit(fn, static_argnames=static, compiler_options=quick_compile())
+def _compiled(fn, static: tuple, quick: bool = True):
+    """`fn` jitted with `static` argument names, with `runtime.quick_compile()` options if
+    `quick` (once per process: the options are probed on first use, not at import)."""
+    return jax.jit(fn, static_argnames=static, compiler_options=quick_compile() if quick else None)
 
 
 def _zone_residual(theta, on, z, lay):
@@ -46,8 +50,8 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
     `n_active` (static) at least the largest number of free parameters of one problem."""
-    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"))(theta0, mask, on, per, shared, lay, n_iter,
-                                                                 n_active)
+    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"), False)(theta0, mask, on, per, shared, lay,
+                                                                        n_iter, n_active)
 
 
 def _sim_zones(theta, on, per, shared, lay):
