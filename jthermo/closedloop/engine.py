@@ -336,7 +336,9 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     `scenario_kw` goes to `make_scenario` (a fitted model's `envelope` and `setpoint`).
     The figures come from `rollout_metrics` (accumulated in the scan: no trajectory is stored;
     equal to `metrics` of the stored rollouts to rounding), the printer's scenarios drawn
-    inside the same compiled call. In the printer's recoat-free scenarios (`tracking`,
+    inside the same compiled call, their measurement noise inside the scan (`rollout_noise`:
+    the distribution of `make_scenario`'s noise, other draws; `run_scenario` materialises the
+    scenarios `run` simulates). In the printer's recoat-free scenarios (`tracking`,
     `preheat`) the printer is integrated without the recoat sweep (`recoat=False` of
     `rollout_metrics`): MSE within 3e-5 relative of the full integration.
 
