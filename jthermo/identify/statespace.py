@@ -100,7 +100,8 @@ def ss_cost(theta: Float[Array, " p"], args: Any) -> Float[Array, ""]:
 
 def diagonal_residual(theta: Float[Array, " p"], args: Any) -> Float[Array, "T 1"]:
     """Simulation error of one output of a model with diagonal A (one state per output, C = I):
-    theta = [a, b (nu), bw (nw), x0, dy0].
+    theta = [a, b (nu), bw (nw), x0, dy0], or [a, b, bw, dy0] with x0 = 0 (a record that
+    starts at rest; told apart by the length of theta).
 
     $\\hat y_k = dy_0 + x_k$, $x_{k+1} = a x_k + b^\\top \\tilde u_k + b_w^\\top \\tilde w_k$:
     given the inputs, each output is its own first-order problem (`args`: `y` the output's
@@ -108,12 +109,13 @@ def diagonal_residual(theta: Float[Array, " p"], args: Any) -> Float[Array, "T 1
     y, du, dw = args["y"], args["du"], args["dw"]
     nu, nw = du.shape[1], dw.shape[1]
     drive = du @ theta[1:1 + nu] + dw @ theta[1 + nu:1 + nu + nw]
+    x0 = theta[1 + nu + nw] if theta.shape[0] == 3 + nu + nw else jnp.zeros((), theta.dtype)
 
     def body(x, d):
         return theta[0] * x + d, x
 
-    _, xs = jax.lax.scan(body, theta[1 + nu + nw], drive)
-    return (y - theta[2 + nu + nw] - xs)[:, None]
+    _, xs = jax.lax.scan(body, x0, drive)
+    return (y - theta[-1] - xs)[:, None]
 
 
 def diagonal_start(ydev: np.ndarray, du: np.ndarray, dw: np.ndarray) -> np.ndarray:
@@ -129,14 +131,17 @@ def diagonal_start(ydev: np.ndarray, du: np.ndarray, dw: np.ndarray) -> np.ndarr
     return np.stack(rows)
 
 
-def fit_diagonal(ydev, du, dw, max_steps: int = 100):
+def fit_diagonal(ydev, du, dw, max_steps: int = 100, free_x0: bool = True):
     """Simulation-error PEM of the diagonal-A model from `diagonal_start`: the outputs' problems
     one after another in one compiled call (`minimize_many`, `batch="map"`: Jacobians of
-    `(T, 3 + nu + nw)`, never the joint one).
-    Returns `(PEMResult, theta (ny, 3 + nu + nw))`."""
+    `(T, 3 + nu + nw)`, never the joint one). `free_x0=False`: x0 = 0 (the record starts at
+    rest), the x0 column left out. Returns `(PEMResult, theta (ny, 3 + nu + nw))` (one column
+    fewer without x0)."""
     ydev, du, dw = (jnp.asarray(a) for a in (ydev, du, dw))
-    ny = ydev.shape[1]
+    ny, nu, nw = ydev.shape[1], du.shape[1], dw.shape[1]
     start = diagonal_start(np.asarray(ydev), np.asarray(du), np.asarray(dw))
+    if not free_x0:
+        start = np.delete(start, 1 + nu + nw, axis=1)
     args = {"y": ydev.T, "du": jnp.broadcast_to(du, (ny,) + du.shape),
             "dw": jnp.broadcast_to(dw, (ny,) + dw.shape)}
     res = minimize_many(diagonal_residual, jnp.asarray(start, ydev.dtype), args,
@@ -144,20 +149,23 @@ def fit_diagonal(ydev, du, dw, max_steps: int = 100):
     return res, res.theta
 
 
-def diagonal_theta(template: InnovationsSS, y, du, dw, max_steps: int = 100):
+def diagonal_theta(template: InnovationsSS, y, du, dw, max_steps: int = 100,
+                   free_x0: bool = True):
     """The diagonal-A fit (`fit_diagonal`) in `ss_residuals_offset`'s layout
-    `[pack(template with A = diag(a), B, Bw), x0, dy0]`, its per-output `PEMResult` and the
+    `[pack(template with A = diag(a), B, Bw), x0, dy0]` (`free_x0=False`: x0 = 0, in
+    `ss_residuals_level`'s layout `[pack, dy0]`), its per-output `PEMResult` and the
     covariance of that vector (block diagonal by output; zero for the fixed off-diagonal A)."""
-    res, th = fit_diagonal(y - template.y0, du, dw, max_steps)
+    res, th = fit_diagonal(y - template.y0, du, dw, max_steps, free_x0)
     n, nu, nw = th.shape[0], du.shape[1], dw.shape[1]
     m = eqx.tree_at(lambda m: (m.A, m.B, m.Bw), template,
                     (jnp.diag(th[:, 0]), th[:, 1:1 + nu], th[:, 1 + nu:1 + nu + nw]))
-    theta = jnp.concatenate([pack(m), th[:, 1 + nu + nw], th[:, 2 + nu + nw]])
-    # where each output's [a, b, bw, x0, dy0] sits in theta (A, B, Bw row-major, then x0, dy0)
+    theta = jnp.concatenate([pack(m), th[:, 1 + nu + nw:].T.ravel()])
+    # where each output's [a, b, bw, (x0), dy0] sits in theta (A, B, Bw row-major, then x0, dy0)
     p = m.n_params()
     i = np.arange(n)[:, None]
+    tail = [p + i, p + n + i] if free_x0 else [p + i]
     idx = np.concatenate([i * (n + 1), n * n + i * nu + np.arange(nu),
-                          n * n + n * nu + i * nw + np.arange(nw), p + i, p + n + i], axis=1)
+                          n * n + n * nu + i * nw + np.arange(nw), *tail], axis=1)
     cov = np.zeros((theta.size, theta.size))
     zc = np.asarray(res.covariance)
     for k in range(n):
@@ -166,14 +174,15 @@ def diagonal_theta(template: InnovationsSS, y, du, dw, max_steps: int = 100):
 
 
 def coupling_holdout(data: IOData, template: InnovationsSS, refine, fraction: float = 2 / 3,
-                     max_steps: int = 100) -> dict:
+                     max_steps: int = 100, free_x0: bool = True) -> dict:
     """Do the data show coupling between the states (n = ny, C = I)? Both structures are fitted
-    on the first `fraction` of `data` (diagonal A by `diagonal_theta`; full A by `refine`
-    from it) and simulated on the rest with the least-squares initial state
-    (`simulation_error`). Returns `{"diagonal": err, "full": err}` (sums of squares)."""
+    on the first `fraction` of `data` (diagonal A by `diagonal_theta`, x0 estimated or 0 as
+    `free_x0`; full A by `refine` from it) and simulated on the rest with the least-squares
+    initial state (`simulation_error`). Returns `{"diagonal": err, "full": err}` (sums of
+    squares)."""
     first, rest = split(data, fraction)
     y, du, dw = _deviations(first, template)
-    th_d, _, _ = diagonal_theta(template, y, du, dw, max_steps)
+    th_d, _, _ = diagonal_theta(template, y, du, dw, max_steps, free_x0)
     th_f = refine(th_d, (template, y, du, dw)).theta
     return {name: simulation_error(_offset_model(th, template).to_statespace(), rest)
             for name, th in (("diagonal", th_d), ("full", th_f))}
@@ -257,7 +266,7 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
                    focus: str = "simulation", horizon: int | None = None, max_steps: int = 100,
                    solver: str = "lm", covariance: bool = True, estimate_x0: bool | None = None,
                    max_order: int | None = None, operating_point: str = "auto",
-                   screen_steps: int = 10, coupling: str = "auto"):
+                   screen_steps: int = 10, coupling: str = "auto", rest_coupling: str = "full"):
     """Estimate an innovations state space of order `n` by N4SID + PEM.
 
     $\\hat\\theta = \\arg\\min \\frac{1}{T n_y}\\sum_t \\|y_t - \\hat y(t;\\theta)\\|^2$
@@ -285,6 +294,9 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
       `"auto"` (diagonal A unless `coupling_holdout` favours full A, see the module notes),
       `"diagonal"` or `"full"` (N4SID starts, full A: the path for any other structure).
       `extra["coupling"]` says which was fitted, `extra["coupling_holdout"]` the hold-out errors.
+    - `rest_coupling`: the same choice in rest mode with x0 = 0 (`"auto"` and `"diagonal"`:
+      the diagonal-A fit with x0 = 0; `"full"`, the default: N4SID starts, full A); `coupling`
+      `"full"` overrides it.
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters
@@ -296,9 +308,10 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     import time
 
     t_start = time.perf_counter()
-    if coupling not in COUPLING:
-        raise ModelError(f"fit_statespace: coupling must be one of {', '.join(COUPLING)}, "
-                         f"got {coupling!r}")
+    for name, value in (("coupling", coupling), ("rest_coupling", rest_coupling)):
+        if value not in COUPLING:
+            raise ModelError(f"fit_statespace: {name} must be one of {', '.join(COUPLING)}, "
+                             f"got {value!r}")
     if focus not in FOCUS:
         raise ModelError(f"fit_statespace: focus must be one of {', '.join(FOCUS)}, got {focus!r}")
     if int(n_starts) < 1:
@@ -332,16 +345,20 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
                        f"{n_par} parameters")
     large = int(n_starts) * data.n_samples * data.n_outputs * n_par * 8 > DENSE_JACOBIAN_BYTES
     # one state per output (C = I) in simulation focus: the diagonal-A structure first
-    structured = (coupling != "full" and output_error and estimate_x0 and template.fixed_c
-                  and n == data.n_outputs and n >= 2)
+    rest_zero = rest and not estimate_x0
+    if rest_zero and coupling != "full":
+        coupling = rest_coupling
+    structured = (coupling != "full" and output_error and (estimate_x0 or rest_zero)
+                  and template.fixed_c and n == data.n_outputs and n >= 2)
     structure = {"coupling": "full"}
+    full_residuals = ss_residuals_level if rest_zero else ss_residuals_offset
 
     def refine(theta0, args):
         """Full-A simulation-error PEM from one start (matrix-free unless small)."""
         if args[1].shape[0] * data.n_outputs * n_par * 8 > DENSE_JACOBIAN_BYTES // 8:
-            return minimize_matrix_free(ss_residuals_offset, theta0, args,
+            return minimize_matrix_free(full_residuals, theta0, args,
                                         max_steps=min(max_steps, MATRIX_FREE_STEPS))
-        return minimize(ss_residuals_offset, theta0, args, solver=solver, max_steps=max_steps,
+        return minimize(full_residuals, theta0, args, solver=solver, max_steps=max_steps,
                         covariance=covariance)
 
     if not large and int(n_starts) > 1 and not structured:
@@ -358,12 +375,17 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
     y = jnp.asarray(data.y, dtype)
     du = jnp.asarray(data.u, dtype) - template.u0
     dw = jnp.asarray(data.w, dtype) - template.w0
-    if rest and not estimate_x0:
+    if rest_zero:
         # at rest at u = 0 before the record: x0 = 0, only the output level is estimated
-        theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], data.n_outputs))], axis=1)
         args = (template, y, du, dw)
-        res = solve(ss_residuals_level, jnp.asarray(theta0, dtype), args, solver=solver,
-                       max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
+        if structured:
+            res, structure = _fit_structured(data, template, args, coupling, refine, max_steps,
+                                             free_x0=False)
+        else:
+            theta0 = np.concatenate([theta_m, np.zeros((theta_m.shape[0], data.n_outputs))],
+                                    axis=1)
+            res = solve(ss_residuals_level, jnp.asarray(theta0, dtype), args, solver=solver,
+                        max_steps=max_steps, covariance=covariance, screen_steps=screen_steps)
         theta = res.theta
         p = template.n_params()
         x0 = jnp.zeros(n, dtype)
@@ -405,15 +427,16 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
 
 
 def _fit_structured(data: IOData, template: InnovationsSS, args, coupling: str, refine,
-                    max_steps: int) -> tuple[PEMResult, dict]:
+                    max_steps: int, free_x0: bool = True) -> tuple[PEMResult, dict]:
     """Diagonal A (`diagonal_theta`), or, with `coupling="auto"` when `coupling_holdout`
     favours it, full A refined from it by `refine`; returns the result in
-    `ss_residuals_offset`'s layout and what was chosen (`extra["coupling"]`)."""
+    `ss_residuals_offset`'s layout (`free_x0=False`: `ss_residuals_level`'s) and what was
+    chosen (`extra["coupling"]`)."""
     _, y, du, dw = args
-    th_d, res_d, cov = diagonal_theta(template, y, du, dw, max_steps)
+    th_d, res_d, cov = diagonal_theta(template, y, du, dw, max_steps, free_x0)
     info = {"coupling": "diagonal"}
     if coupling == "auto":
-        err = coupling_holdout(data, template, refine, max_steps=max_steps)
+        err = coupling_holdout(data, template, refine, max_steps=max_steps, free_x0=free_x0)
         info["coupling_holdout"] = err
         if err["full"] < err["diagonal"]:
             return refine(th_d, args), {**info, "coupling": "full"}

@@ -38,12 +38,28 @@ DIAGONAL = np.diag([0.95, 0.96, 0.94])
 COUPLED = np.array([[0.90, 0.05, 0.0], [0.05, 0.88, 0.05], [0.0, 0.05, 0.90]])
 
 
-def test_diagonal_residual_gradient_matches_central_difference():
+def _bed_at_rest(A, T=800, seed=0):
+    """As `_bed` but from rest with zero input (x0 = 0, the model in absolute inputs)."""
+    rng = np.random.default_rng(seed)
+    B = np.array([[0.3, 0.1, 0.02], [0.1, 0.3, 0.1], [0.02, 0.1, 0.3]])
+    u = np.asarray(prbs(seed, T, 3, levels=(0.2, 0.8), hold=(5, 30)))
+    x, v = np.zeros(3), np.zeros(3)
+    y = np.empty((T, 3))
+    for k in range(T):
+        v = 0.7 * v + 0.05 * rng.standard_normal(3)
+        y[k] = 30.0 + x + v
+        x = A @ x + B @ u[k]
+    return from_arrays(u, y)
+
+
+@pytest.mark.parametrize("theta", [[0.9, 0.2, -0.1, 0.05, 0.3, -0.2],   # x0 estimated
+                                   [0.9, 0.2, -0.1, 0.05, -0.2]])       # x0 = 0
+def test_diagonal_residual_gradient_matches_central_difference(theta):
     rng = np.random.default_rng(1)
     args = {"y": jnp.asarray(rng.standard_normal(80)),
             "du": jnp.asarray(rng.standard_normal((80, 2))),
             "dw": jnp.asarray(rng.standard_normal((80, 1)))}
-    theta = jnp.array([0.9, 0.2, -0.1, 0.05, 0.3, -0.2])
+    theta = jnp.array(theta)
 
     def cost(th):
         return jnp.mean(diagonal_residual(th, args) ** 2)
@@ -85,4 +101,35 @@ def test_coupling_option_errors_and_full_is_the_earlier_path():
     with pytest.raises(ModelError, match="coupling"):
         fit_statespace(data, 3, coupling="sparse")
     r = fit_statespace(data, 3, coupling="full", n_starts=1, max_steps=30)
+    assert r.extra["coupling"] == "full" and "coupling_holdout" not in r.extra
+
+
+def test_rest_coupling_fits_diagonal_a_from_rest():
+    """Rest mode (x0 = 0): `rest_coupling="diagonal"` fits the diagonal structure with x0 = 0
+    in `ss_residuals_level`'s layout; it recovers A and, being the true structure, fits within
+    2 % of the full-A path's (nesting) estimation cost, at the noise floor (AR(1) variance
+    0.0049)."""
+    data = _bed_at_rest(DIAGONAL)
+    tpl = InnovationsSS.from_statespace(n4sid(data, 3, operating_point="rest")[0],
+                                        output_error=True)
+    y, du = jnp.asarray(data.y), jnp.asarray(data.u) - tpl.u0
+    theta, res, cov = diagonal_theta(tpl, y, du, jnp.asarray(data.w) - tpl.w0, free_x0=False)
+    assert theta.size == tpl.n_params() + 3 and cov.shape == (theta.size, theta.size)
+    assert res.theta.shape == (3, 2 + 3)    # [a, b (3), dy0]: no x0 column
+    diag = fit_statespace(data, 3, operating_point="rest", rest_coupling="diagonal",
+                          max_steps=60)
+    assert diag.extra["coupling"] == "diagonal" and np.all(np.asarray(diag.x0) == 0.0)
+    np.testing.assert_allclose(np.diag(np.asarray(diag.extra["parametrised"].A)),
+                               np.diag(DIAGONAL), atol=0.01)
+    full = fit_statespace(data, 3, operating_point="rest", n_starts=1, max_steps=60)
+    assert full.extra["coupling"] == "full"      # the default keeps the full-A path
+    assert full.cost <= diag.cost < 1.02 * full.cost and diag.cost < 0.0049 * 1.05
+
+
+def test_rest_coupling_option_errors_and_full_coupling_overrides_it():
+    data = _bed_at_rest(DIAGONAL, T=600)
+    with pytest.raises(ModelError, match="rest_coupling"):
+        fit_statespace(data, 3, rest_coupling="sparse")
+    r = fit_statespace(data, 3, operating_point="rest", coupling="full", rest_coupling="auto",
+                       n_starts=1, max_steps=30)
     assert r.extra["coupling"] == "full" and "coupling_holdout" not in r.extra
