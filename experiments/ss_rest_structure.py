@@ -8,7 +8,8 @@ N = 4 / 9 / 16, seed 0 (default noise) and held-back seed 31 (sensor noise std 0
 Variants of `fit(data, "ss", orders)` (`--variants`): `default`; `estimate_x0=True` (the
 structured path in rest mode with x0 estimated, as tried in 332480b and reverted); `full A,
 estimate_x0=True`; `rest_coupling=auto` (diagonal A with x0 = 0 in rest mode, full A when the
-held-back-third check favours it); `rest_coupling=diagonal`.
+held-back-third check favours it; the default since it was measured, after fd8d1c6);
+`rest_coupling=diagonal`; `rest_coupling=full` (the earlier default: full A, x0 = 0).
 Validation: `compare` (initial state estimated); the recordings with `experiments/identify.py`'s
 ss options (`SS_OPTS`, as `identify.evaluate`). CPU s in-process (compilation included where
 first).
@@ -33,7 +34,8 @@ sys.path.insert(0, str(ROOT / "experiments"))
 VARIANTS = {"default": {}, "estimate_x0=True": {"estimate_x0": True},
             "full A, estimate_x0=True": {"coupling": "full", "estimate_x0": True},
             "rest_coupling=auto": {"rest_coupling": "auto"},
-            "rest_coupling=diagonal": {"rest_coupling": "diagonal"}}
+            "rest_coupling=diagonal": {"rest_coupling": "diagonal"},
+            "rest_coupling=full": {"rest_coupling": "full"}}
 
 
 def cases(w1: list[tuple[int, int]]):

@@ -121,15 +121,19 @@ def test_rest_coupling_fits_diagonal_a_from_rest():
     assert diag.extra["coupling"] == "diagonal" and np.all(np.asarray(diag.x0) == 0.0)
     np.testing.assert_allclose(np.diag(np.asarray(diag.extra["parametrised"].A)),
                                np.diag(DIAGONAL), atol=0.01)
-    full = fit_statespace(data, 3, operating_point="rest", n_starts=1, max_steps=60)
-    assert full.extra["coupling"] == "full"      # the default keeps the full-A path
+    full = fit_statespace(data, 3, operating_point="rest", rest_coupling="full", n_starts=1,
+                          max_steps=60)
+    assert full.extra["coupling"] == "full"
     assert full.cost <= diag.cost < 1.02 * full.cost and diag.cost < 0.0049 * 1.05
 
 
-def test_rest_coupling_option_errors_and_full_coupling_overrides_it():
+def test_rest_coupling_default_option_errors_and_full_coupling_overrides_it():
     data = _bed_at_rest(DIAGONAL, T=600)
     with pytest.raises(ModelError, match="rest_coupling"):
         fit_statespace(data, 3, rest_coupling="sparse")
+    r = fit_statespace(data, 3, max_steps=30)     # the default: rest mode, hold-out decides
+    assert r.extra["operating_point"] == "rest" and r.extra["coupling"] == "diagonal"
+    assert set(r.extra["coupling_holdout"]) == {"diagonal", "full"}
     r = fit_statespace(data, 3, operating_point="rest", coupling="full", rest_coupling="auto",
                        n_starts=1, max_steps=30)
     assert r.extra["coupling"] == "full" and "coupling_holdout" not in r.extra
