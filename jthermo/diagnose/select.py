@@ -282,12 +282,16 @@ def _joint_active(n, lay, first, pool) -> int:
     return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
 
 
-def _worse_zones(res, res_base, mechs) -> np.ndarray:
-    """`(K, n)` True where candidate k's fit of zone i (residuals `res (K, T, n)`) ends with a
-    larger sum of squares than the nested baseline's `res_base (T, n)` and a nearly-off start
-    (`mechanisms.near_off`) differs from its neutral one (`mechanisms.RESTARTED`)."""
+def _worse_zones(res, res_base, mechs, th, lay) -> np.ndarray:
+    """`(K, n)` True where candidate k's fit `th (K, n, P)` of zone i (residuals `res (K, T, n)`)
+    ends with a larger sum of squares than the nested baseline's `res_base (T, n)` and a nearly-off
+    start (`mechanisms.near_off`) differs from its neutral one (`mechanisms.RESTARTED`) and from
+    where the fit ended (a lamp already within twice its floor `TAUH_MIN`: the lag-free limit
+    the lamp model cannot reach)."""
     sse = np.sum(np.asarray(res) ** 2, axis=1)
-    return (sse > np.sum(np.asarray(res_base) ** 2, axis=0)[None]) & np.array(
+    floor = np.array([M.lamp_tau(th[k][:, lay.sl("log_tauh")][:, 0]) < 2 * M.TAUH_MIN if m == "heater_lag"
+                      else np.zeros(th.shape[1], bool) for k, m in enumerate(mechs)])
+    return (sse > np.sum(np.asarray(res_base) ** 2, axis=0)[None]) & ~floor & np.array(
         [[m in M.RESTARTED] for m in mechs])
 
 
@@ -305,7 +309,7 @@ def _keep_nested(fit, mechs, th, res, start, res_base, lay):
     zone are refitted (their other zones from their own fits, kept), padded to a power of two
     (`_bucket`: at most log2 K + 1 compiled shapes). Returns (θ, residuals, which zones were
     refitted `(K, n)`)."""
-    worse = _worse_zones(res, res_base, mechs)
+    worse = _worse_zones(res, res_base, mechs, th, lay)
     ks = list(np.flatnonzero(worse.any(axis=1)))
     if not ks:
         return th, res, worse
@@ -326,8 +330,10 @@ def _no_worse_adds(js, validate, cur, models, adds) -> list:
     of the two is kept (one more joint fit, only when one is needed, padded to a power of two
     of models: a joint fit's cost grows with its models)."""
     sse = lambda r: float(np.sum(r ** 2))
+    floor = lambda a, m: m == "heater_lag" and bool(np.all(
+        M.lamp_tau(a["theta"][:, js.lay.sl("log_tauh")]) < 2 * M.TAUH_MIN))   # as `_worse_zones`
     redo = [j for j, (a, m) in enumerate(zip(adds, models))
-            if sse(a["res"]) > sse(cur["res"]) and m[1][-1] in M.RESTARTED]
+            if sse(a["res"]) > sse(cur["res"]) and m[1][-1] in M.RESTARTED and not floor(a, m[1][-1])]
     if not redo:
         return adds
     again = js.fit([(M.near_off(js.start(cur["theta"], models[j][1][-1]), models[j][1][-1], js.lay),

@@ -73,7 +73,10 @@ def test_candidate_never_ends_above_the_nested_baseline():
     worse = np.sum(res ** 2, axis=1) > sse_b[None]
     assert worse.sum() >= 4, worse
     th2, res2, redone = S._keep_nested(fit, mechs, th, res, neutral, res_b, lay)
-    np.testing.assert_array_equal(redone, worse)
+    # refitted: the worse zones, but a lamp that already ended at its floor (the nearly-off start)
+    at_floor = np.array([m == "heater_lag" for m in mechs])[:, None] & (
+        M.lamp_tau(th[:, :, lay.sl("log_tauh")][..., 0]) < 2 * M.TAUH_MIN)
+    np.testing.assert_array_equal(redone, worse & ~at_floor)
     sse2 = np.sum(res2 ** 2, axis=1)
     # the nested optimum is reached to within the nearly-off start's own distance from it; the
     # lamp's time constant has a floor (TAUH_MIN = 0.05 s), so heater_lag nests the baseline only
