@@ -80,9 +80,9 @@ def main(argv=None) -> int:
     out = ROOT / "experiments" / "results" / args.out
     cmd = " ".join(["python experiments/ss_rest_structure.py", *(argv or sys.argv[1:])])
     lines = ["# ss in rest mode: which structure and initial state", "",
-             f"`{cmd}`; operating point and coupling as "
-             "fitted; fit % = validation (`compare`, initial state estimated; W1 with the gap "
-             "to the true model; recordings with `experiments/identify.SS_OPTS`).", "",
+             (f"`{cmd}`; operating point and coupling as "
+              "fitted; fit % = validation (`compare`, initial state estimated; W1 with the gap "
+              "to the true model; recordings with `experiments/identify.SS_OPTS`)."), "",
              "| data | variant | operating point | coupling | mean fit % | gap | CPU s | load |",
              "|---|---|---|---|---|---|---|---|"]
     for name, orders, est, val, truth in cases(w1):
