@@ -101,13 +101,13 @@ def _instrument(clock: _Clock, state: dict):
         setattr(select, name, timed(name, getattr(select, name)))
     jf = select._JointFits.fit
 
-    def joint_fit(self, models, validate):
+    def joint_fit(self, models, validate, **kw):
         state["round"] += 1
         outer = state["stage"]
         state["stage"] = f"joint call {state['round']} ({len(models)} models)"
         s0 = clock.snap()
         try:
-            return jf(self, models, validate)
+            return jf(self, models, validate, **kw)
         finally:
             clock.add(state["stage"] + ": total", s0)
             state["stage"] = outer
