@@ -5,7 +5,6 @@ where LM from the mechanism's neutral start misses the nested optimum (`select._
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from jthermo.diagnose import baseline as B
 from jthermo.diagnose import mechanisms as M
