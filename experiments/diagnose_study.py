@@ -8,6 +8,10 @@ gain and the time per case. It also runs the diagnosis on the real TCLab recordi
 
     .venv/bin/python experiments/diagnose_study.py [--quick] [--cases N] [--out experiments/results]
 
+Case k of `CASES` is seeded `--seed + k` whatever `--only` / `--cases` select, so a single
+case rerun alone gets the record of the whole study (before 2026-11-25 `--only` reseeded by the
+position in the selection: experiments/results/diagnose_study_bisect.md).
+
 Writes `experiments/results/diagnose_study.md` (and `.json`), updated after every case.
 """
 
@@ -185,8 +189,10 @@ def main(argv=None):
     rows, real, raw = [], [], {}
     if a.real_only:
         cases = []
-    for k, (name, zones, effects, noise, truth) in enumerate(cases):
-        res, sec = run_case(name, zones, effects, noise, a.seed + k)
+    for name, zones, effects, noise, truth in cases:
+        # each case's record is seeded by its place in CASES, whatever --only / --cases select
+        seed = a.seed + next(k for k, c in enumerate(CASES) if c[0] == name)
+        res, sec = run_case(name, zones, effects, noise, seed)
         concealed = sorted(e for e in effects if e in CONCEALABLE)
         top = res["findings"][0]["mechanism"] if res["findings"] else None
         found = [f["mechanism"] for f in res["findings"]]
@@ -197,7 +203,8 @@ def main(argv=None):
                          "aug_fit": res["augmented"]["mean_fit_percent"], "gain": gain,
                          "params": fmt_params(res["findings"][0]["parameters"]) if res["findings"] else "",
                          "truth": ", ".join(f"{k}={v:g}" for k, v in truth.items()), "seconds": sec,
-                         "cpu_seconds": res["cpu_seconds"], "load": res["load"], "noise": noise})
+                         "cpu_seconds": res["cpu_seconds"], "load": res["load"], "noise": noise,
+                         "seed": seed})
         raw[name] = res
         print(f"{name}: {res['verdict']} top={top} found={found} gain={gain:.2f} {sec:.0f}s", flush=True)
         write(rows, real, out / f"diagnose_study{a.tag}.md")
