@@ -554,7 +554,6 @@ def main(argv=None):
                      "uncertain": bool(res["findings"][0].get("uncertain", False)) if named else False,
                      "flagged": [f["mechanism"] for f in res.get("flagged", [])],
                      "drift_input_dependence_z": res["localisation"].get("drift_input_dependence_z"),
-                     "restarted_zones": res["localisation"].get("restarted_zones", {}),
                      "combinations": res.get("combinations", []),
                      "fit_percent": [res["baseline"]["fit_percent"], res["augmented"]["fit_percent"]],
                      "baseline_fit": res["baseline"]["mean_fit_percent"],

@@ -398,39 +398,6 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     return th
 
 
-#: how far on a mechanism is at its nearly-off start (`near_off`): its rate or share as this
-#: fraction of the zone's loss rate, its drop in K
-OFF_FRACTION = 1e-3
-
-
-def near_off(theta, mech: str, lay: Layout) -> np.ndarray:
-    """`theta (..., P)` with mechanism `mech` nearly off: the model is the nested smaller one to
-    within `OFF_FRACTION` (its cost too), yet every parameter of `mech` still has a gradient
-    (exactly off, $k = 0$ on a log scale, has none). Coupling $k$ and wall coupling $c$ at
-    `OFF_FRACTION` $\\cdot\\,a$, radiative share $\\rho$ at `OFF_FRACTION`, lamp
-    $\\tau_h$ at (1 + `OFF_FRACTION`) `TAUH_MIN` (its floor: the lag-free model is its limit),
-    recoat drop `OFF_FRACTION` K. The neutral starts of `input_delay` (the delay scan's best),
-    `input_nonlinearity` ($e = 1$) and `ambient_variation` (no drift) already are the nested
-    model: unchanged."""
-    th = np.array(theta, float)
-    a = np.exp(th[..., lay.sl("log_a")])
-    if mech == "lateral_conduction":
-        th[..., lay.sl("log_k")] = np.log(OFF_FRACTION * a)
-    elif mech == "radiative_loss":
-        th[..., lay.sl("rad_share")] = -math.log(RAD_SHARE_MAX / OFF_FRACTION - 1.0)
-    elif mech == "heat_accumulation":
-        th[..., lay.sl("log_c")] = np.log(OFF_FRACTION * a)
-    elif mech == "heater_lag":
-        th[..., lay.sl("log_tauh")] = math.log(OFF_FRACTION * TAUH_MIN)
-    elif mech == "recoat_cooling":
-        th[..., lay.sl("log_drop")] = math.log(OFF_FRACTION)
-    return th
-
-
-#: the mechanisms whose neutral start (`initial_theta`) is not (nearly) off
-RESTARTED = ("lateral_conduction", "radiative_loss", "heat_accumulation", "heater_lag", "recoat_cooling")
-
-
 def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -> dict:
     """The physical figures a mechanism's fitted per-zone parameters stand for (JSON-ready)."""
     th = np.asarray(Theta)

@@ -225,14 +225,13 @@ class _JointFits:
             th[:, self.lay.sl(grp)] = self.neutral[:, self.lay.sl(grp)]
         return th
 
-    def fit(self, models, validate, slots=None) -> list[dict]:
+    def fit(self, models, validate) -> list[dict]:
         """Fit `(θ start, mechanism set, free level)` models jointly on the estimation record
-        (padded to `slots`, default `self.slots`: one compiled shape for every round), then
-        validate them (padded to `val_slots`, the candidates' validation shape: no compile of
-        its own)."""
+        (padded to `slots`: one compiled shape for every round), then validate them (padded to
+        `val_slots`, the candidates' validation shape: no compile of its own)."""
         n, lay, T = self.n, self.lay, self.y.shape[0]
         nd = lay.n_drift
-        S = self.slots if slots is None else slots
+        S = self.slots
         models = list(models) + [models[-1]] * (S - len(models))
         R = 2 * n + nd + 1
         size = n * lay.size
@@ -282,70 +281,6 @@ def _joint_active(n, lay, first, pool) -> int:
     return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
 
 
-def _worse_zones(res, res_base, mechs, th, lay) -> np.ndarray:
-    """`(K, n)` True where candidate k's fit `th (K, n, P)` of zone i (residuals `res (K, T, n)`)
-    ends with a larger sum of squares than the nested baseline's `res_base (T, n)` and a nearly-off
-    start (`mechanisms.near_off`) differs from its neutral one (`mechanisms.RESTARTED`) and from
-    where the fit ended (a lamp already within twice its floor `TAUH_MIN`: the lag-free limit
-    the lamp model cannot reach)."""
-    sse = np.sum(np.asarray(res) ** 2, axis=1)
-    floor = np.array([M.lamp_tau(th[k][:, lay.sl("log_tauh")][:, 0]) < 2 * M.TAUH_MIN if m == "heater_lag"
-                      else np.zeros(th.shape[1], bool) for k, m in enumerate(mechs)])
-    return (sse > np.sum(np.asarray(res_base) ** 2, axis=0)[None]) & ~floor & np.array(
-        [[m in M.RESTARTED] for m in mechs])
-
-
-def _bucket(k: int, most: int) -> int:
-    """`k` rounded up to a power of two, at most `most`: few compiled shapes for restarts."""
-    return min(most, 1 << max(k - 1, 0).bit_length())
-
-
-def _keep_nested(fit, mechs, th, res, start, res_base, lay):
-    """Single-mechanism per-zone fits `th (K, n, P)`, `res (K, T, n)` (from the neutral start
-    `start (n, P)`, the baseline's parameters) made no worse than the nested baseline
-    (residuals `res_base (T, n)`): the zones that end above its cost (`_worse_zones`) are
-    refitted by `fit(sets, starts)` from `start` with the mechanism nearly off
-    (`mechanisms.near_off`) and the better of its two fits kept. Only the candidates with such a
-    zone are refitted (their other zones from their own fits, kept), padded to a power of two
-    (`_bucket`: at most log2 K + 1 compiled shapes). Returns (θ, residuals, which zones were
-    refitted `(K, n)`)."""
-    worse = _worse_zones(res, res_base, mechs, th, lay)
-    ks = list(np.flatnonzero(worse.any(axis=1)))
-    if not ks:
-        return th, res, worse
-    ks += [ks[-1]] * (_bucket(len(ks), len(mechs)) - len(ks))
-    again = np.stack([np.where(worse[k][:, None], M.near_off(start, mechs[k], lay), th[k]) for k in ks])
-    th2, res2 = fit([(mechs[k],) for k in ks], again)
-    th, res = np.array(th), np.array(res)
-    for j, k in enumerate(ks):
-        better = worse[k] & (np.sum(res2[j] ** 2, axis=0) < np.sum(res[k] ** 2, axis=0))
-        th[k] = np.where(better[:, None], th2[j], th[k])
-        res[k] = np.where(better[None, :], res2[j], res[k])
-    return th, res, worse
-
-
-def _no_worse_adds(js, validate, cur, models, adds) -> list:
-    """Joint additions `adds` (fits of `models`) that end above the smaller joint model `cur`'s
-    estimation cost are refitted from `cur` with the added mechanism nearly off; the better fit
-    of the two is kept (one more joint fit, only when one is needed, padded to a power of two
-    of models: a joint fit's cost grows with its models)."""
-    sse = lambda r: float(np.sum(r ** 2))
-    floor = lambda a, m: m == "heater_lag" and bool(np.all(
-        M.lamp_tau(a["theta"][:, js.lay.sl("log_tauh")]) < 2 * M.TAUH_MIN))   # as `_worse_zones`
-    redo = [j for j, (a, m) in enumerate(zip(adds, models))
-            if sse(a["res"]) > sse(cur["res"]) and m[1][-1] in M.RESTARTED and not floor(a, m[1][-1])]
-    if not redo:
-        return adds
-    again = js.fit([(M.near_off(js.start(cur["theta"], models[j][1][-1]), models[j][1][-1], js.lay),
-                     models[j][1], models[j][2]) for j in redo], validate,
-                   slots=_bucket(len(redo), js.slots))
-    out = list(adds)
-    for j, b in zip(redo, again):
-        if sse(b["res"]) < sse(out[j]["res"]):
-            out[j] = {**b, "restarted": True}
-    return out
-
-
 def _judge(cur, cand, n_tests, dof, k_extra) -> dict:
     """Both tests of `cand` against the smaller model `cur` (joint fits' residuals)."""
     zc, lc = D.thresholds(n_tests, dof)
@@ -376,12 +311,10 @@ def _forward_select(js, validate, k_val, top, pool, fit_of):
     tried = []
     pool = list(pool)
     while adds:
-        adds = _no_worse_adds(js, validate, cur, [(None, chosen + (m,), free) for m in pool], adds)
         best = None
         for m, a in zip(pool, adds):
             t = _judge(cur, a, len(pool), M.n_added_per_zone(m, lay) * n, k_val(a["set"]) - k_val(chosen))
             tried.append({"mechanisms": list(a["set"]), **t, "accepted": False,
-                          "restarted": bool(a.get("restarted", False)),
                           "mean_fit_percent": float(np.mean(fit_of(a["e"])))})
             # among those that pass both tests, the strongest evidence on the estimation record
             # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
@@ -532,13 +465,6 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                         xw0=(y[0].mean() - level - thb[i, lay.sl("ts0")][0]) / 2.0)
                         for i in range(n)])
     thc, res_c = fit_sets([(m,) for m in cands], np.stack([neutral] * K))
-    # a candidate nests the baseline, so its optimum is never worse: a zone's fit that ends above
-    # the baseline's cost (LM from the neutral start missed the nested optimum) is refitted from
-    # the baseline with the mechanism nearly off, and the better of the two kept (same shape:
-    # no compile of its own; only when a zone needs it)
-    thc, res_c, worse = _keep_nested(fit_sets, cands, thc, res_c, neutral, R_e, lay)
-    loc["restarted_zones"] = {m: [int(i) + 1 for i in np.flatnonzero(worse[k])]
-                              for k, m in enumerate(cands) if worse[k].any()}
     tick({"stage": "candidates"})
 
     # ---- 4. validation: simulate every model coupled, initial states re-estimated -----------------
