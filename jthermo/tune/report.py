@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import functools
-
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
