@@ -101,7 +101,7 @@ def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
     n = lay.n
     Tw = T + WARMUP
     kv = M.n_drift_knots(Tw, ts)
-    P = int(models.get("period") or 0)
+    P = float(models.get("period") or 0)
     ev = event_matrix(Tw, P, models["zone_phase"], offset=WARMUP) if P else np.zeros((Tw, n))
     thetas, ons, delays, recs = [], [], [], []
     for m in names:

@@ -9,6 +9,8 @@ differenced residual at every candidate period, an epoch-folding search).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: periods (s) searched for periodic drops
@@ -37,11 +39,72 @@ def _xcorr_max(e, x, max_lag):
     return best, lag
 
 
+#: largest drift (samples) of a folded event over the record between neighbouring trial periods:
+#: the period grid steps by `PERIOD_DRIFT * P / T` around each period P (T samples)
+PERIOD_DRIFT = 2.0
+
+
+def period_grid(pmin: float, pmax: float, T: int) -> np.ndarray:
+    """Trial periods (samples, fractional) from `pmin` to `pmax`: each whole-sample period $P$
+    and $P + j/m_P$, $m_P = \\lceil T / (P\\,\\delta)\\rceil$ ($\\delta$ = `PERIOD_DRIFT`), so that an
+    event that repeats every $P^\\ast$ samples, any fraction, drifts by at most $\\delta$ samples
+    over the record when folded at the nearest trial period (a record's recoat period is not a
+    whole number of samples: folded at the nearest whole one its drops smear over the period)."""
+    if pmax <= pmin:
+        return np.array([float(pmin)])
+    out = []
+    for P in range(math.floor(pmin), math.ceil(pmax) + 1):
+        m = max(1, math.ceil(T / (P * PERIOD_DRIFT)))
+        out.append(P + np.arange(m) / m)
+    g = np.concatenate(out)
+    return g[(g >= pmin - 1e-9) & (g <= pmax + 1e-9)]
+
+
+def _fold(x: np.ndarray, P: float):
+    """Folded means `(nb,)` and counts of `x (T,)` at a period of `P` samples (any fraction):
+    sample $t$ falls in phase bin $\\lfloor t \\bmod P \\rfloor$; only whole periods are used."""
+    m = math.floor(x.size / P + 1e-9)
+    t = np.arange(math.floor(m * P + 1e-9))
+    b = np.floor(np.mod(t, P) + 1e-9).astype(int)
+    nb = math.ceil(P - 1e-9)
+    b = np.minimum(b, nb - 1)
+    cnt = np.bincount(b, minlength=nb)
+    sm = np.bincount(b, weights=x[:t.size], minlength=nb)
+    return sm / np.maximum(cnt, 1), cnt
+
+
+def _fold_depths(s: np.ndarray, periods: np.ndarray, sd: float):
+    """For each trial period (samples), the deepest folded mean of `s` over three consecutive
+    phase bins in standard errors (`sd` the per-sample deviation), and its first bin: the
+    `_fold` of every period at once (one `bincount`)."""
+    nb = np.ceil(periods - 1e-9).astype(int)
+    W = int(nb.max())
+    Tn = s.size
+    t = np.arange(Tn)
+    used = np.floor(np.floor(Tn / periods + 1e-9) * periods + 1e-9)
+    b = np.minimum(np.floor(np.mod(t[None, :], periods[:, None]) + 1e-9).astype(int), nb[:, None] - 1)
+    rows = np.arange(periods.size)[:, None]
+    flat = np.where(t[None, :] < used[:, None], rows * W + b, periods.size * W)
+    cnt = np.bincount(flat.ravel(), minlength=periods.size * W + 1)[:-1].reshape(-1, W)
+    sm = np.bincount(flat.ravel(), weights=np.broadcast_to(s, flat.shape).ravel(),
+                     minlength=periods.size * W + 1)[:-1].reshape(-1, W)
+    fm = sm / np.maximum(cnt, 1)
+    inv = 1.0 / np.maximum(cnt, 1)
+    j = np.arange(W)[None, :]
+    sh = lambda x, k: np.take_along_axis(x, (j + k) % nb[:, None], axis=1)
+    z = -(fm + sh(fm, 1) + sh(fm, 2)) / (sd * np.sqrt(inv + sh(inv, 1) + sh(inv, 2)))
+    z = np.where(j < nb[:, None], z, -np.inf)
+    k = np.argmax(z, axis=1)
+    return z[np.arange(periods.size), k], k
+
+
 def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> dict:
     """Epoch-folding search for periodic sudden drops in residuals `R (T, n)`.
 
-    The differenced residual averaged over zones is folded at every whole-sample period in
-    `period_range`; the statistic is the deepest folded mean in units of its standard error.
+    The differenced residual averaged over zones is folded at every trial period in
+    `period_range` (`period_grid`: fractions of a sample included); the statistic is the deepest
+    folded mean of three consecutive phases (a sweep spreads a drop over a few samples) in units
+    of its standard error.
     **Returns:** dict with `period_s`, `phase` (samples, first event), `statistic`,
     `significant`, and per-zone `zone_phase` (samples) and `zone_drop_C`.
     """
@@ -50,44 +113,46 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
     D = np.diff(R, axis=0)
     s = D.mean(axis=1)
     sd = np.std(s) + 1e-300
-    best = (0.0, 0, 0)
-    pmin = max(3, round(period_range[0] / ts))
-    pmax = min(round(period_range[1] / ts), (T - 1) // 4)
-    for P in range(pmin, pmax + 1):
-        m = (len(s) // P) * P
-        f = s[:m].reshape(-1, P)
-        # a sweep spreads a drop over a few samples: sum 3 consecutive phases
-        fm = f.mean(axis=0)
-        f3 = fm + np.roll(fm, -1) + np.roll(fm, -2)
-        k = int(np.argmin(f3))
-        stat = -f3[k] / (sd * np.sqrt(3.0 / f.shape[0]))
-        if stat > best[0]:
-            best = (float(stat), P, k)
+    pmin = max(3.0, period_range[0] / ts)
+    pmax = min(period_range[1] / ts, (T - 1) / 4)
+    grid = period_grid(pmin, pmax, len(s)) if pmax >= pmin else np.zeros(0)
+    best = (0.0, 0.0, 0)
+    for lo in range(0, grid.size, 512):
+        z, k = _fold_depths(s, grid[lo:lo + 512], sd)
+        r = int(np.argmax(z))
+        if z[r] > best[0]:
+            best = (float(z[r]), float(grid[lo + r]), int(k[r]))
     stat, P, k = best
     out = {"statistic": stat, "significant": bool(stat > PERIOD_THRESHOLD and P > 0)}
     if P == 0:
         out.update(period_s=float("nan"), phase=0, zone_phase=[0] * n, zone_drop_C=[0.0] * n)
         return out
-    m = (len(s) // P) * P
+    nb = math.ceil(P - 1e-9)
     zone_phase, zone_drop = [], []
     for i in range(n):
-        fi = D[:m, i].reshape(-1, P).mean(axis=0)
+        fi, _ = _fold(D[:, i], P)
         # the zone's own drop lies within a quarter period after the bed's first drop
-        win = [(k + j) % P for j in range(-2, max(P // 4, 4))]
+        win = [(k + j) % nb for j in range(-2, max(nb // 4, 4))]
         j = win[int(np.argmin(fi[win]))]
         zone_phase.append(int(j + 1))               # D[t] = R[t+1] - R[t]: the drop shows at t+1
-        zone_drop.append(float(-(fi[j] + min(fi[(j + 1) % P], 0) + min(fi[(j - 1) % P], 0))))
+        zone_drop.append(float(-(fi[j] + min(fi[(j + 1) % nb], 0) + min(fi[(j - 1) % nb], 0))))
     out.update(period_s=float(P * ts), phase=int(k + 1), zone_phase=zone_phase,
                zone_drop_C=zone_drop)
     return out
 
 
-def event_matrix(T: int, period: int, zone_phase, *, offset: int = 0) -> np.ndarray:
-    """Recoat flags `(T, n)`: 1.0 at each zone's drop sample, every `period` samples."""
+def event_matrix(T: int, period: float, zone_phase, *, offset: int = 0) -> np.ndarray:
+    """Recoat flags `(T, n)`: 1.0 at each zone's drop sample, every `period` samples (any
+    fraction: the drop of event $m$ of a zone with phase $\\phi$ is at sample
+    $\\lceil mP + \\phi - 1\\rceil + 1$, the sample after the phase bin it was folded into),
+    the record starting `offset` samples after the one the phases refer to."""
     n = len(zone_phase)
     E = np.zeros((T, n))
+    P = float(period)
     for i, ph in enumerate(zone_phase):
-        E[(int(ph) - offset) % period::period, i] = 1.0
+        m = np.arange(math.floor((offset - ph) / P) - 1, math.ceil((T + offset) / P) + 2)
+        k = np.ceil(m * P + ph - 1 - 1e-9).astype(int) + 1 - offset
+        E[k[(k >= 0) & (k < T)], i] = 1.0
     return E
 
 
@@ -153,4 +218,4 @@ def localise(R: np.ndarray, y: np.ndarray, u: np.ndarray, ts: float) -> dict:
     }
 
 
-__all__ = ["PERIOD_THRESHOLD", "detect_periodic", "event_matrix", "localise"]
+__all__ = ["PERIOD_DRIFT", "PERIOD_THRESHOLD", "detect_periodic", "event_matrix", "localise", "period_grid"]

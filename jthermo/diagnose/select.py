@@ -427,7 +427,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     ev_e = np.zeros((T, n))
     P = 0
     if per_ev["significant"]:
-        P = round(per_ev["period_s"] / ts)
+        P = per_ev["period_s"] / ts          # samples, any fraction
         ev_e = event_matrix(T, P, per_ev["zone_phase"])
     # dead time: simulate the baseline with each delay on a grid of fractions of a sample
     max_d = min(M.PAD - 3.0, max(float(MAX_DELAY), math.ceil(MAX_DELAY_S / ts)))
