@@ -222,6 +222,7 @@ def unroll_threefry() -> bool:
     except (ImportError, AttributeError):
         return False
     mlir.register_lowering(prim, rule, platform="cpu")
+    _state["threefry"] = "unrolled"   # part of `exported_call`'s key
     return True
 
 
@@ -276,3 +277,177 @@ class Stopwatch:
         total = now - self.start
         return {"seconds": round(total, 3), "compile_s": round(compile_s, 3),
                 "run_s": round(max(total - compile_s, 0.0), 3)}
+
+
+# ---------------------------------------------------------------- traced programs kept on disk
+
+#: subdirectory of the cache directory holding serialized `jax.export` programs (JAX's own
+#: cache reads and evicts only its `*-cache` entries, so it leaves these alone)
+EXPORT_SUBDIR = "jthermo-export"
+#: the most exported programs kept; beyond it the least recently used are removed
+MAX_EXPORTS = 64
+#: bumped when the file's meaning changes
+_EXPORT_FORMAT = "1"
+
+
+def exported_call(fn, args: tuple, fallback, compiler_options: dict | None = None):
+    """`fn(*args)` without tracing `fn` when an earlier process already did: its traced
+    program is kept as a serialized `jax.export` in the cache directory (`EXPORT_SUBDIR`),
+    and the executable comes from the persistent compilation cache as before.
+
+    `args`: pytrees (equinox modules) whose array leaves are the program's inputs; every
+    other leaf (strings, numbers, static fields) and the tree structure are part of the
+    file's key, with the shapes and dtypes of the arrays, a hash of jthermo's source, the
+    versions of JAX, jaxlib, equinox and NumPy, x64 and the Threefry lowering
+    (`unroll_threefry`). Outputs come back as arrays (a Python scalar as a 0-d array).
+
+    `fallback` (`fn` jitted with `compiler_options`) runs instead, as before, wherever no
+    export can serve: the cache off (`--no-cache`, `JTHERMO_NO_CACHE`, an unwritable
+    directory: then no file is read or written), inside a JAX trace, a leaf whose repr is
+    not stable across processes, `jax.export` or its `flatbuffers` dependency missing, or a
+    file that cannot be read, is corrupt or does not match (it is replaced). Files are
+    written to a temporary name and renamed: processes running at once never see a torn
+    file. Never raises for the export itself; errors of `fn` propagate as from `fallback`."""
+    program = None
+    if _state["dir"] is not None and top_level():
+        try:
+            program = _exported_program(fn, args)
+        except Exception:  # noqa: BLE001  (no export support, an unexportable program)
+            program = None
+    if program is None:
+        return fallback(*args)
+    exp, arrays = program
+    import jax
+
+    try:
+        return jax.jit(exp.call, compiler_options=compiler_options)(*arrays)
+    except Exception:  # noqa: BLE001  (a program this JAX cannot call: trace it afresh)
+        return fallback(*args)
+
+
+def _exported_program(fn, args: tuple):
+    """`(Exported, array leaves)` for `fn(*args)`: read from disk when present and valid,
+    else traced, exported and written. None where the key would not be stable."""
+    import jax
+    from jax import export
+
+    leaves, treedef = jax.tree.flatten(args)
+    is_array = [isinstance(v, jax.Array) or hasattr(v, "__array__") and hasattr(v, "dtype")
+                for v in leaves]
+    arrays = [v for v, a in zip(leaves, is_array) if a]
+    static = [None if a else v for v, a in zip(leaves, is_array)]
+    key = _export_key(fn, treedef, static, arrays)
+    if key is None:
+        return None
+    name, digest = key
+    path = Path(_state["dir"]) / EXPORT_SUBDIR / f"{name}-{digest[:32]}.jaxexport"
+    header = f"jthermo-export {digest}\n".encode()
+    exp = _read_export(path, header, arrays)
+    if exp is None:
+        def flat(*xs):
+            it = iter(xs)
+            full = [next(it) if a else v for v, a in zip(static, is_array)]
+            return fn(*jax.tree.unflatten(treedef, full))
+
+        blob = export.export(jax.jit(flat))(*arrays).serialize()
+        _write_atomic(path, header + blob)
+        exp = export.deserialize(bytearray(blob))   # as a later process reads it
+    return exp, arrays
+
+
+def _export_key(fn, treedef, static, arrays) -> tuple[str, str] | None:
+    """`(file name stem, SHA-256 of the key text)`, or None where the key would not be stable."""
+    import hashlib
+
+    import jax
+
+    parts = [_EXPORT_FORMAT, f"{fn.__module__}.{fn.__qualname__}", _source_hash(),
+             _versions(), str(jax.config.jax_enable_x64), str(_state.get("threefry")),
+             jax.default_backend(), str(treedef), repr(static),
+             repr([(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False)))
+                   for a in arrays])]
+    text = "\n".join(parts)
+    if " at 0x" in text:   # an object repr with its address: a key no other process makes
+        return None
+    name = "".join(c if c.isalnum() else "_" for c in fn.__qualname__)[:40]
+    return name, hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def _source_hash() -> str:
+    """SHA-256 of every `.py` file of the jthermo package (path and content)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*.py")):
+        h.update(str(p.relative_to(root)).encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+@functools.cache
+def _versions() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = []
+    for dist in ("jax", "jaxlib", "equinox", "numpy"):
+        try:
+            out.append(f"{dist}={version(dist)}")
+        except PackageNotFoundError:
+            out.append(f"{dist}=?")
+    return " ".join(out)
+
+
+def _read_export(path: Path, header: bytes, arrays):
+    """The `Exported` in `path` when it starts with `header` (the full key: a file copied from
+    another key is refused), deserializes and takes `arrays`, else None."""
+    from jax import export
+
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    if not blob.startswith(header):
+        return None
+    try:
+        exp = export.deserialize(bytearray(blob[len(header):]))
+        ok = len(exp.in_avals) == len(arrays) and all(
+            tuple(a.shape) == tuple(b.shape) and a.dtype == b.dtype
+            for a, b in zip(exp.in_avals, arrays))
+    except Exception:  # noqa: BLE001  (a corrupt or foreign file)
+        return None
+    if not ok:
+        return None
+    try:
+        os.utime(path)    # recently used: kept by `_prune`
+    except OSError:
+        pass
+    return exp
+
+
+def _write_atomic(path: Path, blob: bytes) -> None:
+    """Write `blob` to `path` by a rename (concurrent readers see the old file or the new
+    one); then keep the `MAX_EXPORTS` most recently used files. Failures are ignored."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)
+        tmp = None
+        _prune(path.parent, MAX_EXPORTS)
+    except OSError:
+        pass
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+
+def _prune(folder: Path, keep: int) -> None:
+    files = sorted(folder.glob("*.jaxexport"), key=lambda p: p.stat().st_mtime, reverse=True)
+    for p in files[keep:]:
+        p.unlink(missing_ok=True)

@@ -185,16 +185,33 @@ def _one_trajectory(cl, kind, controller, plant, duration, seed, scenario_kw=Non
             "r": np.asarray(tr.r)}
 
 
+#: the array fields of the `StateSpace` that `tune.printer_model` returns
+_MODEL_FIELDS = ("A", "B", "C", "D", "K", "Bw", "u0", "w0", "y0")
+
+
+def _printer_model_fields(printer) -> dict:
+    """The arrays of `tune.printer_model(printer)` (plain arrays: an exported program's
+    output), its `ts` being the printer's."""
+    tune = require("jthermo.tune", "the printer's design model")
+    model = tune.printer_model(printer)
+    return {f: getattr(model, f) for f in _MODEL_FIELDS}
+
+
 def _printer_model(printer):
     """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
     many small ones, each traced, lowered and looked up in the cache on every run. It runs
-    once, so it is compiled with `runtime.one_shot()` options (-O0)."""
+    once, so it is compiled with `runtime.one_shot()` options (-O0), and traced once per
+    cache (`runtime.exported_call`)."""
     import equinox as eqx
 
-    from ..runtime import one_shot
+    from ..models import StateSpace
+    from ..runtime import exported_call, one_shot
 
-    tune = require("jthermo.tune", "the printer's design model")
-    return eqx.filter_jit(tune.printer_model, compiler_options=one_shot())(printer)
+    opts = one_shot()
+    fields = exported_call(_printer_model_fields, (printer,),
+                           eqx.filter_jit(_printer_model_fields, compiler_options=opts),
+                           compiler_options=opts)
+    return StateSpace(**fields, ts=printer.ts)
 
 
 # ---------------------------------------------------------------- commands

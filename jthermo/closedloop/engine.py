@@ -21,7 +21,7 @@ from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
-from ..runtime import quick_compile
+from ..runtime import exported_call, quick_compile
 from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
@@ -359,7 +359,10 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     key = jax.random.key(int(seed))
     if isinstance(plant, Printer) and not scenario_kw:
         # the printer's scenarios are drawn inside the same compiled call
-        out = _quick_scenario_metrics()(kind, plant, ctrl, duration, key, int(rollouts))
+        # traced once per cache: later processes load the exported program (`runtime`)
+        out = exported_call(_scenario_metrics_fn, (kind, plant, ctrl, duration, key,
+                                                   int(rollouts)),
+                            _quick_scenario_metrics(), compiler_options=quick_compile())
     else:
         sc = make_scenario(kind, plant, duration, key, n_rollouts=int(rollouts),
                            **dict(scenario_kw or {}))

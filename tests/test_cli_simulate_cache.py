@@ -1,0 +1,51 @@
+"""`jthermo simulate` with its traced programs kept in the cache directory
+(`runtime.exported_call`): the first process writes them, a second reads them and reports the
+same figures, and corrupt files give the same figures again (and are rewritten). A cache
+switched off writes none: tests/test_runtime_export.py."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from jthermo import runtime
+
+ARGV = ["simulate", "--scenario", "tracking", "--controller", "pi", "--zones", "2",
+        "--rollouts", "2", "--duration", "120", "--quiet"]
+
+
+def _simulate(tmp_path: Path, cache: Path) -> dict:
+    js = tmp_path / "sim.json"
+    js.unlink(missing_ok=True)
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("JAX_") and k not in (runtime.ENV_DIR, runtime.ENV_OFF)}
+    env.update({runtime.ENV_DIR: str(cache), "JAX_PLATFORMS": "cpu"})
+    r = subprocess.run([sys.executable, "-m", "jthermo.cli", *ARGV, "--json", str(js)],
+                       check=False, capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    return json.loads(js.read_text())
+
+
+def _exports(cache: Path) -> dict[str, bytes]:
+    d = cache / runtime.EXPORT_SUBDIR
+    return {p.name: p.read_bytes() for p in d.glob("*.jaxexport")} if d.is_dir() else {}
+
+
+def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
+    cache = tmp_path / "cache"
+    first = _simulate(tmp_path, cache)
+    files = _exports(cache)
+    # the printer's design model and the run program
+    assert len(files) == 2, sorted(files)
+    second = _simulate(tmp_path, cache)
+    assert second["metrics"] == first["metrics"]
+    assert _exports(cache) == files, "a warm run rewrote its exported programs"
+    for name in files:
+        (cache / runtime.EXPORT_SUBDIR / name).write_bytes(b"corrupt" * 100)
+    third = _simulate(tmp_path, cache)
+    assert third["metrics"] == first["metrics"]
+    assert _exports(cache) == files, "corrupt files were not replaced by the same programs"
