@@ -242,6 +242,34 @@ def slow_rival(top: str, other_fits_estimation: bool, z_input: float) -> bool:
                 and (top == "ambient_variation" or not input_dependent(z_input)))
 
 
+#: a stored-heat body whose fitted time constant is above this many estimation-record lengths is
+#: not identified by the record: over it the body acts as a near-constant heat term
+BODY_TAU_MAX_RECORDS = 2.0
+
+
+def body_identified(tau_s: float, record_s: float) -> bool:
+    """Whether a fitted stored-heat body's time constant `tau_s` (s) is one the record of
+    `record_s` seconds determines (at most `BODY_TAU_MAX_RECORDS` record lengths)."""
+    return bool(np.isfinite(tau_s) and tau_s <= BODY_TAU_MAX_RECORDS * record_s)
+
+
+def prefer_identified(rows: list, record_s: float, tied, n_params) -> list:
+    """`rows` (significant candidates, best first: dicts with `mechanism` and `parameters`) with
+    a one-parameter mechanism moved ahead of a `heat_accumulation` top whose body the record does
+    not identify (`body_identified`), when the two are within the test's resolution
+    (`tied(row)`: the top does not beat it, `is_rival`). Of two explanations the data cannot
+    separate, the one whose parameter the record determines, with fewer parameters, is named;
+    the body stays its rival. `n_params(mechanism)`: parameters it adds per zone."""
+    if not rows or rows[0]["mechanism"] != "heat_accumulation":
+        return list(rows)
+    if body_identified(rows[0]["parameters"].get("time_constant_s", float("nan")), record_s):
+        return list(rows)
+    alt = next((r for r in rows[1:] if n_params(r["mechanism"]) == 1 and tied(r)), None)
+    if alt is None:
+        return list(rows)
+    return [alt] + [r for r in rows if r is not alt]
+
+
 def common_drift_z(drifts: np.ndarray) -> float:
     """$z$ that the zones' own fitted surroundings drifts `drifts (n, K)` (knot values, one row
     per zone's fit) are one common signal: the mean pairwise correlation $\\bar r$ of the
@@ -299,8 +327,8 @@ def is_rival(z_top_vs_other: float) -> bool:
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
-__all__ = ["ALPHA", "BODY_TAUS", "CONFIDENT", "ar_filter", "body_drift_tied", "common_drift", "common_drift_z",
-           "confidence", "input_dependence",
-           "input_dependent", "is_rival", "lag_filter", "likelihood_ratio", "not_worse", "order_body_drift",
-           "p_value", "predictive_z", "slow_order_confidence", "slow_rival", "thresholds", "uncertain",
-           "whiten"]
+__all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "ar_filter",
+           "body_drift_tied", "body_identified", "common_drift", "common_drift_z", "confidence",
+           "input_dependence", "input_dependent", "is_rival", "lag_filter", "likelihood_ratio",
+           "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
+           "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

@@ -9,8 +9,9 @@ validation record, whitened residuals, family-wise false-alarm rate `decide.ALPH
 augmented model has to predict a record it was not fitted on, where only initial states (and
 the surroundings level when no surroundings signal is measured, for every model alike), and for
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
-Significant candidates are ranked by their validation MSE; explanations within the test's resolution
-of the top one are reported as its `rivals`.
+Significant candidates are ranked by their validation MSE (a stored-heat body whose time constant the
+record does not identify yields to a tied one-parameter mechanism: `decide.prefer_identified`);
+explanations within the test's resolution of the top one are reported as its `rivals`.
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
@@ -563,6 +564,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                                              yb_e.mean(axis=1), ts,
                                                              round(M.DRIFT_SPACING / ts))
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
+    if sig:
+        # a body slower than the record, tied with an identified one-parameter mechanism: the latter
+        k0 = sig[0]["k"]
+        sig = D.prefer_identified(sig, T * ts, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
+                                  lambda m: M.n_added_per_zone(m, lay))
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
     added, level_mode, aug = [], None, {}
