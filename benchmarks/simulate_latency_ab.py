@@ -11,12 +11,19 @@ process's CPU seconds (user + system) are recorded next to the wall seconds.
     python benchmarks/simulate_latency_ab.py --base BASE --base-label REV
     python benchmarks/simulate_latency_ab.py --base BASE --base-label REV --command tune_pi
         # -> results/tuning_latency_ab_tune_pi.md
+    python benchmarks/simulate_latency_ab.py --base BASE --base-label REV --this AFTER \
+        --this-label REV2 --repeats 3 --out benchmarks/results/simulate_latency_s26.md
+
+`--this` takes a second snapshot in place of this checkout (other work in the checkout then
+stays out of the comparison); `--repeats K` runs the cold/warm pairs K times (each cold run
+with a new empty cache) and adds the medians.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import tempfile
 from pathlib import Path
@@ -33,6 +40,21 @@ def _cells(run: dict) -> str:
             f" | {run['cpu_s']:.1f} | {run['load_before'].split()[0]}")
 
 
+def _medians(runs: list[dict], names: list[str]) -> list[str]:
+    """Markdown rows: the median of each figure over the repeats, per tree and phase."""
+    out = ["", f"Medians over the {len(runs)} runs:", "",
+           ("| tree | cold wall s | cold CPU s | warm wall s | warm CPU s | warm compile s | "
+            "warm run s |"), "|---|---|---|---|---|---|---|"]
+    for n in names:
+        def med(ph, key, n=n):
+            return statistics.median(r[n][ph].get(key, float("nan")) for r in runs)
+
+        out.append(f"| {n} | {med('cold', 'wall_s'):.2f} | {med('cold', 'cpu_s'):.2f} | "
+                   f"{med('warm', 'wall_s'):.2f} | {med('warm', 'cpu_s'):.2f} | "
+                   f"{med('warm', 'compile_s'):.2f} | {med('warm', 'run_s'):.2f} |")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="source tree of the earlier revision")
@@ -40,26 +62,38 @@ def main() -> None:
     ap.add_argument("--command", default="simulate", choices=("simulate", "tune_pi", "tune_lqg"))
     ap.add_argument("--out", default=None,
                     help="default results/simulate_latency_ab.md or tuning_latency_ab_COMMAND.md")
+    ap.add_argument("--this", default=None, help="source tree to compare (default: this checkout)")
+    ap.add_argument("--this-label", default="this checkout")
+    ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
     out = args.out or str(HERE / "results" / ("simulate_latency_ab.md" if args.command == "simulate"
                                               else f"tuning_latency_ab_{args.command}.md"))
-    trees = {args.base_label: Path(args.base).resolve(), "this checkout": HERE.parent}
+    this = Path(args.this).resolve() if args.this else HERE.parent
+    trees = {args.base_label: Path(args.base).resolve(), args.this_label: this}
     argv = COMMANDS[args.command][0]
     env0 = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     env0.pop("JTHERMO_NO_CACHE", None)
-    rows: dict = {name: {} for name in trees}
+    runs: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="jthermo-ab-") as tmp:
-        caches = {name: str(Path(tmp) / f"cache-{i}") for i, name in enumerate(trees)}
-        for phase in ("cold", "warm"):
-            for name, tree in trees.items():
-                env = dict(env0, PYTHONPATH=str(tree), JTHERMO_CACHE_DIR=caches[name])
-                rows[name][phase] = _jthermo(argv, env, Path(tmp) / f"{phase}.json", cwd=str(tree))
-                print(name, phase, rows[name][phase], flush=True)
+        for rep in range(args.repeats):
+            rows: dict = {name: {} for name in trees}
+            caches = {name: str(Path(tmp) / f"cache-{rep}-{i}") for i, name in enumerate(trees)}
+            for phase in ("cold", "warm"):
+                for name, tree in trees.items():
+                    env = dict(env0, PYTHONPATH=str(tree), JTHERMO_CACHE_DIR=caches[name])
+                    rows[name][phase] = _jthermo(argv, env, Path(tmp) / f"{phase}.json",
+                                                 cwd=str(tree))
+                    print(rep, name, phase, rows[name][phase], flush=True)
+            runs.append(rows)
     result = "mse" if args.command == "simulate" else "held-out improvement %"
     lines = [f"# `jthermo {argv[0]}` latency: an earlier revision against this checkout", "",
              (f"`python benchmarks/simulate_latency_ab.py --base BASE --base-label {args.base_label}"
-              f"{'' if args.command == 'simulate' else ' --command ' + args.command}` "
-              f"(BASE: `git archive {args.base_label}`); command `jthermo {' '.join(argv)}`; cold = "
+              f"{'' if args.command == 'simulate' else ' --command ' + args.command}"
+              + (f" --this AFTER --this-label {args.this_label}" if args.this else "")
+              + (f" --repeats {args.repeats}" if args.repeats > 1 else "") + "` "
+              f"(BASE: `git archive {args.base_label}`"
+              + (f", AFTER: `git archive {args.this_label}`" if args.this else "")
+              + f"); command `jthermo {' '.join(argv)}`; cold = "
               "empty compilation cache, warm = a second process with that cache; run order: cold "
               "base, cold this, warm base, warm this. 2 CPU cores shared with other jobs: the wall "
               "seconds follow the load (1-minute average before each run), the CPU seconds (user + "
@@ -67,12 +101,17 @@ def main() -> None:
              ("| tree | cold wall s (compile / run) | cold CPU s | cold load | warm wall s "
               f"(compile / run) | warm CPU s | warm load | {result} (warm) |"),
              "|---|---|---|---|---|---|---|---|"]
-    for name, r in rows.items():
-        res = r["warm"].get("mse" if args.command == "simulate" else "improvement_percent")
-        lines.append(f"| {name} | {_cells(r['cold'])} | {_cells(r['warm'])} | "
-                     f"{float('nan') if res is None else res:.10g} |")
-    lines += ["", "1-minute load after each run: " + ", ".join(
-        f"{n} {ph} {r[ph]['load_after']}" for n, r in rows.items() for ph in ("cold", "warm"))]
+    for rep, rows in enumerate(runs):
+        for name, r in rows.items():
+            res = r["warm"].get("mse" if args.command == "simulate" else "improvement_percent")
+            label = name if len(runs) == 1 else f"{name} (run {rep + 1})"
+            lines.append(f"| {label} | {_cells(r['cold'])} | {_cells(r['warm'])} | "
+                         f"{float('nan') if res is None else res:.10g} |")
+    if len(runs) > 1:
+        lines += _medians(runs, list(trees))
+    lines += ["", "1-minute load after each run: " + "; ".join(
+        ", ".join(f"{n} {ph} {r[ph]['load_after']}" for n, r in rows.items()
+                  for ph in ("cold", "warm")) for rows in runs)]
     text = "\n".join(lines) + "\n"
     Path(out).write_text(text)
     print(text)
