@@ -55,12 +55,29 @@ def step_up(kappa: np.ndarray) -> np.ndarray:
 
 
 def step_up_jacobian(rho: np.ndarray) -> np.ndarray:
-    """$\\partial\\, \\mathrm{step\\_up}(\\tanh\\rho) / \\partial\\rho$, `(n, n)` for `rho (n,)`, by
-    complex steps (no subtraction: exact to rounding)."""
+    """$\\partial\\, \\mathrm{step\\_up}(\\tanh\\rho) / \\partial\\rho$, `(..., n, n)` for `rho (..., n)`
+    (leading axes: independent polynomials), by complex steps (no subtraction: exact to rounding)."""
     rho = np.asarray(rho, np.float64)
+    n = rho.shape[-1]
     h = 1e-30
-    cols = [step_up(np.tanh(rho + 1j * h * e)).imag / h for e in np.eye(rho.size)]
-    return np.stack(cols, axis=1) if cols else np.zeros((0, 0))
+    steps = rho[..., None, :] + 1j * h * np.eye(n)                   # (..., n steps, n)
+    return np.swapaxes(step_up(np.tanh(steps)).imag / h, -1, -2)
+
+
+def _delayed(dst: np.ndarray, src: np.ndarray, shifts) -> None:
+    """Write the columns of `src (T, n)` delayed by `shifts (n,)` samples (zeros before the
+    record) into `dst (T, n)` (a view: the Jacobian's columns), one copy per distinct delay."""
+    shifts = np.asarray(shifts, int)
+    T = src.shape[0]
+    for k in np.unique(shifts):
+        cols = np.flatnonzero(shifts == k)
+        sel = slice(int(cols[0]), int(cols[-1]) + 1) if cols.size == cols[-1] - cols[0] + 1 else cols
+        if isinstance(sel, slice):
+            dst[k:, sel] = src[:T - k, sel]
+            dst[:k, sel] = 0.0
+        else:
+            dst[k:, sel] = src[:T - k][:, sel]
+            dst[:k, sel] = 0.0
 
 
 def _shift(x: np.ndarray, k: int) -> np.ndarray:
@@ -94,22 +111,36 @@ def _blocks(theta: np.ndarray, s):
             theta[k[3]:k[4]], rho_f, kappa0)
 
 
+def _per_input_filter(x: np.ndarray, f: np.ndarray, common: bool) -> np.ndarray:
+    """Column j of `x (T, nu)` filtered by $1/F_j$ (`f (1 or nu, nf)` monic tails; `common`:
+    one F for every column)."""
+    if common:
+        return _filt([1.0], _monic(f[0]), x)
+    out = np.empty_like(x)
+    for j in range(x.shape[1]):
+        out[:, j] = lfilter([1.0], _monic(f[j]), x[:, j])
+    return out
+
+
 def row_residual(theta: np.ndarray, y: np.ndarray, u: np.ndarray, nk, s, jacobian: bool = True):
     """One row's prediction errors `(T,)` (`polynomial.poly_residual` in NumPy) and, with
     `jacobian`, their Jacobian `(T, p)` in the parameters `theta (p,)`.
 
     `y (T,)` the output, `u (T, nu)` the inputs (deviations), `nk (nu,)` the input delays,
-    `s` the row's `PolySpec` (m = 1).
+    `s` the row's `PolySpec` (m = 1). The Jacobian is filled column block by column block into
+    one preallocated array (`_delayed`: one copy per distinct delay).
     """
     a, b, rc, rd, rf, kappa0 = _blocks(np.asarray(theta, np.float64), s)
     C, D = _monic(step_up(np.tanh(rc))), _monic(step_up(np.tanh(rd)))
     f = step_up(np.tanh(rf))                                         # (1 or nu, nf)
-    if s.common_f or s.nf == 0:
-        uf = _filt([1.0], _monic(f[0]) if s.nf else [1.0], u)
-    else:
-        uf = np.stack([lfilter([1.0], _monic(f[j]), u[:, j]) for j in range(s.nu)], axis=1)
-    lag = [[_shift(uf[:, j], nk[j] + k) for k in range(s.nb)] for j in range(s.nu)]
-    z = np.stack([sum(b[j, k] * lag[j][k] for k in range(s.nb)) for j in range(s.nu)], axis=1)
+    T, nu = u.shape
+    nk = np.asarray(nk, int)
+    uf = _per_input_filter(u, f, s.common_f) if s.nf else u
+    lag = np.empty((T, nu))
+    z = np.zeros((T, nu))
+    for k in range(s.nb):                                            # z_j = B_j q^-nk_j uf_j
+        _delayed(lag, uf, nk + k)
+        z += b[:, k] * lag
     v = y - kappa0 - z.sum(axis=1)
     for k in range(s.na):
         v = v + a[k] * _shift(y, k + 1)
@@ -117,31 +148,39 @@ def row_residual(theta: np.ndarray, y: np.ndarray, u: np.ndarray, nk, s, jacobia
     if not jacobian:
         return eps
     dc = lambda x: _filt(D, C, x)  # noqa: E731
-    cols = [_shift(dc(y), k + 1) for k in range(s.na)]
-    uff = dc(uf)
-    cols += [-_shift(uff[:, j], nk[j] + k) for j in range(s.nu) for k in range(s.nb)]
-    blocks = [np.stack(cols, axis=1) if cols else np.zeros((y.size, 0))]
-    T = y.size
-    blocks.append(_reflected([_shift(_filt([1.0], C, -eps), k + 1) for k in range(s.nc)], rc, T))
-    blocks.append(_reflected([_shift(_filt([1.0], C, v), k + 1) for k in range(s.nd)], rd, T))
+    J = np.empty((T, s.n_params))
+    col = 0
+    if s.na:
+        _delayed(J[:, :s.na], np.repeat(dc(y)[:, None], s.na, axis=1), np.arange(1, s.na + 1))
+        col = s.na
+    uff = -dc(uf)
+    Jb = J[:, col:col + nu * s.nb]
+    for k in range(s.nb):                     # column j * nb + k: -D/C uf_j delayed nk_j + k
+        _delayed(Jb[:, k::s.nb], uff, nk + k)
+    col += nu * s.nb
+    for n, rho, x in ((s.nc, rc, lambda: _filt([1.0], C, -eps)), (s.nd, rd, lambda: _filt([1.0], C, v))):
+        if n:
+            J[:, col:col + n] = _lag_block(x(), n) @ step_up_jacobian(rho)
+            col += n
     if s.nf:
-        fz = np.stack([lfilter([1.0], _monic(f[0 if s.common_f else j]), z[:, j])
-                       for j in range(s.nu)], axis=1)
-        fz = dc(fz)                                                   # D/(C F_j) z_j
-        per = [_reflected([_shift(fz[:, j], k + 1) for k in range(s.nf)], rf[0 if s.common_f else j], T)
-               for j in range(s.nu)]
-        blocks.append(sum(per) if s.common_f else np.concatenate(per, axis=1))
+        fz = dc(_per_input_filter(z, f, s.common_f))                  # D/(C F_j) z_j
+        lags = np.stack([_shift(fz, k + 1) for k in range(s.nf)], axis=2)   # (T, nu, nf)
+        Jf = step_up_jacobian(rf)                                   # (1 or nu, nf, nf)
+        if s.common_f:
+            J[:, col:col + s.nf] = lags.sum(axis=1) @ Jf[0]
+        else:
+            J[:, col:col + nu * s.nf] = np.einsum("tjk,jkl->tjl", lags, Jf).reshape(T, -1)
+        col += s.n_f
     if s.offset:
-        blocks.append(-dc(np.ones_like(y))[:, None])
-    return eps, np.concatenate(blocks, axis=1)
+        J[:, col] = -dc(np.ones_like(y))
+    return eps, J
 
 
-def _reflected(cols: list[np.ndarray], rho: np.ndarray, T: int) -> np.ndarray:
-    """Columns `(T, n)` in a polynomial's coefficients, chained to its reflection parameters
-    `rho (n,)`: `(T, n)` (`(T, 0)` without coefficients)."""
-    if not cols:
-        return np.zeros((T, 0))
-    return np.stack(cols, axis=1) @ step_up_jacobian(rho)
+def _lag_block(x: np.ndarray, n: int) -> np.ndarray:
+    """`(T, n)`: `x (T,)` delayed by 1 .. n samples."""
+    out = np.empty((x.size, n))
+    _delayed(out, np.repeat(x[:, None], n, axis=1), np.arange(1, n + 1))
+    return out
 
 
 def _gn_quantities(eps: np.ndarray, J: np.ndarray):
