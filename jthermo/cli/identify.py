@@ -36,9 +36,11 @@ def add_parsers(sub) -> None:
     sp.add_argument("--common-denominator", action="store_true",
                     help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
                     "instead of one per input-output pair (MATLAB's)")
-    sp.add_argument("--engine", choices=("jax", "numpy"),
-                    help="armax/oe/bj: the PEM solver, compiled (jax, the default) or NumPy "
-                    "(nothing compiled: faster for a first call on small problems; diagonal A)")
+    sp.add_argument("--engine", choices=("auto", "jax", "numpy"),
+                    help="armax/oe/bj: the PEM solver: auto (default: NumPy for problems up to "
+                    "a measured size or on one core, else compiled), jax (compiled: pays its "
+                    "compilation, then uses every core) or numpy (nothing compiled, one core; "
+                    "diagonal A)")
     sp.add_argument("--rest-level", metavar="T[,T...]",
                     help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
                     "(e.g. the measured ambient, °C; one number or one per output)")
@@ -132,6 +134,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "fit_on": "validation" if val is not None else "estimation",
         "seconds": getattr(res, "seconds", None) or seconds,
         "converged": bool(getattr(res, "converged", True)),
+        # armax/oe/bj: the PEM engine that ran (`--engine auto` decides by the problem's size)
+        "engine": (getattr(res, "extra", None) or {}).get("engine"),
         # per output (PEM families): converged, and the relative cost decrease the Gauss-Newton
         # step from the result would still give (converged below 1e-4)
         "converged_outputs": (getattr(res, "extra", None) or {}).get("row_converged"),

@@ -13,6 +13,7 @@ reflection coefficients $\\kappa = \\tanh\\rho$, so the returned polynomials are
 
 from __future__ import annotations
 
+import os
 from typing import Callable, NamedTuple
 
 import equinox as eqx
@@ -38,8 +39,16 @@ from .result import FitResult, register_fitter
 
 #: the model families `fit_polynomial` serves
 POLYNOMIAL_FAMILIES = ("arx", "armax", "oe", "bj")
-#: PEM engines of `fit_polynomial`: the compiled solve, or NumPy (`pem_numpy`)
-ENGINES = ("jax", "numpy")
+#: PEM engines of `fit_polynomial`: the measured rule (`choose_engine`), the compiled solve, or
+#: NumPy (`pem_numpy`)
+ENGINES = ("auto", "jax", "numpy")
+#: `choose_engine`: the largest work $w = n_y T p$ (output rows x samples x parameters per row)
+#: the NumPy engine takes when two or more cores are free for the compiled one. Measured
+#: (`benchmarks/polynomial_engine_crossover.py`, `benchmarks/results/polynomial_engine_crossover_s26.md`):
+#: NumPy faster cold at every W1 default-path row up to N = 9 (w <= 1.2e6) and ARMAX at N = 16
+#: (1.8e6); OE / BJ at N = 16 (3.1e6 / 3.4e6) were a draw on two idle cores, so they keep the
+#: compiled engine
+AUTO_NUMPY_MAX_WORK = 2_500_000
 
 
 class PolySpec(NamedTuple):
@@ -132,7 +141,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                    max_steps: int = 200, rtol: float = 1e-6, atol: float = 1e-9, ts: float = 1.0,
                    covariance: bool = True, progress: Callable | None = None,
                    screen_steps: int = 10, batch: str = "map", common_f: bool = False,
-                   rest_level=None, shape_orders: dict | None = None, engine: str = "jax",
+                   rest_level=None, shape_orders: dict | None = None, engine: str = "auto",
                    extend_rounds: int = EXTEND_ROUNDS):
     """PEM fit of the polynomial structure to absolute data `y`, `u`.
 
@@ -161,16 +170,17 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     `nf`) of a larger structure whose compiled PEM solve this fit shares (the fit is that of
     its own orders, the missing coefficients held at zero by a mask: `fit`'s candidates then
     compile once). `engine`: `"jax"` (the compiled `pem.minimize_many`, `solver`, `rtol`,
-    `atol`, `batch`) or `"numpy"` (`pem_numpy.minimize_rows`, diagonal A only: the same
+    `atol`, `batch`), `"numpy"` (`pem_numpy.minimize_rows`, diagonal A only: the same
     residual, starts and screening, nothing compiled, solved until the Gauss–Newton step would
-    gain less than `pem_numpy.POLISH_TOL`; `shape_orders` is not needed there).
+    gain less than `pem_numpy.POLISH_TOL`; `shape_orders` is not needed there) or `"auto"`
+    (default: `choose_engine` of the problem's size; `info["engine"]` says which ran).
     `extend_rounds`: with either engine (LM or GN, diagonal A, `covariance`), an output row that
     stops at `max_steps` while its Gauss–Newton step would still gain ≥ 0.01 % of its cost gets
     up to this many further rounds of `max_steps` NumPy LM steps (`pem_numpy.extend_rows`), so
     that a row reported converged is converged and one that is still improving is not cut off
     (0: the step cap is final, the row reported not converged).
 
-    **Returns:** `(model, info)` where `info` has `converged` (every output row), `cost`,
+    **Returns:** `(model, info)` where `info` has `engine`, `converged` (every output row), `cost`,
     `covariance`, `std`, `start_costs`, `start_steps`, `n_steps`, `offset`, and per output row
     `row_converged` and `expected_improvement` (the relative cost decrease the Gauss–Newton
     step from the result would still give; converged below 1e-4, see `PEMResult`).
@@ -188,6 +198,11 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
         raise ConfigError(f"fit: extend_rounds must be an integer >= 0, got {extend_rounds!r}")
     if engine == "numpy" and full_a and ny > 1 and nf == 0 and (nc or nd):
         raise ConfigError("fit: engine 'numpy' needs a diagonal A (full_a=False)")
+    if engine == "auto":
+        n_row = (ny if full_a and ny > 1 else 1) * na + nu * nb + nc + nd + \
+            (1 if common_f else nu) * nf
+        engine = choose_engine(ny, n_row, y.shape[0], full_a=full_a and ny > 1 and nf == 0,
+                               solver=solver, batch=batch)
     if full_a and ny > 1 and (nd or nf):
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
@@ -204,7 +219,7 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     dy, du = np.asarray(y) - yref, np.asarray(u) - u0       # host arrays: nothing to compile
     if nc == 0 and nd == 0 and nf == 0:
         r = arx_ls(dy, du, na, nb, nkt, full_a=full_a, offset=est, ts=ts, u0=u0, y0=yref)
-        return r.model, dict(converged=True, cost=float(r.cost), covariance=r.covariance,
+        return r.model, dict(engine="ls", converged=True, cost=float(r.cost), covariance=r.covariance,
                              std=r.std, start_costs=np.array([[float(r.cost)]] * ny),
                              n_steps=0, offset=offset, reference=None, start_model=None)
     if progress:
@@ -254,13 +269,34 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     cov = std = None
     if covariance:
         cov, std = _coefficient_covariance(res.theta, res.covariance, spec)
-    return model, dict(converged=bool(np.all(np.asarray(res.converged))), cost=float(np.mean(cost)),
+    return model, dict(engine=engine, converged=bool(np.all(np.asarray(res.converged))),
+                       cost=float(np.mean(cost)),
                        covariance=cov, std=std, start_costs=np.asarray(res.start_costs),
                        n_steps=np.asarray(res.n_steps), start_steps=np.asarray(res.start_steps),
                        row_converged=np.asarray(res.converged),
                        expected_improvement=np.asarray(res.expected_improvement),
                        offset=offset, reference=start,
                        start_model=_model_from_theta(theta0, spec, nkt, ts, u0, yref, dt))
+
+
+def choose_engine(ny: int, p: int, T: int, *, full_a: bool = False, solver: str = "lm",
+                  batch: str = "map", cores: int | None = None) -> str:
+    """The PEM engine `fit_polynomial(engine="auto")` runs: `"numpy"` when its work
+    $w = n_y\\,T\\,p$ ($n_y$ output rows of $p$ parameters, $T$ samples) is at most
+    `AUTO_NUMPY_MAX_WORK` or only one core is free (`cores`, default the process's CPU
+    affinity), else `"jax"`; always `"jax"` for what only the compiled engine solves (a full A,
+    `solver` other than `"lm"`, `batch="vmap"`).
+
+    The NumPy engine compiles nothing and runs on one core, its cost growing with $w$; the
+    compiled one pays its compilation once per process and shape, then runs on every core. The
+    threshold is where they cross, cold from the shell, on W1 records
+    (`benchmarks/polynomial_engine_crossover.py`).
+    """
+    if full_a or solver != "lm" or batch != "map":
+        return "jax"
+    if cores is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return "numpy" if (cores or 1) < 2 or ny * p * T <= AUTO_NUMPY_MAX_WORK else "jax"
 
 
 def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **kw):
@@ -383,7 +419,7 @@ def fit_polynomial_family(data: IOData, family: str, orders: dict, *, seed: int 
     model, info = fit_polynomial(data.y, data.u, ts=data.ts, seed=seed, n_starts=n_starts,
                                  progress=progress, **pk, **kw)
     model, check, repaired = guard_polynomial(model, info, data, family, orders)
-    extra = {"start_costs": info["start_costs"], "n_steps": info["n_steps"],
+    extra = {"engine": info["engine"], "start_costs": info["start_costs"], "n_steps": info["n_steps"],
              "offset": info["offset"], "check": check.to_dict()}
     if "row_converged" in info:     # PEM: per output row, and what its GN step would still gain
         extra["row_converged"] = [bool(c) for c in info["row_converged"]]
@@ -419,5 +455,5 @@ def guard_polynomial(model: Polynomial, info: dict, data: IOData, family: str, o
                    f"(try other orders)")
 
 
-__all__ = ["ENGINES", "POLYNOMIAL_FAMILIES", "PolySpec", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
+__all__ = ["AUTO_NUMPY_MAX_WORK", "ENGINES", "POLYNOMIAL_FAMILIES", "PolySpec", "choose_engine", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
            "n_params_per_output", "poly_args", "poly_cost", "poly_residual", "polynomial_orders"]

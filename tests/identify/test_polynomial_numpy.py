@@ -98,7 +98,7 @@ def test_fit_in_a_shared_shape_is_the_own_fit():
     true = OE(b=np.array([[[0.2, 0.1], [0.05, 0.02]]]), f=np.array([[[-0.9], [-0.8]]]))
     u = np.repeat(rng.uniform(0, 1, (T // 5, nu)), 5, axis=0)
     y = 25 + np.asarray(true.simulate(u)) + 0.02 * rng.standard_normal((T, 1))
-    kw = dict(nb=1, nf=1, nk=1, n_starts=2, max_steps=60, offset="rest")
+    kw = dict(nb=1, nf=1, nk=1, n_starts=2, max_steps=60, offset="rest", engine="jax")
     m1, i1 = fit_polynomial(y, u, **kw)
     m2, i2 = fit_polynomial(y, u, **kw, shape_orders=dict(nb=2, nf=2, nc=1))
     for name in ("b", "f", "y0"):
