@@ -162,7 +162,7 @@ def simulate_from_rest(model, u: np.ndarray) -> np.ndarray:
 ENGINE_FAMILIES = ("armax", "oe", "bj")
 
 
-def jthermo_fit(family: str, data, N: int, seed: int = 0, engine: str = "jax"):
+def jthermo_fit(family: str, data, N: int, seed: int = 0, engine: str = "auto"):
     from jthermo.identify.fit import fit
 
     eng = {"engine": engine} if family in ENGINE_FAMILIES else {}
@@ -200,7 +200,7 @@ def timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def jthermo_child(family: str, N: int, cache: str, warm: bool, engine: str = "jax") -> dict:
+def jthermo_child(family: str, N: int, cache: str, warm: bool, engine: str = "auto") -> dict:
     """One fresh process with the persistent compilation cache at `cache` (what `jthermo fit`
     uses): the first fit call (`cold_*`, compilation or cache loads included; imports and data
     excluded), then a second call on the same data (`warm_*`), then the validation fit."""
@@ -221,6 +221,8 @@ def jthermo_child(family: str, N: int, cache: str, warm: bool, engine: str = "ja
             lambda: jax.block_until_ready(jthermo_fit(family, data, N, engine=engine)))
     row["fit"] = W.fit_percent(val["y"], simulate_from_rest(res.model, val["u"]))
     row["note"] = "" if res.converged else "not converged"
+    if family in ENGINE_FAMILIES:
+        row["engine_used"] = (res.extra or {}).get("engine")
     return row
 
 
@@ -241,11 +243,12 @@ def run_child(python: str, args: list[str], timeout: float) -> dict:
 
 
 def jthermo_tool(engine: str) -> str:
-    """The tool column of a jthermo row: `jthermo` (compiled PEM), `jthermo numpy` (NumPy PEM)."""
-    return "jthermo" if engine == "jax" else f"jthermo {engine}"
+    """The tool column of a jthermo row: `jthermo` (the default, `engine="auto"`), `jthermo jax`
+    (compiled PEM), `jthermo numpy` (NumPy PEM)."""
+    return "jthermo" if engine == "auto" else f"jthermo {engine}"
 
 
-def run_jthermo(family: str, N: int, timeout: float, engine: str = "jax") -> dict:
+def run_jthermo(family: str, N: int, timeout: float, engine: str = "auto") -> dict:
     """Two fresh processes sharing one new cache directory: the first meets an empty cache
     (cold, then warm), the second the cache the first wrote (`cached_*`: a user's repeat call)."""
     import tempfile
@@ -403,10 +406,11 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
         "Peers run in their own environment (`make bench-peers`: "
         "`benchmarks/requirements-peers.txt`). Load = 1-minute load average when the row "
         "finished (2-core machine shared with other jobs). Every tool runs with one BLAS "
-        "thread (OPENBLAS_NUM_THREADS=1). `jthermo` = the compiled PEM (`engine=\"jax\"`, the "
-        "default); `jthermo numpy` = `fit(..., engine=\"numpy\")`, the same criterion, starts "
-        "and screening solved in NumPy (`jthermo/identify/pem_numpy.py`), nothing compiled, for "
-        "ARMAX/OE/BJ.",
+        "thread (OPENBLAS_NUM_THREADS=1). ARMAX/OE/BJ: `jthermo` = the default "
+        "(`engine=\"auto\"`: `polynomial.choose_engine`, the engine that ran in the note), "
+        "`jthermo jax` = the compiled PEM, `jthermo numpy` = `fit(..., engine=\"numpy\")`, the "
+        "same criterion, starts and screening solved in NumPy (`jthermo/identify/pem_numpy.py`), "
+        "nothing compiled.",
         "",
         f"Machine: {meta['machine']}; {meta['date']}; command: `{meta['command']}`",
         "",
@@ -424,7 +428,8 @@ def markdown(rows: list[dict], oracle: dict, meta: dict) -> str:
 
     for r in rows:
         ref = jt.get((r["family"], r["N"]), [])
-        note = r.get("error", r.get("note", ""))
+        note = "; ".join(n for n in (r.get("error", r.get("note", "")),
+                                     f"engine {r['engine_used']}" if r.get("engine_used") else "") if n)
         cached = cell(r, "cached") if r["tool"].startswith("jthermo") else "—"
         lines.append(f"| {r['family'].upper()} | {r['N']} | {r['tool']} | {cell(r, 'cold')} | "
                      f"{cached} | {cell(r, 'warm')} | {_fmt(r.get('fit'), 3)} | "
@@ -481,6 +486,7 @@ def shell_fit(tmp: Path, fam: str, tag: str, extra=(), pythonpath: Path | None =
     if p.returncode == 0:
         r = json.loads(js.read_text())
         row.update(orders=r["orders"], fit=r["mean_fit_percent"], converged=r["converged"],
+                   engine_used=r.get("engine"),
                    repaired=r.get("repaired"), converged_outputs=r.get("converged_outputs"))
     else:
         row["error"] = (p.stderr.strip().splitlines() or [""])[-1][:160]
@@ -488,13 +494,13 @@ def shell_fit(tmp: Path, fam: str, tag: str, extra=(), pythonpath: Path | None =
 
 
 def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
-                 engine: str = "jax") -> list[dict]:
+                 engine: str = "auto") -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
     automatic orders, in a fresh process with an empty compilation cache (JTHERMO_CACHE_DIR),
     on W1 records in absolute °C (ambient 25 °C, 6000 estimation + 3000 validation samples).
     Wall time and peak RSS from /usr/bin/time; gap = validation fit minus the true model's
     (the noise-free W1 plant simulated from rest vs measured). `engine`: `--engine` for
-    armax/oe/bj (`"jax"`: the default, no flag)."""
+    armax/oe/bj (`"auto"`: the default, no flag)."""
     import tempfile
 
     from jthermo.data import atomic_write_text
@@ -507,7 +513,7 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
             truth = W.fit_percent(val["y"], val["y_clean"])
             for fam in families:
                 print(f"[default path] N={N} {fam} ...", file=sys.stderr, flush=True)
-                extra = ["--engine", engine] if engine != "jax" and fam in ENGINE_FAMILIES else []
+                extra = ["--engine", engine] if engine != "auto" and fam in ENGINE_FAMILIES else []
                 row = {"family": fam, "N": N, **shell_fit(tmp, fam, fam, extra), "true_fit": truth,
                        "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
                        "seed": seed, "noise_std": W.NOISE_STD, "noise_pole": W.NOISE_POLE,
@@ -543,7 +549,8 @@ def default_markdown(rows: list[dict]) -> str:
         rows_ok = r.get("converged_outputs") or []
         note = "; ".join(n for n in (
             r.get("error") or r.get("repaired") or "",
-            f"engine {r['engine']}" if r.get("engine", "jax") not in ("jax", "—") else "",
+            f"engine {r['engine']}" + (f" → {r['engine_used']}" if r.get("engine_used") else "")
+            if r.get("engine", "—") != "—" else "",
             f"{sum(rows_ok)}/{len(rows_ok)} outputs converged" if not all(rows_ok) else "") if n)
         lines.append(f"| {r['family']} | {r['N']} | {o} | {_fmt(r.get('fit'))} | {_fmt(r['true_fit'])} | "
                      f"{_fmt(r.get('gap'))} | {r.get('converged', '—')} | {_fmt(r['wall_s'], 1)} | "
@@ -565,8 +572,10 @@ def main(argv=None) -> int:
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     ap.add_argument("--peer-families", nargs="+", default=list(FAMILIES), choices=FAMILIES,
                     help="families the peers are run for (SIPPY OE/BJ are slow)")
-    ap.add_argument("--engines", nargs="+", default=["jax"], choices=("jax", "numpy"),
-                    help="jthermo PEM engines timed for armax/oe/bj (fit_polynomial(engine=...))")
+    ap.add_argument("--engines", nargs="+", default=["auto"], choices=("auto", "jax", "numpy"),
+                    help="jthermo PEM engines timed for armax/oe/bj (fit_polynomial(engine=...); "
+                    "auto: the default)")
+    ap.add_argument("--tag", default="", help="--default-path: appended to the results files' names")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
     ap.add_argument("--estimate-level", action="store_true",
@@ -589,7 +598,7 @@ def main(argv=None) -> int:
         if kind == "jthermo":
             REST_LEVEL = 0.0 if rest[3] == "zero" else None
             row = jthermo_child(rest[0], int(rest[1]), rest[2], warm=rest[4] == "warm",
-                                engine=rest[5] if len(rest) > 5 else "jax")
+                                engine=rest[5] if len(rest) > 5 else "auto")
         else:
             row = peer_child(rest[0], rest[1], int(rest[2]))
         print(json.dumps(row), flush=True)
@@ -601,7 +610,7 @@ def main(argv=None) -> int:
                           ("noise", args.noise_std), ("pole", args.noise_pole)) if v is not None)
         for N in args.n or [4]:
             for engine in args.engines:
-                tag = ("" if engine == "jax" else f"_{engine}") + variant
+                tag = ("" if engine == "auto" else f"_{engine}") + variant + args.tag
                 default_path(W, [N], fams, seed=args.seed, engine=engine,
                              out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}{tag}.md")
         return 0

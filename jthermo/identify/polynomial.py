@@ -43,12 +43,15 @@ POLYNOMIAL_FAMILIES = ("arx", "armax", "oe", "bj")
 #: NumPy (`pem_numpy`)
 ENGINES = ("auto", "jax", "numpy")
 #: `choose_engine`: the largest work $w = n_y T p$ (output rows x samples x parameters per row)
-#: the NumPy engine takes when two or more cores are free for the compiled one. Measured
-#: (`benchmarks/polynomial_engine_crossover.py`, `benchmarks/results/polynomial_engine_crossover_s26.md`):
-#: NumPy faster cold at every W1 default-path row up to N = 9 (w <= 1.2e6) and ARMAX at N = 16
-#: (1.8e6); OE / BJ at N = 16 (3.1e6 / 3.4e6) were a draw on two idle cores, so they keep the
-#: compiled engine
+#: the NumPy engine takes when two or more cores are free for the compiled one, for rows without
+#: a noise model (OE) and with one (ARMAX, BJ: `nc + nd > 0`, whose compiled Jacobian costs
+#: more). Measured cold in fresh processes on W1 (`benchmarks/polynomial_engine_crossover.py`,
+#: `benchmarks/results/polynomial_engine_crossover_s26.md`): NumPy used less CPU at every row
+#: up to N = 16; on two idle cores OE at N = 16 (w = 3.1e6) was a draw in wall time (the compiled
+#: engine runs on both cores), so OE keeps the compiled engine above 2.5e6; BJ at N = 16
+#: (3.4e6) took 16.5 CPU s with NumPy against 29.3 compiled. Beyond the measured sizes: compiled
 AUTO_NUMPY_MAX_WORK = 2_500_000
+AUTO_NUMPY_MAX_WORK_NOISE = 3_500_000
 
 
 class PolySpec(NamedTuple):
@@ -201,8 +204,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     if engine == "auto":
         n_row = (ny if full_a and ny > 1 else 1) * na + nu * nb + nc + nd + \
             (1 if common_f else nu) * nf
-        engine = choose_engine(ny, n_row, y.shape[0], full_a=full_a and ny > 1 and nf == 0,
-                               solver=solver, batch=batch)
+        engine = choose_engine(ny, n_row, y.shape[0], noise_model=bool(nc or nd),
+                               full_a=full_a and ny > 1 and nf == 0, solver=solver, batch=batch)
     if full_a and ny > 1 and (nd or nf):
         raise ModelError("fit: a full A matrix polynomial needs nd = nf = 0")
     n_den = na if (nf == 0) else nf
@@ -279,24 +282,26 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
                        start_model=_model_from_theta(theta0, spec, nkt, ts, u0, yref, dt))
 
 
-def choose_engine(ny: int, p: int, T: int, *, full_a: bool = False, solver: str = "lm",
-                  batch: str = "map", cores: int | None = None) -> str:
+def choose_engine(ny: int, p: int, T: int, *, noise_model: bool = False, full_a: bool = False,
+                  solver: str = "lm", batch: str = "map", cores: int | None = None) -> str:
     """The PEM engine `fit_polynomial(engine="auto")` runs: `"numpy"` when its work
     $w = n_y\\,T\\,p$ ($n_y$ output rows of $p$ parameters, $T$ samples) is at most
-    `AUTO_NUMPY_MAX_WORK` or only one core is free (`cores`, default the process's CPU
-    affinity), else `"jax"`; always `"jax"` for what only the compiled engine solves (a full A,
-    `solver` other than `"lm"`, `batch="vmap"`).
+    `AUTO_NUMPY_MAX_WORK` (`AUTO_NUMPY_MAX_WORK_NOISE` for rows with a noise model, `nc` or
+    `nd`), or when only one core is free (`cores`, default the process's CPU affinity), else
+    `"jax"`; always `"jax"` for what only the compiled engine solves (a full A, `solver` other
+    than `"lm"`, `batch="vmap"`).
 
     The NumPy engine compiles nothing and runs on one core, its cost growing with $w$; the
     compiled one pays its compilation once per process and shape, then runs on every core. The
-    threshold is where they cross, cold from the shell, on W1 records
+    thresholds are where they were measured to cross, cold in fresh processes on W1 records
     (`benchmarks/polynomial_engine_crossover.py`).
     """
     if full_a or solver != "lm" or batch != "map":
         return "jax"
     if cores is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return "numpy" if (cores or 1) < 2 or ny * p * T <= AUTO_NUMPY_MAX_WORK else "jax"
+    limit = AUTO_NUMPY_MAX_WORK_NOISE if noise_model else AUTO_NUMPY_MAX_WORK
+    return "numpy" if (cores or 1) < 2 or ny * p * T <= limit else "jax"
 
 
 def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **kw):
@@ -455,5 +460,5 @@ def guard_polynomial(model: Polynomial, info: dict, data: IOData, family: str, o
                    f"(try other orders)")
 
 
-__all__ = ["AUTO_NUMPY_MAX_WORK", "ENGINES", "POLYNOMIAL_FAMILIES", "PolySpec", "choose_engine", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
+__all__ = ["AUTO_NUMPY_MAX_WORK", "AUTO_NUMPY_MAX_WORK_NOISE", "ENGINES", "POLYNOMIAL_FAMILIES", "PolySpec", "choose_engine", "fit_polynomial", "fit_polynomial_family", "guard_polynomial",
            "n_params_per_output", "poly_args", "poly_cost", "poly_residual", "polynomial_orders"]

@@ -32,6 +32,10 @@ def test_rule():
     assert P.choose_engine(1, 1, w + 1, cores=2) == "jax"
     assert P.choose_engine(16, 33, 6000, cores=1) == ("numpy")    # one core: nothing to gain
     assert P.choose_engine(16, 33, 6000, cores=16) == ("jax" if 16 * 33 * 6000 > w else "numpy")
+    wn = P.AUTO_NUMPY_MAX_WORK_NOISE                               # ARMAX / BJ rows
+    assert wn >= w
+    assert P.choose_engine(1, 1, wn, noise_model=True, cores=2) == "numpy"
+    assert P.choose_engine(1, 1, wn + 1, noise_model=True, cores=2) == "jax"
     for kw in (dict(full_a=True), dict(solver="gn"), dict(batch="vmap")):   # compiled only
         assert P.choose_engine(1, 1, 100, cores=1, **kw) == "jax"
 
