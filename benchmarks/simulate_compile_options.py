@@ -9,6 +9,8 @@ of the three), and the mse. A program compiled once per cache but run on every c
 run time on each warm call and its compile time once.
 
     python benchmarks/simulate_compile_options.py [--zones 16 --rollouts 256 --duration 3600]
+    python benchmarks/simulate_compile_options.py --only "older CPU fusion emitters" \
+        "older emitters, LLVM -O1" --repeats 3 --tag _s26
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from simulate_common import load
 
 HERE = Path(__file__).resolve().parent
 
-OPTIONS = {"default": {}, "older CPU fusion emitters": {"xla_cpu_use_fusion_emitters": False}}
+OPTIONS = {"default": {}, "older CPU fusion emitters": {"xla_cpu_use_fusion_emitters": False},
+           "older emitters, LLVM -O1": {"xla_cpu_use_fusion_emitters": False,
+                                        "xla_backend_optimization_level": 1}}
 
 CHILD = r"""
 import json, sys, time
@@ -67,13 +71,17 @@ def main() -> None:
     ap.add_argument("--rollouts", type=int, default=256)
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--only", nargs="+", choices=list(OPTIONS), default=list(OPTIONS),
+                    help="option sets to run (default all)")
+    ap.add_argument("--tag", default="", help="suffix of the results file name")
     args = ap.parse_args()
     import numpy as np
 
     env = dict(os.environ, JTHERMO_NO_CACHE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     load0 = load()
     rows = {}
-    for name, opts in OPTIONS.items():
+    for name in args.only:
+        opts = OPTIONS[name]
         runs = []
         for _ in range(args.repeats):
             out = subprocess.run([sys.executable, "-c", CHILD, str(args.zones), str(args.rollouts),
@@ -82,10 +90,13 @@ def main() -> None:
             runs.append(json.loads(out.strip().splitlines()[-1]))
             print(name, runs[-1], flush=True)
         rows[name] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-    lines = [f"# Compile options of the run program: N = {args.zones}, B = {args.rollouts}, "
-             f"T = {args.duration:g} s", "",
+    lines = [(f"# Compile options of the run program: N = {args.zones}, B = {args.rollouts}, "
+              f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_compile_options.py --zones {args.zones} --rollouts "
-              f"{args.rollouts} --duration {args.duration:g} --repeats {args.repeats}`: a fresh "
+              f"{args.rollouts} --duration {args.duration:g} --repeats {args.repeats}"
+              + ("" if args.only == list(OPTIONS) else " --only " + " ".join(
+                  f'"{n}"' for n in args.only)) + (f" --tag {args.tag}" if args.tag else "")
+              + "`: a fresh "
               "process per repeat, no compilation cache; medians over the repeats (one execution: "
               "the median of three). 1-minute load "
               f"{load0} at the start, {load()} at the end (2 shared cores: wall s follow the "
@@ -97,7 +108,7 @@ def main() -> None:
                      f"{r['run_cpu']:.2f} | {r['run_wall']:.2f} | {r['mse']!r} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    (HERE / "results" / "simulate_compile_options.md").write_text(text)
+    (HERE / "results" / f"simulate_compile_options{args.tag}.md").write_text(text)
 
 
 if __name__ == "__main__":

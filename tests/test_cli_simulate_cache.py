@@ -41,9 +41,11 @@ def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
     files = _exports(cache)
     # the printer's design model and the run program
     assert len(files) == 2, sorted(files)
+    compiled = set(cache.glob("*-cache"))
     second = _simulate(tmp_path, cache)
     assert second["metrics"] == first["metrics"]
     assert _exports(cache) == files, "a warm run rewrote its exported programs"
+    assert set(cache.glob("*-cache")) == compiled, "a warm run compiled what the first had"
     for name in files:
         (cache / runtime.EXPORT_SUBDIR / name).write_bytes(b"corrupt" * 100)
     third = _simulate(tmp_path, cache)

@@ -21,7 +21,7 @@ from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
-from ..runtime import exported_call, quick_compile
+from ..runtime import exported_call, simulate_compile
 from .checks import check_loop
 from .scenarios import (
     REALISTIC_EFFECTS,
@@ -362,7 +362,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
         # traced once per cache: later processes load the exported program (`runtime`)
         out = exported_call(_scenario_metrics_fn, (kind, plant, ctrl, duration, key,
                                                    int(rollouts)),
-                            _quick_scenario_metrics(), compiler_options=quick_compile())
+                            _quick_scenario_metrics(), compiler_options=simulate_compile())
     else:
         sc = make_scenario(kind, plant, duration, key, n_rollouts=int(rollouts),
                            **dict(scenario_kw or {}))
@@ -428,9 +428,10 @@ _scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
 
 @functools.cache
 def _quick_scenario_metrics():
-    """`_scenario_metrics` compiled with `runtime.quick_compile()` options, as `run` calls it:
-    compiled once per cache and run once per command (the same figures bit for bit)."""
-    return eqx.filter_jit(_scenario_metrics_fn, compiler_options=quick_compile())
+    """`_scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
+    it where its exported program cannot serve: compiled once per cache and run once per
+    command (the same figures to 1e-16 relative)."""
+    return eqx.filter_jit(_scenario_metrics_fn, compiler_options=simulate_compile())
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):
