@@ -51,3 +51,18 @@ def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
     third = _simulate(tmp_path, cache)
     assert third["metrics"] == first["metrics"]
     assert _exports(cache) == files, "corrupt files were not replaced by the same programs"
+
+
+def test_the_command_process_flushes_its_output_and_keeps_its_exit_status():
+    """`python -m jthermo.cli` ends with `common.exit_now` (no interpreter teardown): what it
+    printed still arrives through a pipe, and the status is main's."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    ok = subprocess.run([sys.executable, "-m", "jthermo.cli", "--version"], check=False,
+                        capture_output=True, text=True, timeout=120, env=env)
+    assert ok.returncode == 0 and ok.stdout.startswith("jthermo "), ok
+    bad = subprocess.run([sys.executable, "-m", "jthermo.cli", "simulate", "--scenario",
+                          "tracking", "--zones", "x"], check=False, capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == [
+        "jthermo: error: jthermo simulate: argument --zones: expected a positive integer, got 'x'"]

@@ -36,7 +36,7 @@ import warnings
 
 from ..errors import JThermoError
 from . import batch, control, diagnose, export, identify
-from .common import Parser, UsageError
+from .common import Parser, UsageError, exit_now
 
 EXIT_OK = 0
 EXIT_ERROR = 2
@@ -149,4 +149,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:  # pragma: no cover - console script wrapper
-    sys.exit(main())
+    exit_now(main())   # no interpreter teardown (`common.exit_now`)

@@ -1,7 +1,6 @@
 """`python -m jthermo.cli`: the `jthermo` command."""
 
-import sys
-
 from . import main
+from .common import exit_now
 
-sys.exit(main())
+exit_now(main())
