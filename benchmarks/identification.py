@@ -639,7 +639,7 @@ def main(argv=None) -> int:
         _, val = W.estimation_validation(N, T, 0)
         oracle[N] = W.fit_percent(val["y"], val["y_clean"])
         for fam in args.families:
-            for engine in args.engines if fam in ENGINE_FAMILIES else ["jax"]:
+            for engine in args.engines if fam in ENGINE_FAMILIES else ["auto"]:
                 print(f"[W1] N={N} {fam}: {jthermo_tool(engine)} ...", file=sys.stderr, flush=True)
                 rows.append(run_jthermo(fam, N, args.peer_timeout, engine))
                 save()

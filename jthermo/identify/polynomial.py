@@ -47,9 +47,11 @@ ENGINES = ("auto", "jax", "numpy")
 #: a noise model (OE) and with one (ARMAX, BJ: `nc + nd > 0`, whose compiled Jacobian costs
 #: more). Measured cold in fresh processes on W1 (`benchmarks/polynomial_engine_crossover.py`,
 #: `benchmarks/results/polynomial_engine_crossover_s26.md`): NumPy used less CPU at every row
-#: up to N = 16; on two idle cores OE at N = 16 (w = 3.1e6) was a draw in wall time (the compiled
-#: engine runs on both cores), so OE keeps the compiled engine above 2.5e6; BJ at N = 16
-#: (3.4e6) took 16.5 CPU s with NumPy against 29.3 compiled. Beyond the measured sizes: compiled
+#: up to N = 16 and ARMAX at N = 16 (w = 1.8e6) 7.5 against 13.2 CPU s; OE at N = 16 (3.1e6)
+#: 12.5 against 19.6 CPU s, but the compiled engine runs on both cores, and on two idle cores it
+#: was the faster in wall time there (14.0 against 18.2 s, before the NumPy Jacobian's 25 %
+#: speed-up: `identification_default_n16_armax_oe_bj{,_numpy}.md`), so OE keeps it above
+#: 2.5e6; BJ at N = 16 (3.4e6) took 16.5 CPU s with NumPy against 29.3. Beyond: compiled
 AUTO_NUMPY_MAX_WORK = 2_500_000
 AUTO_NUMPY_MAX_WORK_NOISE = 3_500_000
 
