@@ -1,4 +1,4 @@
-"""The diagnosis fits: mechanism-library models of every zone and record, vmapped over problems.
+"""The diagnosis fits: mechanism-library models of every zone and record, one problem after another.
 
 `jthermo.identify.pem.minimize` compiles one solve per model structure; diagnosis fits eight
 structures (and combinations) for every zone at once. Here a structure is a 0/1 mask over one
@@ -6,13 +6,22 @@ flat parameter vector plus the mechanism switches, so all candidates and zones s
 compiled solve of the masked Levenberg–Marquardt `jthermo.identify.lm.masked_lm`. The cost is
 the simulation error (output error).
 
+The problems of one call run one after another (`jax.lax.map`), not in lockstep (`jax.vmap`),
+so that each does only its own work: it forms its Jacobian (nearly all of an iteration's time)
+only where its parameters moved (a rejected step reuses it), stops once its cost fell by less
+than `RTOL` of itself over `identify.lm.STALL` iterations, and a joint model that repeats an
+earlier one (the callers pad to fixed slot counts, one compiled shape) is copied, not refitted.
+Under `vmap` every problem ran the whole `n_iter` Jacobians. Costs equal the vmapped fixed-
+iteration solve's to about `RTOL` (`benchmarks/diagnose_latency_s26.py`).
+
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
 (validation) and 0.89 instead of 1.69 CPU s, run in the same time and give the same fits to
-5e-13 (`python benchmarks/diagnose_compile_options.py`, load 6-8). The per-zone fits
-(`fit_zones`) keep XLA's default options: with the older emitters they compiled in 5.88 instead
-of 7.36 CPU s but ran in 6.65 instead of 5.53, and they run on every call.
+5e-13 (`python benchmarks/diagnose_compile_options.py`, load 6-8, measured on the vmapped
+solve). The per-zone fits (`fit_zones`) keep XLA's default options: with the older emitters
+they compiled in 5.88 instead of 7.36 CPU s but ran in 6.65 instead of 5.53, and they run on
+every call.
 """
 
 from __future__ import annotations
@@ -21,10 +30,16 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
 from .mechanisms import simulate_full, simulate_zone
+
+#: every fit stops once its cost fell by less than this share of itself over the last
+#: `identify.lm.STALL` iterations (at most `n_iter`); such a fit has converged to about this
+#: share of its cost (see the module docstring)
+RTOL = 1e-10
 
 
 @functools.cache
@@ -39,11 +54,12 @@ def _zone_residual(theta, on, z, lay):
 
 
 def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
-    def one(t, m, o, p):
+    def one(a):
+        t, m, o, p = a
         z = {**shared, **p}
-        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active)
+        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active, rtol=RTOL)
 
-    return jax.vmap(one)(theta0, mask, on, per)
+    return jax.lax.map(one, (theta0, mask, on, per))
 
 
 def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
@@ -63,9 +79,10 @@ def sim_zones(theta, on, per, shared, lay):
     return _compiled(_sim_zones, ("lay",))(theta, on, per, shared, lay)
 
 
-def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_active):
+def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_iter, n_active):
     """Masked LM on one coupled model's vector $[\\mathrm{vec}\\,\\Theta;\\ r]$ (zone parameters,
-    record parameters): residual $w_k (y_k - \\hat y_k(\\Theta, r))$, $w$ the per-sample weight."""
+    record parameters): residual $w_k (y_k - \\hat y_k(\\Theta, r))$, $w$ the per-sample weight;
+    `budget` iterations (a traced integer, at most `n_iter`)."""
     f = {**f_shared, **fp}
     nP = Theta.size
     split = lambda v: (v[:nP].reshape(Theta.shape), v[nP:])
@@ -74,14 +91,35 @@ def _fit_coupled(Theta, on, rec0, mask, y, weight, fp, f_shared, lay, n_iter, n_
         Th, r = split(v)
         return (weight[:, None] * (y - simulate_full(Th, on, f, lay, r))).reshape(-1)
 
-    v, c, _ = masked_lm(res, jnp.concatenate([Theta.reshape(-1), rec0]), mask, n_iter, n_active)
+    v, c, _ = masked_lm(res, jnp.concatenate([Theta.reshape(-1), rec0]), mask, n_iter, n_active,
+                        rtol=RTOL, budget=budget)
     Th, r = split(v)
     return Th, r, simulate_full(Th, on, f, lay, r), c
 
 
-def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
-    return jax.vmap(lambda *a: _fit_coupled(*a[:4], y, weight, a[4], f_shared, lay, n_iter, n_active))(
-        Theta0, on, rec0, mask, f_per)
+def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None, budget=None,
+               src=None):
+    """`fit_joint`'s compiled program: the models one after another (`lax.map`), each with its
+    own `budget[j]` iterations, then model j's result taken from model `src[j]`."""
+    M = Theta0.shape[0]
+    budget = jnp.full(M, n_iter, jnp.int32) if budget is None else budget
+    out = jax.lax.map(lambda a: _fit_coupled(*a[:5], y, weight, a[5], f_shared, lay, n_iter, n_active),
+                      (Theta0, on, rec0, mask, budget, f_per))
+    return out if src is None else jax.tree_util.tree_map(lambda x: x[src], out)
+
+
+def _first_copies(*trees) -> np.ndarray:
+    """For each j of the leading axis shared by every array in `trees`, the first index whose
+    entries equal j's in every array (j itself where none before it does): `(M,)`. Traced
+    arrays cannot be compared: then `arange(M)`."""
+    leaves = jax.tree_util.tree_leaves(trees)
+    M = leaves[0].shape[0]
+    if any(isinstance(x, jax.core.Tracer) for x in leaves):
+        return np.arange(M)
+    arrs = [np.asarray(x) for x in leaves]
+    first: dict = {}
+    return np.array([first.setdefault(b"".join(np.ascontiguousarray(a[j]).tobytes() for a in arrs), j)
+                     for j in range(M)])
 
 
 def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
@@ -90,9 +128,16 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     surroundings level offset; see `simulate_full`), `mask (M, n P + R)` 1 where free, `on (M, 8)`,
     `y (T, n)`, `weight (T,)` per-sample weights (0 for padding), `f_per` per-model entries of the
     simulation's dict. Returns
-    (Θ (M, n, P), rec (M, R), yhat (M, T, n), cost (M,))."""
+    (Θ (M, n, P), rec (M, R), yhat (M, T, n), cost (M,)).
+
+    The models are fitted one after another (`lax.map`, not `vmap`), so that each forms its
+    Jacobian only where its parameters moved (`masked_lm(..., budget=...)`: a rejected step
+    reuses it) and a model that repeats an earlier one (padding to a fixed number of slots)
+    is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
+    src = _first_copies(Theta0, on, rec0, mask, f_per)
+    budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
     return _compiled(_fit_joint, ("lay", "n_iter", "n_active"))(Theta0, on, rec0, mask, y, weight, f_per,
-                                                                 f_shared, lay, n_iter, n_active)
+                                                                 f_shared, lay, n_iter, n_active, budget, src)
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):

@@ -3,9 +3,9 @@
 `jthermo.identify.pem.minimize` (optimistix) compiles one solve per problem structure. Here a
 structure is a 0/1 mask over one flat parameter vector, so problems with different sets of free
 parameters (model candidates, zones, records) share one compiled solve and can be batched with
-`jax.vmap`: masked parameters get a zero step. The iteration count is fixed (a `lax.scan`), and
-each iteration tries three damping values in parallel and keeps the best (Marquardt 1963;
-Ljung 1999, §10.2). Used by the mismatch diagnosis (`jthermo.diagnose.fitting`).
+`jax.vmap` (or `jax.lax.map`): masked parameters get a zero step. Each iteration tries three
+damping values in parallel and keeps the best (Marquardt 1963; Ljung 1999, §10.2). Used by the
+mismatch diagnosis (`jthermo.diagnose.fitting`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 STALL = 3
 
 
-def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None):
+def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=None):
     """Minimise $V(\\theta) = \\frac1m \\|r(\\theta)\\|^2$ over the parameters that `mask` frees.
 
     **Arguments:**
@@ -25,14 +25,22 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None):
     - `theta0`: `(P,)` start point; masked entries (`mask == 0`) keep their value.
     - `mask`: `(P,)` 1 for a free parameter, 0 for a fixed one (a traced array: problems with
       different masks share one compiled solve, e.g. under `jax.vmap`).
-    - `n_iter`: number of iterations (static; no early exit, so the loop is a `lax.scan`).
+    - `n_iter`: number of iterations (static; with neither `rtol` nor `budget`: no early exit,
+      the loop is a `lax.scan`).
     - `n_active`: static upper bound on the number of free parameters (default P). Only the
       first `n_active` free parameters get a Jacobian column (one forward-mode tangent each):
       a problem that frees 20 of 40 parameters pays for 20.
     - `rtol`: optional early stop (static): the iterations end once the cost has fallen by less
-      than `rtol` of itself over the last `STALL` iterations (or $\\lambda$ reached its bound),
-      at most `n_iter` (a `lax.while_loop`; under `jax.vmap` it runs until every problem has
-      stopped, stopped problems keep their values). None: exactly `n_iter` iterations.
+      than `rtol` of itself over the last `STALL` iterations (or $\\lambda$ reached its bound).
+    - `budget`: optional iteration count of this problem (a traced integer, at most `n_iter`;
+      0 returns the start).
+
+    With `rtol` or `budget` the loop is a `lax.while_loop` that forms the Jacobian only where
+    $\\theta$ moved: after a rejected step the next iteration reuses $r$ and $J$ (the same
+    values it would recompute), so the iterates are those of the fixed loop and a rejection
+    costs the three damping trials alone. Under `jax.vmap` a batched loop runs until every
+    problem has stopped (stopped problems keep their values) and both branches of the reuse
+    are computed; under `jax.lax.map` each problem stops and reuses on its own.
 
     Each iteration linearises $r$, forms $J^\\top J$ and $J^\\top r$ over the free parameters
     (non-finite Jacobian entries count as 0; the rows and columns of fixed parameters are
@@ -59,11 +67,14 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None):
         c = jnp.mean(r ** 2)
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
-    def body(carry, _):
-        th, c_now, lam = carry
+    def linear(th):
+        """$r(\\theta)$ and its Jacobian `(m, na)` over the free parameters."""
         r, jvp = jax.linearize(residual, th)
-        J = jax.vmap(jvp, out_axes=1)(tangents)                  # (m, na)
-        J = jnp.where(jnp.isfinite(J), J, 0.0)
+        J = jax.vmap(jvp, out_axes=1)(tangents)
+        return r, jnp.where(jnp.isfinite(J), J, 0.0)
+
+    def update(th, c_now, lam, r, J):
+        """One damping round from $(r, J)$ at `th`: the new (θ, cost, λ) and whether it moved."""
         H = J.T @ J
         gvec = J.T @ r
         d = jnp.diagonal(H)
@@ -83,28 +94,39 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None):
         better = cs[k] < c_now
         th = jnp.where(better, tns[k], th)
         lam = jnp.where(better, jnp.clip(lams[k] * 0.5, 1e-9, 1e9), jnp.clip(lam * 30.0, 1e-9, 1e9))
-        c_now = jnp.where(better, cs[k], c_now)
-        return (th, c_now, lam), c_now
+        return th, jnp.where(better, cs[k], c_now), lam, better
 
     c0 = cost(theta0)
     lam0 = jnp.asarray(1e-2, dt)
-    if rtol is None:
+    if rtol is None and budget is None:
+        def body(carry, _):
+            th, c_now, lam = carry
+            th, c_now, lam, _ = update(th, c_now, lam, *linear(th))
+            return (th, c_now, lam), c_now
+
         (th, c, _), hist = jax.lax.scan(body, (theta0, c0, lam0), None, length=n_iter)
         return th, c, hist
 
+    stop = n_iter if budget is None else jnp.minimum(jnp.asarray(budget, jnp.int32), n_iter)
+
     def more(carry):
-        _, c, lam, k, hist = carry
-        back = hist[jnp.maximum(k - 1 - STALL, 0)]         # the cost STALL iterations ago
+        _, c, lam, k, hist, _, _, _ = carry
+        if rtol is None:
+            return k < stop
+        back = hist[jnp.maximum(k - 1 - STALL, 0)]             # the cost STALL iterations ago
         stalled = (k > STALL) & (back - c <= rtol * jnp.abs(back))
-        return (k < n_iter) & ~stalled & (lam < 1e9)
+        return (k < stop) & ~stalled & (lam < 1e9)
 
     def step(carry):
-        th, c, lam, k, hist = carry
-        (th, c, lam), _ = body((th, c, lam), None)
-        return th, c, lam, k + 1, hist.at[k].set(c)
+        th, c, lam, k, hist, r, J, moved = carry
+        r, J = jax.lax.cond(moved, linear, lambda _: (r, J), th)
+        th, c, lam, moved = update(th, c, lam, r, J)
+        return th, c, lam, k + 1, hist.at[k].set(c), r, J, moved
 
-    th, c, _, k, hist = jax.lax.while_loop(
-        more, step, (theta0, c0, lam0, jnp.asarray(0, jnp.int32), jnp.full(n_iter, c0, dt)))
+    r0 = jax.eval_shape(residual, theta0)
+    carry = (theta0, c0, lam0, jnp.asarray(0, jnp.int32), jnp.full(n_iter, c0, dt),
+             jnp.zeros(r0.shape, r0.dtype), jnp.zeros(r0.shape + (na,), r0.dtype), jnp.asarray(True))
+    th, c, _, k, hist, _, _, _ = jax.lax.while_loop(more, step, carry)
     return th, c, jnp.where(jnp.arange(n_iter) < k, hist, c)
 
 
