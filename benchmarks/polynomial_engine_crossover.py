@@ -69,11 +69,13 @@ def child(family: str, folder: Path, engine: str) -> dict:
     return row
 
 
-def run(family: str, folder: Path, engine: str, tag: str) -> dict:
-    """`child` under /usr/bin/time in a fresh process with an empty cache folder."""
+def run(family: str, folder: Path, engine: str, tag: str, cores: int | None = None) -> dict:
+    """`child` under /usr/bin/time in a fresh process with an empty cache folder; `cores`: the
+    process pinned to the first `cores` CPUs (`taskset`), as on a machine with that many."""
     tm = folder / f"{tag}.time"
     env = {**os.environ, "JTHERMO_CACHE_DIR": str(folder / f"cache_{tag}")}
-    cmd = ["/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), sys.executable, __file__,
+    pin = ["taskset", "-c", f"0-{cores - 1}"] if cores else []
+    cmd = [*pin, "/usr/bin/time", "-f", "%e %M %U %S", "-o", str(tm), sys.executable, __file__,
            "--child", family, str(folder), engine]
     load0 = os.getloadavg()[0]
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=ROOT, check=False)
@@ -108,16 +110,16 @@ def markdown(rows: list[dict], command: str) -> str:
              "process by /usr/bin/time (imports, CSV load, both fits, validation). p = "
              "parameters per output row; w = N·T·p (the NumPy engine's work per LM step, "
              "up to a constant). gap = validation fit − the true model's.", "",
-             "| family | N | T | engine | orders | p | w = N·T·p | cold s (CPU) | warm s (CPU) "
+             "| family | N | T | cores | engine | orders | p | w = N·T·p | cold s (CPU) | warm s (CPU) "
              "| process s (CPU) | peak MB | fit % | gap | load | note |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())
         w = r["N"] * r["T"] * r["p"] if "p" in r else None
         eng = r["engine"] + (f" → {r['engine_used']}" if r.get("engine_used") not in
                              (None, r["engine"]) else "")
         lines.append(
-            f"| {r['family']} | {r['N']} | {r['T']} | {eng} | {o} | {r.get('p', '—')} | "
+            f"| {r['family']} | {r['N']} | {r['T']} | {r.get('cores') or os.cpu_count()} | {eng} | {o} | {r.get('p', '—')} | "
             f"{f(w, 0) if w else '—'} | {f(r.get('cold_s'), 2)} ({f(r.get('cold_cpu'), 2)}) | "
             f"{f(r.get('warm_s'), 2)} ({f(r.get('warm_cpu'), 2)}) | "
             f"{f(r['process_wall_s'], 1)} ({f(r['process_cpu_s'], 1)}) | "
@@ -136,6 +138,8 @@ def main(argv=None) -> int:
                     choices=("jax", "numpy", "auto"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--tag", default="")
+    ap.add_argument("--cores", type=int, default=None,
+                    help="pin each fit process to this many CPUs (taskset; default: all)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -156,7 +160,7 @@ def main(argv=None) -> int:
                     for eng in args.engines:
                         print(f"[crossover] N={N} T={T} {fam} {eng}", file=sys.stderr, flush=True)
                         r = {"family": fam, "N": N, "T": T, "engine": eng, "seed": args.seed,
-                             **run(fam, tmp, eng, f"{fam}_{eng}")}
+                             "cores": args.cores, **run(fam, tmp, eng, f"{fam}_{eng}", args.cores)}
                         if "fit" in r:
                             r["gap"] = r["fit"] - truth
                         rows.append(r)
