@@ -235,6 +235,58 @@ def unroll_threefry() -> bool:
     return True
 
 
+# ---------------------------------------------------------------- the CPU backend's threads
+
+
+#: the most schedulable CPUs for which `one_thread_backend` acts (measured on 2 cores only)
+ONE_THREAD_MAX_CPUS = 2
+
+
+def one_thread_backend() -> bool:
+    """Create JAX's CPU backend with one intra-op thread: XLA sizes its thread pool by the
+    CPUs the process may use, so the calling thread is pinned to one CPU while the backend is
+    made, then every thread of the process is given all its CPUs back. `jthermo simulate`'s
+    programs are loops of small operations (B x n = 256 x 33) that a second thread only
+    slows: on 2 shared cores the run program executes in 1.01 instead of 1.23 CPU s (1.47
+    instead of 1.81 s wall at load 5) and its first call (trace, compile, run) takes 3.80
+    instead of 4.24 CPU s, the same figures bit for bit (`python
+    benchmarks/simulate_threads.py`, benchmarks/results/simulate_threads.md).
+
+    Returns False, changing nothing, where the backend exists already, the platform cannot
+    set CPU affinities, or the process may use more than `ONE_THREAD_MAX_CPUS` CPUs."""
+    import jax
+
+    try:
+        from jax._src import xla_bridge
+
+        if xla_bridge.backends_are_initialized():
+            return False
+        cpus = os.sched_getaffinity(0)
+    except (ImportError, AttributeError, OSError):
+        return False
+    if not 1 < len(cpus) <= ONE_THREAD_MAX_CPUS:
+        return False
+    try:
+        os.sched_setaffinity(0, {min(cpus)})
+        jax.devices()
+    finally:
+        _unpin(cpus)
+    return True
+
+
+def _unpin(cpus) -> None:
+    """Every thread of this process may run on `cpus` again."""
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:   # a thread that ended meanwhile
+            pass
+
+
 # ---------------------------------------------------------------- compile-time accounting
 
 

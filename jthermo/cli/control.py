@@ -219,7 +219,9 @@ def _printer_model(printer):
 
 def cmd_simulate(args: argparse.Namespace) -> dict:
     from .. import io
+    from ..runtime import one_thread_backend
 
+    one_thread_backend()   # small ops in a long loop: one intra-op thread (2-core machines)
     if (args.controller is None) == (args.controller_file is None):
         raise ConfigError("simulate: give exactly one of --controller C or --controller-file CTRL")
     js = output_path(args.json, "--json")
