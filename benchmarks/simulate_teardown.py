@@ -21,7 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from simulate_common import load
+from simulate_common import finish, load
 
 HERE = Path(__file__).resolve().parent
 ARGV = ["simulate", "--scenario", "tracking", "--controller", "pi", "--zones", "16",
@@ -55,6 +55,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_teardown.md"))
     args = ap.parse_args()
+    load0 = load()
     rows = []
     with tempfile.TemporaryDirectory(prefix="jthermo-teardown-") as tmp:
         env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
@@ -81,10 +82,7 @@ def main() -> None:
         med = statistics.median(r["teardown_cpu"] for r in rows if r["mode"] == mode)
         tot = statistics.median(r["cpu_total"] for r in rows if r["mode"] == mode)
         lines.append(f"\nMedian {mode}: teardown {med:.3f} CPU s, process {tot:.2f} CPU s.")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out != "-":
-        Path(args.out).write_text(text)
+    finish(lines, load0, args.out)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from simulate_common import load
+from simulate_common import finish, load
 
 HERE = Path(__file__).resolve().parent
 
@@ -57,6 +57,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_threads.md"))
     args = ap.parse_args()
+    load0 = load()
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     env.update(JTHERMO_NO_CACHE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     rows = []
@@ -89,10 +90,7 @@ def main() -> None:
         lines.append(f"- {mode}: first call {med('first_wall'):.2f} s wall / "
                      f"{med('first_cpu'):.2f} CPU s, run {med('run_wall'):.2f} s wall / "
                      f"{med('run_cpu'):.2f} CPU s")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out != "-":
-        Path(args.out).write_text(text)
+    finish(lines, load0, args.out)
 
 
 if __name__ == "__main__":
