@@ -11,8 +11,11 @@ seed, jthermo's estimator with the criterion changed in three principled ways:
 - `rest` (the default): zero initial conditions, every sample;
 - `drop 20` / `drop 100`: the first 20 / 100 residuals left out of the criterion (the
   initial transient cannot bias the estimate, whatever the true initial state);
-- `pinned y0` (OE only): SIPPY's handling, $\\hat y_k = \\hat y^{zs}_k + y_0 (-f)^k$ (the
-  zero-state simulation plus the free response from the measured first sample).
+- `pinned y0`: SIPPY's handling. OE: $\\hat y_k = \\hat y^{zs}_k + y_0 (-f)^k$ (the zero-state
+  simulation plus the free response from the measured first sample; analytic Jacobian). BJ
+  (first order): SIPPY's auxiliary $w = (B/F)u$ and $v = y - w$ start at $w_0 = v_0 = y_0$ and
+  $\\varepsilon_0 = 0$, then $\\varepsilon_k = v_k + d\\,v_{k-1} - c\\,\\varepsilon_{k-1}$
+  (`opt_id`'s BJ regressor; Jacobian by central differences).
 
 Columns: validation fit % from rest (the benchmark's figure), its change from `rest`, V from
 rest on the estimation record, and SIPPY's fit on that seed (from the committed
@@ -61,6 +64,8 @@ def criterion(variant: str, base):
         return dropped
 
     def pinned(theta, y, u, nk, s, jacobian=True):
+        if s.nc or s.nd:
+            return pinned_bj(theta, y, u, nk, s, jacobian)
         # OE, nf = 1, one F per row, no offset: eps = eps_zs - y0 (-f)^k, f = tanh(rho_f)
         assert s.nf == 1 and s.common_f and not s.offset and s.nc == s.nd == s.na == 0
         f = np.tanh(theta[-1])
@@ -74,6 +79,32 @@ def criterion(variant: str, base):
         J[:, -1] += y[0] * k * (-f) ** np.maximum(k - 1, 0) * (1.0 - f ** 2)
         return eps - free, J
     return pinned
+
+
+def pinned_bj(theta, y, u, nk, s, jacobian=True, h=1e-6):
+    """SIPPY's first-order BJ criterion (module docstring) in jthermo's parameters: residual
+    `(T,)` and, with `jacobian`, its central-difference Jacobian `(T, p)`."""
+    from scipy.signal import lfilter
+
+    assert (s.nb, s.nc, s.nd, s.nf, s.na) == (1, 1, 1, 1, 0) and s.common_f and not s.offset
+
+    def eps(th):
+        b = th[:s.nu]
+        c, d, f = np.tanh(th[s.nu]), np.tanh(th[s.nu + 1]), np.tanh(th[s.nu + 2])
+        drive = np.zeros(y.size)
+        for j in range(s.nu):
+            drive[nk[j]:] += b[j] * u[:y.size - nk[j], j]
+        w = lfilter([1.0], [1.0, f], drive) + y[0] * (-f) ** np.arange(y.size)
+        v = y - w
+        v[0] = y[0]
+        return lfilter([1.0, d], [1.0, c], v, zi=[-v[0]])[0]
+
+    theta = np.asarray(theta, float)
+    if not jacobian:
+        return eps(theta)
+    J = np.stack([(eps(theta + h * e) - eps(theta - h * e)) / (2 * h)
+                  for e in np.eye(theta.size)], axis=1)
+    return eps(theta), J
 
 
 def rows_for(family: str, seed: int, N: int = 4) -> list[dict]:
@@ -91,8 +122,6 @@ def rows_for(family: str, seed: int, N: int = 4) -> list[dict]:
     data = from_arrays(est["u"], est["y"])
     base, rows = pem_numpy.row_residual, []
     for variant in VARIANTS:
-        if variant == "pinned y0" and family != "oe":
-            continue
         pem_numpy.row_residual = criterion(variant, base)
         try:
             t0 = time.process_time()
