@@ -103,15 +103,15 @@ def records(W, N: int, T: int, seed: int, folder: Path) -> dict:
 def markdown(rows: list[dict], command: str) -> str:
     f = B._fmt
     lines = ["# PEM engines: where each is faster (fresh process, automatic orders)", "",
-             f"`{command}`; {os.cpu_count()} CPU cores (shared with other jobs: load = mean "
-             "1-minute load average over the row). Each row one fresh process with an empty "
-             "compilation cache: `fit(est, family, engine=...)` twice (cold = first call, "
-             "compilation included; warm = second call, same shapes); process = the whole "
-             "process by /usr/bin/time (imports, CSV load, both fits, validation). p = "
-             "parameters per output row; w = N·T·p (the NumPy engine's work per LM step, "
-             "up to a constant). gap = validation fit − the true model's.", "",
-             "| family | N | T | cores | engine | orders | p | w = N·T·p | cold s (CPU) | warm s (CPU) "
-             "| process s (CPU) | peak MB | fit % | gap | load | note |",
+             (f"`{command}`; {os.cpu_count()} CPU cores (shared with other jobs: load = mean "
+              "1-minute load average over the row). Each row one fresh process with an empty "
+              "compilation cache: `fit(est, family, engine=...)` twice (cold = first call, "
+              "compilation included; warm = second call, same shapes); process = the whole "
+              "process by /usr/bin/time (imports, CSV load, both fits, validation). p = "
+              "parameters per output row; w = N·T·p (the NumPy engine's work per LM step, "
+              "up to a constant). gap = validation fit − the true model's."), "",
+             ("| family | N | T | cores | engine | orders | p | w = N·T·p | cold s (CPU) | warm s (CPU) "
+              "| process s (CPU) | peak MB | fit % | gap | load | note |"),
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())

@@ -38,10 +38,10 @@ def main() -> int:
     est = generate(plant, "prbs", cfg["est_s"], seed=seed)
     val = generate(plant, "prbs", cfg["val_s"], seed=seed + 1)
     lines = ["# The demo's ARMAX / OE / BJ fits with each PEM engine", "",
-             "`python experiments/polynomial_engine_demo_fits.py`: `jthermo demo`'s records and "
-             "orders (4 zones, 3600 + 1800 s, seed 0, 4 starts). fit % = validation fit as the "
-             "demo reports it; V = estimation cost (mean squared prediction error, what PEM "
-             f"minimises). Load (1-minute) at the start: {os.getloadavg()[0]:.1f}.", "",
+             ("`python experiments/polynomial_engine_demo_fits.py`: `jthermo demo`'s records and "
+              "orders (4 zones, 3600 + 1800 s, seed 0, 4 starts). fit % = validation fit as the "
+              "demo reports it; V = estimation cost (mean squared prediction error, what PEM "
+              f"minimises). Load (1-minute) at the start: {os.getloadavg()[0]:.1f}."), "",
              "| family | engine | ran | fit % (mean) | per output | V | CPU s |",
              "|---|---|---|---|---|---|---|"]
     for fam in ("armax", "oe", "bj"):

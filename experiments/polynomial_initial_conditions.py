@@ -168,10 +168,10 @@ def markdown(rows: list[dict], command: str, jac_err: float) -> str:
     sippy = peers()
     ref = {(r["family"], r["seed"]): r for r in rows if r["variant"] == "rest"}
     lines = ["# OE/BJ initial-sample handling in the estimation criterion (W1 N = 4)", "",
-             f"`{command}`; pinned-y0 Jacobian against central differences: max relative error "
-             f"{jac_err:.1e}. Δfit = fit − the `rest` (default) fit of the same seed; V from rest "
-             "on the estimation record (what jthermo minimises); SIPPY's fit from the committed "
-             "`benchmarks/results/peers_fit_gap_n4*.json` (seed 2 BJ: SIPPY diverged).", "",
+             (f"`{command}`; pinned-y0 Jacobian against central differences: max relative error "
+              f"{jac_err:.1e}. Δfit = fit − the `rest` (default) fit of the same seed; V from rest "
+              "on the estimation record (what jthermo minimises); SIPPY's fit from the committed "
+              "`benchmarks/results/peers_fit_gap_n4*.json` (seed 2 BJ: SIPPY diverged)."), "",
              "| family | seed | variant | fit % | Δfit (pt) | V (est., from rest) | SIPPY fit % | fit − SIPPY (pt) | CPU s |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
