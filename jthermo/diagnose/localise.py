@@ -98,6 +98,21 @@ def _fold_depths(s: np.ndarray, periods: np.ndarray, sd: float):
     return z[np.arange(periods.size), k], k
 
 
+def _peak_centre(s: np.ndarray, P: float, sd: float, stat: float) -> tuple[float, int]:
+    """The period at the centre of the folding statistic's peak around the grid's best `P`: the
+    mean of the trial periods within ±3 grid steps (61 of them) whose statistic is within one
+    standard error of `stat`. Folded at any period of the peak, the three-phase window holds the
+    drops (the grid's first maximum sits at the peak's edge, a drift of up to `PERIOD_DRIFT`
+    samples over the record); its centre is where they line up. Returns (period, first bin)."""
+    step = PERIOD_DRIFT * P / s.size
+    trial = P + np.linspace(-3.0 * step, 3.0 * step, 61)
+    trial = trial[trial >= 3.0]
+    z, _ = _fold_depths(s, trial, sd)
+    Pc = float(np.mean(trial[z >= stat - 1.0]))
+    _, kc = _fold_depths(s, np.array([Pc]), sd)
+    return Pc, int(kc[0])
+
+
 def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> dict:
     """Epoch-folding search for periodic sudden drops in residuals `R (T, n)`.
 
@@ -123,6 +138,8 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
         if z[r] > best[0]:
             best = (float(z[r]), float(grid[lo + r]), int(k[r]))
     stat, P, k = best
+    if grid.size > 1 and P > 0:
+        P, k = _peak_centre(s, P, sd, stat)
     out = {"statistic": stat, "significant": bool(stat > PERIOD_THRESHOLD and P > 0)}
     if P == 0:
         out.update(period_s=float("nan"), phase=0, zone_phase=[0] * n, zone_drop_C=[0.0] * n)

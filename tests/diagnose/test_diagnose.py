@@ -118,6 +118,19 @@ def test_periodic_drop_fractional_period():
     assert period_grid(12.5, 12.5, 500).tolist() == [12.5]
 
 
+def test_periodic_drop_period_at_peak_centre():
+    """The period reported is the centre of the folding statistic's peak: events every 60
+    samples over 3600 drift by under half a sample when placed at it (the grid's first maximum,
+    59.97, put the last ones two samples early)."""
+    rng = np.random.default_rng(5)
+    T, P = 3600, 60.0
+    ev = event_matrix(T, P, [5] * 4)
+    R = 0.07 * rng.normal(size=(T, 4)) - 0.5 * np.cumsum(ev - ev.mean(0), axis=0)
+    d = detect_periodic(R, 1.0)
+    assert d["significant"] and abs(d["period_s"] - P) * T / P < 0.5
+    assert np.array_equal(event_matrix(T, d["period_s"], d["zone_phase"]), ev)
+
+
 def test_localise_reports_zones_and_common_mode():
     rng = np.random.default_rng(1)
     T = 600
