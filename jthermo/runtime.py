@@ -349,6 +349,10 @@ EXPORT_SUBDIR = "jthermo-export"
 MAX_EXPORTS = 64
 #: bumped when the file's meaning changes
 _EXPORT_FORMAT = "1"
+#: JAX settings that change what a trace produces: part of an exported program's key
+_TRACE_FLAGS = ("jax_enable_x64", "jax_threefry_partitionable", "jax_default_prng_impl",
+                "jax_default_matmul_precision", "jax_numpy_dtype_promotion",
+                "jax_numpy_rank_promotion")
 
 
 def exported_call(fn, args: tuple, fallback, compiler_options: dict | None = None):
@@ -359,7 +363,8 @@ def exported_call(fn, args: tuple, fallback, compiler_options: dict | None = Non
     `args`: pytrees (equinox modules) whose array leaves are the program's inputs; every
     other leaf (strings, numbers, static fields) and the tree structure are part of the
     file's key, with the shapes and dtypes of the arrays, a hash of jthermo's source, the
-    versions of JAX, jaxlib, equinox and NumPy, x64 and the Threefry lowering
+    versions of JAX, jaxlib, equinox and NumPy, the JAX settings that shape a trace
+    (`_TRACE_FLAGS`: x64, the PRNG, precision, promotion) and the Threefry lowering
     (`unroll_threefry`). Outputs come back as arrays (a Python scalar as a 0-d array).
 
     `fallback` (`fn` jitted with `compiler_options`) runs instead, as before, wherever no
@@ -421,8 +426,9 @@ def _export_key(fn, treedef, static, arrays) -> tuple[str, str] | None:
 
     import jax
 
+    flags = [f"{k}={getattr(jax.config, k, None)}" for k in _TRACE_FLAGS]
     parts = [_EXPORT_FORMAT, f"{fn.__module__}.{fn.__qualname__}", _source_hash(),
-             _versions(), str(jax.config.jax_enable_x64), str(_state.get("threefry")),
+             _versions(), " ".join(flags), str(_state.get("threefry")),
              jax.default_backend(), str(treedef), repr(static),
              repr([(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False)))
                    for a in arrays])]

@@ -148,3 +148,12 @@ def test_least_recently_used_files_are_pruned(folder, monkeypatch):
     for n in (1, 2, 3):
         runtime.exported_call(scaled_sums, _args(n=n), fb)
     assert len(_files(folder)) == 2
+
+
+def test_a_jax_setting_that_shapes_the_trace_is_part_of_the_key(folder):
+    fb = Counting()
+    args = _args()
+    runtime.exported_call(scaled_sums, args, fb)
+    with jax.numpy_rank_promotion("warn"):
+        runtime.exported_call(scaled_sums, args, fb)
+    assert fb.calls == 0 and len(_files(folder)) == 2
