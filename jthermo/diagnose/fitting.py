@@ -11,8 +11,12 @@ so that each does only its own work: it forms its Jacobian (nearly all of an ite
 only where its parameters moved (a rejected step reuses it), stops once its cost fell by less
 than `RTOL` of itself over `identify.lm.STALL` iterations, and a joint model that repeats an
 earlier one (the callers pad to fixed slot counts, one compiled shape) is copied, not refitted.
-Under `vmap` every problem ran the whole `n_iter` Jacobians. Costs equal the vmapped fixed-
-iteration solve's to about `RTOL` (`benchmarks/diagnose_latency_s26.py`).
+Under `vmap` every problem ran the whole `n_iter` Jacobians. On the latency record's diagnosis
+this took the warm run from 37.0 to 24.2 CPU s (candidates 7.08 -> 2.85, validation 2.97 ->
+1.86, joint combination 25.48 -> 18.22) and the cold one from 58.4 to 42.4, with the same
+finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s26_before` /
+`_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
+(`benchmarks/diagnose_latency_s26.py`).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
