@@ -14,6 +14,12 @@ then a second child with the cache the first one filled (warm), both as the comm
 
     python benchmarks/simulate_stages.py                      # N = 16, B = 256, T = 3600
     python benchmarks/simulate_stages.py --rollouts 32 --duration 600 --out -   # quick look
+    python benchmarks/simulate_stages.py --command --out benchmarks/results/simulate_stages_command.md
+
+`--command` times the command's own steps instead (`cli.control`'s design model and
+`closedloop.run`, with `runtime.one_thread_backend` and the programs kept by
+`runtime.exported_call`): no split of a program into trace / compile / execute there, but the
+path `jthermo simulate` takes, stage by stage, cold and warm.
 
 CPU seconds (user + system of the child, all threads) are less sensitive than wall seconds to
 other jobs on a shared machine; the 1-minute load is recorded for each child.
@@ -63,6 +69,36 @@ class _Clock:
         self.rows.append({"stage": stage, "wall_s": w - self.w, "cpu_s": c - self.c,
                           "cache_bytes": new, **extra})
         self.w, self.c = time.perf_counter(), time.process_time()
+
+
+def command_child(args) -> None:
+    """The stages of `cli.control.cmd_simulate` (one-thread backend, exported programs)."""
+    from jthermo import runtime
+
+    cache = runtime.enable_cache()
+    runtime.unroll_threefry()
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    clock = _Clock(cache)
+    clock.mark("import jax, jthermo.runtime")
+    clock.mark("one-thread CPU backend", applied=runtime.one_thread_backend())
+    from jthermo import closedloop as cl
+    from jthermo.cli import control
+    from jthermo.control.design import design
+    from jthermo.printer import make_printer
+
+    clock.mark("import closedloop, cli.control, control.design")
+    plant = jax.block_until_ready(make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12",
+                                               seed=0))
+    clock.mark("make_printer")
+    model = jax.block_until_ready(control._printer_model(plant))
+    clock.mark("design model (exported program)")
+    ctrl = jax.block_until_ready(design("pi_lambda", model))
+    clock.mark("design pi_lambda (small programs, eager)")
+    out = cl.run("tracking", ctrl, plant, rollouts=args.rollouts, duration=args.duration, seed=0)
+    clock.mark("closedloop.run (exported run program)")
+    print(json.dumps({"rows": clock.rows, "mse": out["metrics"]["mse"], "load": _load()}))
 
 
 def child(args) -> None:
@@ -122,6 +158,8 @@ def run_child(args, cache: str) -> dict:
     load0 = _load()
     cmd = [sys.executable, __file__, "--child", "--zones", str(args.zones), "--rollouts",
            str(args.rollouts), "--duration", str(args.duration), "--threefry", args.threefry]
+    if args.command:
+        cmd.append("--command")
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
     wall = time.perf_counter() - t0
@@ -141,27 +179,30 @@ def main() -> None:
     ap.add_argument("--threefry", choices=("unrolled", "rolled"), default="unrolled",
                     help="Threefry's CPU lowering (the command unrolls it)")
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_stages.md"))
+    ap.add_argument("--command", action="store_true",
+                    help="time the command's own steps (exported programs, one-thread backend)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        return child(args)
+        return command_child(args) if args.command else child(args)
     with tempfile.TemporaryDirectory(prefix="jthermo-stages-") as tmp:
         cold = run_child(args, tmp)
         cpu_cold = cold["cpu_total"]
         warm = run_child(args, tmp)
         warm["cpu_total"] -= cpu_cold
-    lines = [f"# `jthermo simulate` stage by stage: N = {args.zones}, B = {args.rollouts}, "
-             f"T = {args.duration:g} s", "",
+    lines = [(f"# `jthermo simulate` stage by stage: N = {args.zones}, B = {args.rollouts}, "
+              f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_stages.py --zones {args.zones} --rollouts "
               f"{args.rollouts} --duration {args.duration:g}"
-              + (" --threefry rolled" if args.threefry == "rolled" else "") + "`: "
+              + (" --threefry rolled" if args.threefry == "rolled" else "")
+              + (" --command" if args.command else "") + "`: "
               "cold = a process with an empty compilation cache, warm = a second process with "
               "the cache the first filled. Wall / CPU s (user + system, all threads) per stage; "
               f"1-minute load {cold['load0']} before the cold process, {warm['load0']} before "
               "the warm one (2 shared cores: wall seconds scale with the load, CPU seconds less "
               f"so). mse {cold['mse']:.8f} cold, {warm['mse']:.8f} warm."), "",
-             "| stage | cold wall s | cold CPU s | warm wall s | warm CPU s | StableHLO chars | "
-             "cache entry bytes |", "|---|---|---|---|---|---|---|"]
+             ("| stage | cold wall s | cold CPU s | warm wall s | warm CPU s | StableHLO chars | "
+              "cache entry bytes |"), "|---|---|---|---|---|---|---|"]
     for a, b in zip(cold["rows"], warm["rows"]):
         lines.append(f"| {a['stage']} | {a['wall_s']:.2f} | {a['cpu_s']:.2f} | {b['wall_s']:.2f} "
                      f"| {b['cpu_s']:.2f} | {a.get('stablehlo_chars', '')} | "
