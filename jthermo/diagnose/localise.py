@@ -62,10 +62,12 @@ def period_grid(pmin: float, pmax: float, T: int) -> np.ndarray:
 
 def _fold(x: np.ndarray, P: float):
     """Folded means `(nb,)` and counts of `x (T,)` at a period of `P` samples (any fraction):
-    sample $t$ falls in phase bin $\\lfloor t \\bmod P \\rfloor$; only whole periods are used."""
+    sample $t$ falls in phase bin $\\lfloor (t + \\tfrac12) \\bmod P \\rfloor$ (bin $j$ holds the samples
+    nearest to $mP + j$: at a period just off a whole number the bins do not slip by a sample);
+    only whole periods are used."""
     m = math.floor(x.size / P + 1e-9)
     t = np.arange(math.floor(m * P + 1e-9))
-    b = np.floor(np.mod(t, P) + 1e-9).astype(int)
+    b = np.floor(np.mod(t + 0.5, P) + 1e-9).astype(int)
     nb = math.ceil(P - 1e-9)
     b = np.minimum(b, nb - 1)
     cnt = np.bincount(b, minlength=nb)
@@ -82,7 +84,8 @@ def _fold_depths(s: np.ndarray, periods: np.ndarray, sd: float):
     Tn = s.size
     t = np.arange(Tn)
     used = np.floor(np.floor(Tn / periods + 1e-9) * periods + 1e-9)
-    b = np.minimum(np.floor(np.mod(t[None, :], periods[:, None]) + 1e-9).astype(int), nb[:, None] - 1)
+    b = np.minimum(np.floor(np.mod(t[None, :] + 0.5, periods[:, None]) + 1e-9).astype(int),
+                   nb[:, None] - 1)
     rows = np.arange(periods.size)[:, None]
     flat = np.where(t[None, :] < used[:, None], rows * W + b, periods.size * W)
     cnt = np.bincount(flat.ravel(), minlength=periods.size * W + 1)[:-1].reshape(-1, W)
@@ -161,14 +164,15 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
 def event_matrix(T: int, period: float, zone_phase, *, offset: int = 0) -> np.ndarray:
     """Recoat flags `(T, n)`: 1.0 at each zone's drop sample, every `period` samples (any
     fraction: the drop of event $m$ of a zone with phase $\\phi$ is at sample
-    $\\lceil mP + \\phi - 1\\rceil + 1$, the sample after the phase bin it was folded into),
+    $\\lceil mP + \\phi - \\tfrac32\\rceil + 1$, the sample after the nearest to $mP + \\phi - 1$, the phase
+    bin it was folded into),
     the record starting `offset` samples after the one the phases refer to."""
     n = len(zone_phase)
     E = np.zeros((T, n))
     P = float(period)
     for i, ph in enumerate(zone_phase):
         m = np.arange(math.floor((offset - ph) / P) - 1, math.ceil((T + offset) / P) + 2)
-        k = np.ceil(m * P + ph - 1 - 1e-9).astype(int) + 1 - offset
+        k = np.ceil(m * P + ph - 1.5 - 1e-9).astype(int) + 1 - offset
         E[k[(k >= 0) & (k < T)], i] = 1.0
     return E
 

@@ -104,7 +104,7 @@ def test_periodic_drop_fractional_period():
     T, P = 834, 20.235
     ev = event_matrix(T, P, [5, 7])
     assert ev.sum(axis=0).tolist() == [41.0, 41.0]
-    assert np.nonzero(ev[:, 0])[0][:4].tolist() == [5, 26, 46, 66]
+    assert np.nonzero(ev[:, 0])[0][:4].tolist() == [5, 25, 45, 66]      # 1 + the nearest to mP + 4
     R = 0.07 * rng.normal(size=(T, 2)) - 0.5 * np.cumsum(ev - ev.mean(0), axis=0)
     d = detect_periodic(R, 2.875)
     assert d["significant"] and abs(d["period_s"] / 2.875 - P) <= PERIOD_DRIFT * P / T
@@ -129,6 +129,10 @@ def test_periodic_drop_period_at_peak_centre():
     d = detect_periodic(R, 1.0)
     assert d["significant"] and abs(d["period_s"] - P) * T / P < 0.5
     assert np.array_equal(event_matrix(T, d["period_s"], d["zone_phase"]), ev)
+    # a period a hair off a whole number places every event where the whole number does (nearest
+    # sample: the events do not slip by one sample after the first)
+    for p in (59.999, 60.001):
+        assert np.array_equal(event_matrix(T, p, [21]), event_matrix(T, 60.0, [21]))
 
 
 def test_localise_reports_zones_and_common_mode():
