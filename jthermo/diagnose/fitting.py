@@ -23,9 +23,12 @@ The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are comp
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
 (validation) and 0.89 instead of 1.69 CPU s, run in the same time and give the same fits to
 5e-13 (`python benchmarks/diagnose_compile_options.py`, load 6-8, measured on the vmapped
-solve). The per-zone fits (`fit_zones`) keep XLA's default options: with the older emitters
-they compiled in 5.88 instead of 7.36 CPU s but ran in 6.65 instead of 5.53, and they run on
-every call.
+solve). The per-zone fits (`fit_zones`) kept XLA's default options under `vmap` (the older
+emitters compiled in 5.88 instead of 7.36 CPU s but ran in 6.65 instead of 5.53); one problem
+after another the quick options cost less to compile than they may cost to run, so they take
+them too: the latency record's candidates fit, first call (compile + run) 6.98 -> 5.09 CPU s,
+warm 1.79 -> 2.02 CPU s (`benchmarks/results/diagnose_latency_s26.md` as of 03e0778 and now, load 1.3-3.0; costs
+equal to 7e-11).
 """
 
 from __future__ import annotations
@@ -70,8 +73,8 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
     `n_active` (static) at least the largest number of free parameters of one problem."""
-    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"), False)(theta0, mask, on, per, shared, lay,
-                                                                        n_iter, n_active)
+    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"))(theta0, mask, on, per, shared, lay, n_iter,
+                                                                 n_active)
 
 
 def _sim_zones(theta, on, per, shared, lay):
