@@ -397,11 +397,7 @@ def _exported_program(fn, args: tuple):
     import jax
     from jax import export
 
-    leaves, treedef = jax.tree.flatten(args)
-    is_array = [isinstance(v, jax.Array) or hasattr(v, "__array__") and hasattr(v, "dtype")
-                for v in leaves]
-    arrays = [v for v, a in zip(leaves, is_array) if a]
-    static = [None if a else v for v, a in zip(leaves, is_array)]
+    treedef, static, is_array, arrays = _split(args)
     key = _export_key(fn, treedef, static, arrays)
     if key is None:
         return None
@@ -420,8 +416,21 @@ def _exported_program(fn, args: tuple):
     return exp, arrays
 
 
-def _export_key(fn, treedef, static, arrays) -> tuple[str, str] | None:
-    """`(file name stem, SHA-256 of the key text)`, or None where the key would not be stable."""
+def _split(args: tuple):
+    """`(treedef, static leaves (None for an array), is-array flags, array leaves)` of `args`."""
+    import jax
+
+    leaves, treedef = jax.tree.flatten(args)
+    is_array = [isinstance(v, jax.Array) or hasattr(v, "__array__") and hasattr(v, "dtype")
+                for v in leaves]
+    arrays = [v for v, a in zip(leaves, is_array) if a]
+    static = [None if a else v for v, a in zip(leaves, is_array)]
+    return treedef, static, is_array, arrays
+
+
+def _export_key(fn, treedef, static, arrays, extra: str = "") -> tuple[str, str] | None:
+    """`(file name stem, SHA-256 of the key text)`, or None where the key would not be stable.
+    `extra` joins the key text (the arrays' bytes, for `cached_arrays`)."""
     import hashlib
 
     import jax
@@ -431,7 +440,7 @@ def _export_key(fn, treedef, static, arrays) -> tuple[str, str] | None:
              _versions(), " ".join(flags), str(_state.get("threefry")),
              jax.default_backend(), str(treedef), repr(static),
              repr([(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False)))
-                   for a in arrays])]
+                   for a in arrays]), extra]
     text = "\n".join(parts)
     if " at 0x" in text:   # an object repr with its address: a key no other process makes
         return None
@@ -514,6 +523,103 @@ def _write_atomic(path: Path, blob: bytes) -> None:
 
 
 def _prune(folder: Path, keep: int) -> None:
-    files = sorted(folder.glob("*.jaxexport"), key=lambda p: p.stat().st_mtime, reverse=True)
+    files = sorted([*folder.glob("*.jaxexport"), *folder.glob("*.npz")],
+                   key=lambda p: p.stat().st_mtime, reverse=True)
     for p in files[keep:]:
         p.unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------- numeric results kept on disk
+
+
+def cached_arrays(fn, args: tuple, compute):
+    """`compute(*args)`, a dict of arrays that is a deterministic function of `args` and
+    jthermo's source (`fn` names it), kept in the cache directory (`EXPORT_SUBDIR`, `.npz`)
+    so that a later process reads the numbers instead of loading and running a program.
+
+    The key is `exported_call`'s (source hash, versions, trace settings, tree structure,
+    static leaves, shapes and dtypes) plus a SHA-256 of every input array's bytes; the file
+    holds the full key and the output's key names and dtypes, checked on read. Nothing is
+    read or written with the cache off or inside a JAX trace; a file that is unreadable,
+    corrupt or from another key is recomputed and rewritten (atomically, as `exported_call`).
+    Never raises for the file itself; errors of `compute` propagate. Arrays come back as
+    `jax.Array`s, equal bit for bit to what `compute` returned."""
+    path = header = None
+    if _state["dir"] is not None and top_level():
+        try:
+            path, header = _arrays_path(fn, args)
+        except Exception:  # noqa: BLE001  (a leaf that cannot be hashed: no file)
+            path = None
+    if path is not None:
+        out = _read_arrays(path, header)
+        if out is not None:
+            return out
+    out = compute(*args)
+    if path is not None:
+        try:
+            _write_atomic(path, header + _npz_bytes(out))
+        except Exception:  # noqa: BLE001  (an output that is not a dict of arrays)
+            pass
+    return out
+
+
+def _arrays_path(fn, args: tuple):
+    """`(path, header)` of `fn(*args)`'s `.npz` file, or `(None, None)` for an unstable key."""
+    import hashlib
+
+    import numpy as np
+
+    treedef, static, _, arrays = _split(args)
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
+    key = _export_key(fn, treedef, static, arrays, extra="bytes " + h.hexdigest())
+    if key is None:
+        return None, None
+    name, digest = key
+    path = Path(_state["dir"]) / EXPORT_SUBDIR / f"{name}-{digest[:32]}.npz"
+    return path, f"jthermo-arrays {digest}\n".encode()
+
+
+def _npz_bytes(out: dict) -> bytes:
+    """`out` (str -> array) as `.npz` bytes, preceded by one line naming its keys and dtypes."""
+    import io
+
+    import numpy as np
+
+    host = {str(k): np.asarray(v) for k, v in out.items()}
+    buf = io.BytesIO()
+    np.savez(buf, **host)
+    return _layout(host).encode() + b"\n" + buf.getvalue()
+
+
+def _layout(arrays: dict) -> str:
+    return " ".join(f"{k}:{v.dtype.str}:{'x'.join(map(str, v.shape))}"
+                    for k, v in arrays.items())
+
+
+def _read_arrays(path: Path, header: bytes) -> dict | None:
+    """The dict in `path` when it starts with `header` and its arrays match the layout line,
+    as `jax.Array`s; else None."""
+    import io
+
+    import jax
+    import numpy as np
+
+    try:
+        blob = path.read_bytes()
+        if not blob.startswith(header):
+            return None
+        layout, _, data = blob[len(header):].partition(b"\n")
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            host = {k: z[k] for k in z.files}
+        if _layout(host) != layout.decode():
+            return None
+    except Exception:  # noqa: BLE001  (unreadable, truncated or foreign)
+        return None
+    try:
+        os.utime(path)    # recently used: kept by `_prune`
+    except OSError:
+        pass
+    device = jax.devices()[0]   # committed, like a program's outputs (same eager programs)
+    return {k: jax.device_put(v, device) for k, v in host.items()}

@@ -30,9 +30,9 @@ def _simulate(tmp_path: Path, cache: Path) -> dict:
     return json.loads(js.read_text())
 
 
-def _exports(cache: Path) -> dict[str, bytes]:
+def _exports(cache: Path, pattern: str = "*.jaxexport") -> dict[str, bytes]:
     d = cache / runtime.EXPORT_SUBDIR
-    return {p.name: p.read_bytes() for p in d.glob("*.jaxexport")} if d.is_dir() else {}
+    return {p.name: p.read_bytes() for p in d.glob(pattern)} if d.is_dir() else {}
 
 
 def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
@@ -41,16 +41,21 @@ def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
     files = _exports(cache)
     # the printer's design model and the run program
     assert len(files) == 2, sorted(files)
+    # and the design model's numbers (runtime.cached_arrays)
+    numbers = _exports(cache, "*.npz")
+    assert len(numbers) == 1, sorted(numbers)
     compiled = set(cache.glob("*-cache"))
     second = _simulate(tmp_path, cache)
     assert second["metrics"] == first["metrics"]
     assert _exports(cache) == files, "a warm run rewrote its exported programs"
+    assert _exports(cache, "*.npz") == numbers, "a warm run rewrote the design model"
     assert set(cache.glob("*-cache")) == compiled, "a warm run compiled what the first had"
-    for name in files:
+    for name in [*files, *numbers]:
         (cache / runtime.EXPORT_SUBDIR / name).write_bytes(b"corrupt" * 100)
     third = _simulate(tmp_path, cache)
     assert third["metrics"] == first["metrics"]
     assert _exports(cache) == files, "corrupt files were not replaced by the same programs"
+    assert _exports(cache, "*.npz") == numbers, "a corrupt design model was not rewritten"
 
 
 def test_the_command_process_flushes_its_output_and_keeps_its_exit_status():
