@@ -242,6 +242,24 @@ def unroll_threefry() -> bool:
 ONE_THREAD_MAX_CPUS = 2
 
 
+#: 1-minute load average, per schedulable CPU beyond the first, from which a machine counts
+#: as busy (`busy`): measured idle (load 0.6-1.1), two threads ran `jthermo simulate` warm in
+#: 1.97 instead of 2.08 s wall (2.52 instead of 2.08 CPU s); at load 5 one thread was faster
+#: (benchmarks/results/simulate_latency_s26b_threads.md, simulate_threads.md)
+BUSY_LOAD_PER_CPU = 1.0
+
+
+def busy() -> bool:
+    """True where the 1-minute load average leaves no CPU spare for a second intra-op thread:
+    `load >= BUSY_LOAD_PER_CPU * (cpus - 1)`; True where it cannot be read."""
+    try:
+        load = os.getloadavg()[0]
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return True
+    return load >= BUSY_LOAD_PER_CPU * max(cpus - 1, 1)
+
+
 def one_thread_backend() -> bool:
     """Create JAX's CPU backend with one intra-op thread: XLA sizes its thread pool by the
     CPUs the process may use, so the calling thread is pinned to one CPU while the backend is

@@ -228,9 +228,10 @@ def _printer_model_program(printer) -> dict:
 
 def cmd_simulate(args: argparse.Namespace) -> dict:
     from .. import io
-    from ..runtime import one_thread_backend
+    from ..runtime import busy, one_thread_backend
 
-    one_thread_backend()   # small ops in a long loop: one intra-op thread (2-core machines)
+    if busy():   # small ops in a long loop: one intra-op thread on a loaded 2-core machine
+        one_thread_backend()
     if (args.controller is None) == (args.controller_file is None):
         raise ConfigError("simulate: give exactly one of --controller C or --controller-file CTRL")
     js = output_path(args.json, "--json")
