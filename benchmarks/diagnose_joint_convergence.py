@@ -1,6 +1,6 @@
 """Where the joint fits' time goes, and how far their Levenberg–Marquardt iterations are needed.
 
-The latency record's first joint fit (`select._JointFits.fit`'s first call: the top mechanism
+The latency record's first joint fit (`joint.JointFits.fit`'s first call: the top mechanism
 alone and with each addition, vmapped; `benchmarks/diagnose_compile_options.py` captures its
 arguments) is taken apart, warm (compiled first, then run, best of 2), CPU s = user + system:
 - one evaluation of the coupled residual of every model (the primal simulation), three of them

@@ -1,7 +1,7 @@
 """The joint fit's Jacobian: `recurrence.radiative`'s tangent rule against JAX's own derivative.
 
 Diagnoses the latency record of `benchmarks/diagnose_profile.py` (one hour, 4 zones) up to its
-first joint fit (`select.fit_joint`), keeps that call's inputs and stops. Then times, warm (after
+first joint fit (`joint.fit_joint`), keeps that call's inputs and stops. Then times, warm (after
 one compiling call), the forward-mode Jacobian the Levenberg–Marquardt iteration forms
 (`jax.linearize` of the coupled residual, one tangent per free-parameter slot, vmapped over the
 call's models), with the coupled simulation's recurrence differentiated three ways:
@@ -73,6 +73,7 @@ def _zoh_dense(A, Bc, ts):
 
 
 def _capture(est, val):
+    import jthermo.diagnose.joint as J
     import jthermo.diagnose.select as S
     from jthermo.data import load
 
@@ -82,7 +83,7 @@ def _capture(est, val):
         box["args"] = a
         raise _Captured
 
-    S.fit_joint = grab
+    J.fit_joint = grab
     try:
         S.diagnose(load(est), load(val))
     except _Captured:

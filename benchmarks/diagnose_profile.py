@@ -5,7 +5,7 @@ radiation + heater lag; 30 min of validation data) is diagnosed in a fresh proce
 (empty compilation cache) and warm (a second process with the cache the first one filled). In
 each process every call of the diagnosis's compiled fits (`fit_zones`, `sim_zones`,
 `fit_joint`, `fit_records`) is timed (blocked until ready) and attributed to the stage it runs
-in; the joint combination stage is split per `_JointFits.fit` call (one call per forward
+in; the joint combination stage is split per `joint.JointFits.fit` call (one call per forward
 selection round, plus the level test's). Compile time and count come from JAX's monitoring
 events (tracing, lowering, backend compile; a cache hit counts as a short load). CPU seconds are
 the process's user + system time (all threads): the load-robust figure on a shared machine.
@@ -84,10 +84,10 @@ class _Clock:
 
 
 def _instrument(clock: _Clock, state: dict):
-    """Time every compiled fit `select` calls, and each `_JointFits.fit` call."""
+    """Time every compiled fit `select` calls, and each `joint.JointFits.fit` call."""
     import jax
 
-    from jthermo.diagnose import select
+    from jthermo.diagnose import joint, select
 
     def timed(name, fn):
         def wrapper(*a, **k):
@@ -97,9 +97,10 @@ def _instrument(clock: _Clock, state: dict):
             return out
         return wrapper
 
-    for name in ("fit_zones", "sim_zones", "fit_joint", "fit_records"):
+    for name in ("fit_zones", "sim_zones", "fit_records"):
         setattr(select, name, timed(name, getattr(select, name)))
-    jf = select._JointFits.fit
+    joint.fit_joint = timed("fit_joint", joint.fit_joint)
+    jf = joint.JointFits.fit
 
     def joint_fit(self, models, validate, **kw):
         state["round"] += 1
@@ -112,7 +113,7 @@ def _instrument(clock: _Clock, state: dict):
             clock.add(state["stage"] + ": total", s0)
             state["stage"] = outer
 
-    select._JointFits.fit = joint_fit
+    joint.JointFits.fit = joint_fit
 
 
 def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:

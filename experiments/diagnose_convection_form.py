@@ -13,7 +13,7 @@ the scoring set 3), the mean rise, $\\kappa_{conv}$, the cap $3/T_K$, the fracti
 best share can reach, and the size of what convection leaves for a diagnosis to find: the rms of
 the noise-free estimation output's residual from the best model of the baseline's class (one
 zone, first order, free loss rate, heater gains, surroundings level and initial temperature,
-exact zero-order hold, a separable grid and Brent, as `select._grid_start` and the grey-box fit), against the sensor
+exact zero-order hold, a separable grid and Brent, as `joint.grid_start` and the grey-box fit), against the sensor
 noise; the same measure on a null record of the generator is the floor.
 
     .venv/bin/python experiments/diagnose_convection_form.py [--seed-sets 1 2 4]

@@ -41,9 +41,12 @@ def test_early_stop_under_vmap_keeps_each_problem_its_own():
     p0 = jnp.asarray([[1.0, 0.5, 0.0], [1.0, 0.5, 0.0]])
     masks = jnp.asarray([[1.0, 1.0, 1.0], [1.0, 0.0, 1.0]])          # the second: rate fixed
     run = lambda p, m, y: masked_lm(lambda q: _residual(q, y), p, m, 40, rtol=1e-6)
-    th_v, c_v, _ = jax.vmap(run)(p0, masks, ys)
+    th_v, c_v, h_v = jax.vmap(run)(p0, masks, ys)
     for j in range(2):
-        th_j, c_j, _ = run(p0[j], masks[j], ys[j])
-        np.testing.assert_allclose(np.asarray(th_v[j]), np.asarray(th_j), rtol=1e-12, atol=1e-12)
+        th_j, c_j, h_j = run(p0[j], masks[j], ys[j])
+        # batched and single linear solves round differently (1e-9 on the second problem's
+        # flat optimum on some CPUs); a problem iterated past its own stop would move further
+        np.testing.assert_allclose(np.asarray(th_v[j]), np.asarray(th_j), rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(h_v[j]), np.asarray(h_j), rtol=1e-9, atol=1e-18)
     assert float(th_v[1, 1]) == 0.5                                   # masked: never moved
 

@@ -1,0 +1,245 @@
+"""Joint fits of a diagnosis: the augmented model refitted over all zones at once, grown by
+forward selection.
+
+A joint fit estimates every zone's parameters by the coupled simulation error
+(`fitting.fit_joint`): zones interact through their simulated, not measured, temperatures and the
+fitted exchange. `forward_select` fits the top mechanism jointly (surroundings at the record's
+rest level unless both tests demand a fitted level), then adds, one round at a time, the pool's
+mechanism that passes both tests of `decide.py` against the smaller joint model with the
+strongest estimation evidence, up to `MAX_COMBINED` mechanisms. `grid_start` is the separable
+least-squares start that the per-zone and the joint fits share.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.stats import chi2
+
+from . import decide as D
+from . import mechanisms as M
+from .fitting import fit_joint
+
+#: largest number of mechanisms in the augmented model
+MAX_COMBINED = 3
+
+
+def grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
+    """Per-zone baseline start by separable least squares: for each loss rate on a log grid the
+    zone's simulated output is linear in its heater gains, initial temperature (and the
+    surroundings level when it is free); keep the best rate. Returns (log_a, b, x0, ts0)."""
+    from scipy.signal import lfilter
+
+    T, n = y.shape
+    nu = u.shape[1]
+    rates = np.exp(np.linspace(np.log(1.0 / 3000.0), np.log(1.0 / 3.0), n_grid)) 
+    k = np.arange(T)
+    best = [(np.inf, None)] * n
+    for a in rates:
+        ad = math.exp(-a * ts)
+        g = (1 - ad) / a
+        # f[k] = sum_{m<k} ad^(k-1-m) g u[m]  (zero initial state)
+        F = lfilter([0.0, g], [1.0, -ad], u, axis=0)
+        X = [F, (ad ** k)[:, None]]
+        one = 1.0 - ad ** k
+        if ts_free:
+            X.append(one[:, None])
+        X = np.concatenate(X, axis=1)
+        for i in range(n):
+            target = y[:, i] - (0.0 if ts_free else level * one)
+            coef, *_ = np.linalg.lstsq(X, target, rcond=None)
+            c = float(np.mean((target - X @ coef) ** 2))
+            if c < best[i][0]:
+                best[i] = (c, (a, coef))
+    log_a = np.empty(n)
+    b = np.empty((n, nu))
+    x0 = np.empty(n)
+    ts0 = np.zeros(n)
+    for i in range(n):
+        a, coef = best[i][1]
+        log_a[i] = math.log(a)
+        bi = coef[:nu]
+        b[i] = np.maximum(bi, 0.02 * max(np.max(bi), 1e-9))
+        x0[i] = coef[nu]
+        if ts_free:
+            ts0[i] = coef[nu + 1] - level
+    return log_a, b, x0, ts0
+
+
+#: parameter groups of the joint fit's zone models (a zone's initial state, wall state and drift
+#: are the record's, in `simulate_full`'s record vector; the level offset too)
+JOINT_BASE = ("log_a", "log_b")
+RECORD_GROUPS = ("x0", "xw0", "ts0", "drift")
+
+
+def joint_groups(mechs) -> tuple:
+    return JOINT_BASE + tuple(g for m in mechs for g in M.MECH_PARAMS[m] if g not in RECORD_GROUPS)
+
+
+@dataclasses.dataclass
+class JointFits:
+    """What the joint fits of one diagnosis share: records, layout, surroundings, starts.
+
+    A joint fit estimates every zone's parameters at once by the coupled simulation error
+    (`fitting.fit_joint`): zones interact through their simulated, not measured, temperatures.
+    The surroundings are measured, or at the record's rest level (its first sample's mean zone
+    temperature: the heaters were off before it) or that level plus a fitted offset (`free`)."""
+
+    n: int
+    lay: M.Layout
+    y: np.ndarray
+    yv: np.ndarray
+    sh: dict
+    ev: np.ndarray
+    delay: float
+    measured: bool
+    measured_var: bool
+    level: float
+    neutral: np.ndarray
+    u_pad_v: np.ndarray
+    uv: np.ndarray
+    n_iter: int
+    slots: int
+    val_slots: int
+    n_active: int
+
+    def setup(self, free: bool, validation: bool = False) -> dict:
+        """How a record enters a joint model: surroundings level `ts_level` (°C) and whether an
+        offset is fitted (`ts_free`), the input before the record `u_pad`. Measured
+        surroundings: as the per-zone fits. At rest (the default): the estimation record starts
+        with the zones at the surroundings, so the level is its first sample's mean zone
+        temperature, re-estimated on the validation record from that start (as every model's
+        level is there), and the input before a record is its first value (off, for a record
+        that starts at rest). Free: each
+        record's first-sample level plus a fitted offset, the input before it its mean."""
+        u_mean = self.u_pad_v if validation else np.asarray(self.sh["u_pad"])
+        if self.measured:
+            return {"ts_level": self.level, "ts_free": 0.0, "u_pad": u_mean}
+        if free:
+            return {"ts_level": float((self.yv if validation else self.y)[0].mean()), "ts_free": 1.0,
+                    "u_pad": u_mean}
+        return {"ts_level": float(self.y[0].mean()), "ts_free": float(validation),
+                "u_pad": np.asarray((self.uv if validation else self.sh["u"])[0])}
+
+    def start(self, theta, add=None) -> np.ndarray:
+        """`theta` with the record groups cleared and the groups of mechanism `add` at their
+        neutral values (`neutral`: the per-zone fits start the zones at another surroundings
+        level, from where the coupled fit falls into worse minima)."""
+        th = np.array(theta, float)
+        th[:, self.lay.sl("ts0")] = 0.0
+        for grp in M.MECH_PARAMS.get(add, ()):
+            th[:, self.lay.sl(grp)] = self.neutral[:, self.lay.sl(grp)]
+        return th
+
+    def fit(self, models, validate) -> list[dict]:
+        """Fit `(θ start, mechanism set, free level)` models jointly on the estimation record
+        (padded to `slots`: one compiled shape for every round), then validate them (padded to
+        `val_slots`, the candidates' validation shape: no compile of its own)."""
+        n, lay, T = self.n, self.lay, self.y.shape[0]
+        nd = lay.n_drift
+        S = self.slots
+        models = list(models) + [models[-1]] * (S - len(models))
+        R = 2 * n + nd + 1
+        size = n * lay.size
+        rec0, mask = np.zeros((S, R)), np.zeros((S, size + R))
+        setups = [self.setup(m[2]) for m in models]
+        for j, ((th, st, fr), su) in enumerate(zip(models, setups)):
+            _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
+            rec0[j, :n] = self.y[0]
+            rec0[j, n:2 * n] = su["ts_level"] + (rec0[j, :n].mean() - su["ts_level"]) / (1.0 + gam)
+            mask[j, :size] = np.tile(lay.mask(joint_groups(st)), n)
+            mask[j, size:size + n] = 1.0
+            mask[j, size + n:size + 2 * n] = float("heat_accumulation" in st)
+            mask[j, size + 2 * n:size + 2 * n + nd] = float("ambient_variation" in st and not self.measured_var)
+            mask[j, -1] = su["ts_free"]
+        fper = {"events": jnp.asarray(np.stack([self.ev] * S)),
+                "delay": jnp.asarray([self.delay if "input_delay" in m[1] else 0.0 for m in models]),
+                **{k: jnp.asarray(np.stack([su[k] for su in setups])) for k in setups[0]}}
+        free = np.array([su["ts_free"] for su in setups])
+        th, rec, yh, _ = fit_joint(jnp.asarray(np.stack([m[0] for m in models])),
+                                   jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
+                                   jnp.asarray(rec0), jnp.asarray(mask), jnp.asarray(self.y),
+                                   jnp.ones(T), fper, self.sh, lay, self.n_iter, self.n_active)
+        th, rec, yh = np.array(th), np.asarray(rec), np.asarray(yh)
+        # the record parameters, written where the per-zone models keep them (for the report)
+        th[:, :, lay.sl("x0")] = rec[:, :n, None]
+        th[:, :, lay.sl("ts0")] = rec[:, -1:, None] * free[:, None, None]
+        th[:, :, lay.sl("drift")] = rec[:, None, 2 * n:2 * n + nd]
+        yhv = validate([(th[j], st, self.setup(fr, True)) for j, (_, st, fr) in enumerate(models)]
+                       + [(th[-1], models[-1][1], self.setup(models[-1][2], True))] * (self.val_slots - S))
+        return [{"theta": th[j], "set": st, "free": bool(free[j]), "res": self.y - yh[j],
+                 "e": self.yv - yhv[j], "yhat": yhv[j]} for j, (_, st, _) in enumerate(models)]
+
+
+def joint_start(y, u, ts, level, lay) -> np.ndarray:
+    """Joint fits' start `(n, P)`: each zone's loss and heater gains by the separable grid
+    (`grid_start`) with the surroundings at `level`, every mechanism at its neutral value."""
+    ga, gb, gx, _ = grid_start(y, u, ts, level, 0.0)
+    return np.stack([M.initial_theta(lay, log_a=ga[i], log_b=np.log(gb[i]), x0=gx[i])
+                     for i in range(y.shape[1])])
+
+
+def joint_active(n, lay, first, pool) -> int:
+    """Static bound on the free parameters of a joint fit of `first` plus two of `pool`."""
+    size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((m,))[len(JOINT_BASE):])
+    adds = sorted((size(m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
+    per_zone = 1 + lay.nu + size(first) + sum(adds)
+    return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
+
+
+def judge(cur, cand, n_tests, dof, k_extra) -> dict:
+    """Both tests of `cand` against the smaller model `cur` (joint fits' residuals)."""
+    zc, lc = D.thresholds(n_tests, dof)
+    zv = D.predictive_z(cur["e"], cand["e"], k_extra)
+    lr = D.likelihood_ratio(cur["res"], cand["res"])
+    ok = bool(zv >= zc and lr >= lc and np.mean(cand["e"] ** 2) < np.mean(cur["e"] ** 2))
+    return {"validation_z": zv, "validation_z_critical": zc, "estimation_lr": lr,
+            "estimation_lr_critical": lc, "passed": ok}
+
+
+def forward_select(js, validate, k_val, top, pool, fit_of):
+    """Forward selection in the joint structure: fit the top mechanism jointly (surroundings at
+    the rest level; a fitted level only if both tests demand it), then add, one round at a time,
+    of the pool's mechanisms that pass both tests given the chosen ones the one with the smallest
+    χ² tail probability of its likelihood ratio, up to `MAX_COMBINED`. Returns (augmented model, tried combinations, chosen)."""
+    n, lay = js.n, js.lay
+    th0 = js.start(js.neutral, top)
+    chosen = (top,)
+    models = [(th0, chosen, False)] + ([] if js.measured else [(th0, chosen, True)])
+    out = js.fit(models + [(js.start(th0, m), chosen + (m,), False) for m in pool], validate)
+    cur, free, level_test = out[0], False, None
+    adds = out[len(models):len(models) + len(pool)]
+    if not js.measured:
+        level_test = judge(out[0], out[1], 1, 1, 0.0)
+        if level_test["passed"]:
+            cur, free = out[1], True
+            adds = js.fit([(js.start(cur["theta"], m), chosen + (m,), True) for m in pool], validate)
+    tried = []
+    pool = list(pool)
+    while adds:
+        best = None
+        for m, a in zip(pool, adds):
+            t = judge(cur, a, len(pool), M.n_added_per_zone(m, lay) * n, k_val(a["set"]) - k_val(chosen))
+            tried.append({"mechanisms": list(a["set"]), **t, "accepted": False,
+                          "mean_fit_percent": float(np.mean(fit_of(a["e"])))})
+            # among those that pass both tests, the strongest evidence on the estimation record
+            # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
+            # parameters are re-estimated on the validation record itself (a drift)
+            ev = chi2.logsf(t["estimation_lr"], max(M.n_added_per_zone(m, lay) * n, 1))
+            # an addition that predicts the validation record worse is never the augmented model
+            if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]) and (best is None or ev < best[3]):
+                best = (tried[-1], a, m, ev)
+        if best is None:
+            break
+        best[0]["accepted"] = True
+        cur, chosen = best[1], best[1]["set"]
+        pool.remove(best[2])
+        if len(chosen) >= MAX_COMBINED or not pool:
+            break
+        adds = js.fit([(js.start(cur["theta"], m), chosen + (m,), free) for m in pool], validate)
+    cur = {**cur, "level_mode": "measured" if js.measured else ("fitted" if free else "rest"),
+           "level_test": level_test}
+    return cur, tried, list(chosen)
