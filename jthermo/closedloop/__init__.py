@@ -30,8 +30,9 @@ from .scoring import (
     DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, RunningMetrics as RunningMetrics,
     cost as cost, metrics as metrics,
 )
+from .compact import CompactScenario as CompactScenario, Events as Events
 from .engine import (
-    CompactScenario as CompactScenario, Events as Events, initial_state as initial_state,
+    initial_state as initial_state,
     rollout_costs as rollout_costs, rollouts as rollouts, rollouts_and_cost as rollouts_and_cost,
     rollout_metrics as rollout_metrics, run as run, simulate as simulate,
     simulate_cost as simulate_cost, simulate_metrics as simulate_metrics,
