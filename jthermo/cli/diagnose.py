@@ -80,7 +80,12 @@ def _design_samples(args, ts: float) -> tuple[int | None, int]:
         if v is not None and not v > 0:
             raise ConfigError(f"{what} must be positive, got {v:g}")
     duration = None if args.design_duration is None else max(1, round(args.design_duration / ts))
-    return duration, max(1, round(args.design_hold / ts))
+    hold = max(1, round(args.design_hold / ts))
+    if duration is not None and duration < 2 * hold:
+        # said before the diagnosis runs, not after it
+        raise ConfigError(f"--design-duration {args.design_duration:g} s must cover at least two "
+                          f"--design-hold ({args.design_hold:g} s) switching times")
+    return duration, hold
 
 
 def _design(result, est, val, args, path, duration, hold) -> dict:

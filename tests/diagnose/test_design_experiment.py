@@ -194,6 +194,15 @@ def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypa
                    "--design-hold", "0"])
     assert rc == 2 and "--design-hold" in capsys.readouterr().err
 
+    def never(*a, **kw):
+        raise AssertionError("the diagnosis ran before the options were checked")
+
+    monkeypatch.setattr(diag, "diagnose", never)
+    rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
+                   "--design-duration", "15", "--design-hold", "10"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "two --design-hold" in err and len(err.strip().splitlines()) == 1
+
 
 def test_report_has_the_next_experiment(tmp_path):
     from jthermo.diagnose import write_report
