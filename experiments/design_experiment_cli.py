@@ -78,6 +78,8 @@ def check_design(name, pe, pv, tmp, hold_s=10.0):
                 "rivals": (res.get("findings") or [{}])[0].get("rivals", []),
                 "separated": x["rivals"], "why": x["why"], "criterion": x.get("criterion"),
                 "separation_designed": x["separation_designed"], "separation_prbs": x["separation_prbs"],
+                "y_max": x.get("y_max"), "within_y_max": x.get("within_y_max"), "max_predicted": x.get("max_predicted"),
+                "max_predicted_prbs": x.get("max_predicted_prbs"), "recorded_max": float(max(e.y.max(), v.y.max())),
                 "loads": True, "same_layout": (d.input_names == e.input_names and d.output_names == e.output_names
                                                and abs(d.ts - e.ts) < 1e-9),
                 "samples": d.n_samples, "est_samples": e.n_samples,
@@ -132,18 +134,21 @@ def main(argv=None):
              "Made by `experiments/design_experiment_cli.py` (each command a subprocess, `--quiet`). "
              f"Load average at the end (1, 5, 15 min): {load}; the machine was shared.", "",
              "| records | exit | s wall | findings (rivals) | separated | S designed / PRBS | loads, same layout | "
-             "samples (est) | within recorded limits | shortest run / hold (samples) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "samples (est) | within recorded limits | shortest run / hold (samples) | highest predicted °C: designed / "
+             "PRBS (limit = recorded max) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["rc"] != 0:
-            lines.append(f"| {r['case']} | {r['rc']} | {r['seconds']} | {r['stderr_tail']} | | | | | | |")
+            lines.append(f"| {r['case']} | {r['rc']} | {r['seconds']} | {r['stderr_tail']} | | | | | | | |")
             continue
         lines.append(f"| {r['case']} | {r['rc']} | {r['seconds']} | {', '.join(r['findings']) or '-'} "
                      f"({', '.join(r['rivals']) or '-'}) | {' / '.join(r['separated'])} | "
                      f"{r['separation_designed']:.3g} / {r['separation_prbs']:.3g} | "
                      f"{yes(r['loads'] and r['same_layout'])} | {r['samples']} ({r['est_samples']}) | "
                      f"{yes(r['within_limits'])} {r['u_range']} in {r['limits']} | "
-                     f"{r['shortest_run_samples']} / {r['hold_samples']} ({yes(r['holds'])}) |")
+                     f"{r['shortest_run_samples']} / {r['hold_samples']} ({yes(r['holds'])}) | "
+                     f"{max(r['max_predicted']):.1f} / {max(r['max_predicted_prbs']):.1f} ({max(r['y_max']):.1f}, "
+                     f"within: {yes(r['within_y_max'])}) |")
     lines += ["", "Bad options (on the virtual-printer pair): exit code 2 and one stderr line, before the diagnosis:", "",
               "| option | exit | stderr lines | s wall | stderr | ok |", "|---|---|---|---|---|---|"]
     for r in bad:

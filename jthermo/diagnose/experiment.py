@@ -62,6 +62,10 @@ LEARNING_RATE = 0.3
 MAX_RIVALS = 2
 #: what a new record's nuisances absorb of a prediction gap (`design_experiment`'s `criterion`)
 CRITERIA = ("nuisance", "span")
+#: weight of `over_limit` (per °C² and sample) against the objective, and the overshoot of
+#: `y_max` tolerated in the final choice (°C)
+OVER_PENALTY = 100.0
+OVER_TOL = 0.5
 #: PRBS start, unconstrained: sigmoid(±START) ≈ 0.05 / 0.95 of the actuator range
 START = 3.0
 
@@ -226,9 +230,19 @@ def objective(u, ctx, Q, sigma, pm=None):
     return jnp.sum(ls if pm is None else pm * ls)
 
 
-def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm):
+def over_limit(u, ctx, y_max):
+    """$\\sum$ over models, samples and zones of $\\max(0, \\hat y - y_{max})^2$ (°C²): how far the
+    models' predicted temperatures on `u` go above `y_max (n,)`."""
+    return jnp.sum(jax.nn.relu(predictions(u, ctx) - y_max) ** 2)
+
+
+def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max):
     opt = optax.adam(lr)
-    loss = lambda z: -objective(squash(z, lo, hi, hold, T), ctx, Q, sigma, pm)
+
+    def loss(z):
+        u = squash(z, lo, hi, hold, T)
+        pen = 0.0 if y_max is None else OVER_PENALTY * over_limit(u, ctx, y_max)
+        return -objective(u, ctx, Q, sigma, pm) + pen
 
     def step(carry, _):
         z, st, best_z, best_l = carry
@@ -246,16 +260,16 @@ def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm):
 
 
 @eqx.filter_jit
-def _optimise_starts(Z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm):
+def _optimise_starts(Z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max):
     """`_optimise` from each start `Z0 (S, segments, nu)`; the best end point and histories."""
-    z, l, hist = jax.vmap(lambda z0: _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm))(Z0)
+    z, l, hist = jax.vmap(lambda z0: _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max))(Z0)
     return z[jnp.argmin(l)], hist
 
 
 def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int | None = None,
                       hold: int = HOLD, u_min=None, u_max=None, seed: int = 0,
                       n_steps: int = N_STEPS, learning_rate: float = LEARNING_RATE,
-                      criterion: str = "nuisance") -> dict:
+                      criterion: str = "nuisance", y_max=None) -> dict:
     """Design the input that best separates the diagnosis' rival explanations.
 
     **Arguments:**
@@ -271,6 +285,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
       (`CRITERIA`): `"nuisance"`, the span of both models' sensitivities to exactly what the
       diagnosis re-estimates (`nuisance_jacobians`); `"span"`, a constant and (surroundings
       unmeasured) the drift hats.
+    - `y_max`: highest temperature (°C, per output or one for all) that any of the models may
+      predict on the designed input (a penalty in the objective; of the final candidates a
+      design within it is preferred); `None`: no limit.
 
     **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
     `separation_designed` and `separation_prbs` (the weakest pair's $S$, on the design and on
@@ -323,15 +340,24 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     # (from which the gradient grows the most separating direction, as a power iteration does)
     Z0 = jnp.asarray(np.stack([START * (2.0 * bits - 1.0), 0.1 * small]))
     jlo, jhi, jsig = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sigma)
+    if y_max is not None:
+        y_max = np.broadcast_to(np.asarray(y_max, float), (est.n_outputs,))
+        if not np.all(np.isfinite(y_max)):
+            raise ConfigError("design_experiment: y_max must be finite")
+    jymax = None if y_max is None else jnp.asarray(y_max)
     z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
-                               float(learning_rate), jpm)
+                               float(learning_rate), jpm, jymax)
     u_prbs = lo + (hi - lo) * np.repeat(bits, hold, axis=0)[:T]
     # the squash never reaches the limits; its bang-bang rounding (often the optimum under
-    # amplitude limits) and the PRBS start are candidates too: the best of the three is kept
+    # amplitude limits) and the PRBS start are candidates too: the best of the three is kept,
+    # of those whose predictions stay within `y_max` (to `OVER_TOL`) if any does
     u_opt = np.asarray(squash(z, jlo, jhi, int(hold), int(T)))
     u_snap = np.where(u_opt >= 0.5 * (lo + hi), hi, lo)
     score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig, jpm))
-    u = max(((score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:2])[2]
+    top = lambda c: np.max(np.asarray(predictions(jnp.asarray(c), ctx)), axis=(0, 1))      # (n,)
+    within = lambda c: y_max is None or bool(np.all(top(c) <= y_max + OVER_TOL))
+    u = max(((within(c), score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))),
+            key=lambda x: x[:3])[3]
     s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
     s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
@@ -349,6 +375,8 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
             "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
                                  for p, a, b, k in zip(pairs, s_design, s_prbs, used) if k},
             "duration": int(T), "duration_s": T * ts, "hold": int(hold), "criterion": criterion,
+            "y_max": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
+            "max_predicted": top(u_k).tolist(), "max_predicted_prbs": top(u_prbs_k).tolist(),
             "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
                        "u_max": hi.tolist()}, "sigma": sigma.tolist(),
             "u": u, "u_prbs": u_prbs, "predictions": yp,
@@ -369,7 +397,8 @@ def with_idle(u_keep, u_idle, keep) -> np.ndarray:
 def to_json(design: dict, path=None) -> dict:
     """The JSON-ready summary of a design (no arrays); `path` the CSV it was written to."""
     keys = ("rivals", "why", "separation_designed", "separation_prbs", "pair_separations", "duration", "duration_s",
-            "hold", "criterion", "limits", "sigma")
+            "hold", "criterion", "y_max", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
+            "sigma")
     out = {k: design[k] for k in keys}
     out["separation_ratio"] = (design["separation_designed"] / design["separation_prbs"]
                                if design["separation_prbs"] > 0 else float("inf"))
@@ -378,5 +407,5 @@ def to_json(design: dict, path=None) -> dict:
 
 
 __all__ = ["CRITERIA", "design_experiment", "gap_residuals", "nuisance_basis", "nuisance_jacobians", "objective",
-           "pair_mask", "predictions", "rival_context", "rival_set",
+           "over_limit", "pair_mask", "predictions", "rival_context", "rival_set",
            "separations", "squash", "to_json", "with_idle"]

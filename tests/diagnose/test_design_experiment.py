@@ -145,6 +145,18 @@ def test_no_rival_designs_against_the_runner_up_and_the_baseline_and_says_so():
     assert X.rival_set(nothing)[0] == ("heater_lag", "baseline")
 
 
+def test_a_temperature_limit_keeps_every_model_below_it():
+    est, val = _records()
+    free = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    cap = max(free["max_predicted"]) - 1.5          # the unconstrained design goes 1.5 °C above it
+    d = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2, y_max=cap)
+    assert free["y_max"] is None and free["within_y_max"]
+    assert d["within_y_max"] and max(d["max_predicted"]) <= cap + X.OVER_TOL
+    assert np.max(d["predictions"]) <= cap + X.OVER_TOL < np.max(free["predictions"]) and d["separation_designed"] > 0
+    with pytest.raises(ConfigError, match="y_max must be finite"):
+        X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2, y_max=float("nan"))
+
+
 def test_an_idle_input_is_held_at_its_recorded_value():
     est, val = _records()
     u2 = np.column_stack([est.u[:, 0], np.full(T, 0.25)])
@@ -179,7 +191,7 @@ def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypa
         "verdict": "mismatch", "baseline": {"mean_fit_percent": 90.0}, **_result()})
     out, js = tmp_path / "next.csv", tmp_path / "d.json"
     rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
-                   "--design-hold", "5", "--json", str(js)])
+                   "--design-hold", "5", "--design-max-temp", "400", "--json", str(js)])
     err = capsys.readouterr().err
     assert rc == 0, err
     rec = load_csv(out)
