@@ -4,14 +4,15 @@ For each case the printer hides one mechanism of a rival pair that PRBS records 
 tied (heater lag / input delay, a slow chamber body / an unmeasured surroundings drift,
 radiation / lamp nonlinearity). A PRBS estimation and validation record are diagnosed; the
 input that separates the two explanations (`jthermo.diagnose.experiment.design_experiment`, the
-top finding and its rival, or the top finding and the baseline when there is no rival) is run
+top finding and its rivals; with no rival the runner-up and the baseline) is run
 on the true printer, and the diagnosis is repeated with that record as the validation record
 (the models are fitted on the same estimation record). The comparison is a PRBS record of the
 same length, actuator limits and minimum switching time, run on the same printer.
 
-    .venv/bin/python experiments/design_experiment_study.py [--cases a,b] [--steps 150] [--out experiments/results]
+    .venv/bin/python experiments/design_experiment_study.py [--cases a,b] [--seeds 0,1,2]
+        [--criterion nuisance|span] [--duration val|est] [--steps 150] [--out experiments/results] [--tag T]
 
-Writes `experiments/results/design_experiment.md`, `.json` and `design_experiment.png`.
+Writes `experiments/results/design_experiment{T}.md`, `.json` and `design_experiment{T}.png`.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 from jthermo import printer as P
 from jthermo.data import atomic_write_text, from_arrays
 from jthermo.diagnose import diagnose, to_json
-from jthermo.diagnose.experiment import design_experiment, predictions, rival_context
+from jthermo.diagnose.experiment import design_experiment
 from jthermo.diagnose.experiment import to_json as design_json
 from jthermo.inputs import prbs
 
@@ -74,143 +75,182 @@ def run_printer(pr, u, seed, noise, u_rest, measured):
     return from_arrays(u, y, pr.ts)
 
 
-def summary(res):
+def summary(res, truth):
     f = res["findings"]
+    row = next((c for c in res["candidates"] if c["mechanism"] == truth), None)
+    tests = None if row is None else {k: row[k] for k in ("validation_z", "validation_z_critical", "estimation_lr",
+                                                          "estimation_lr_critical", "significant")}
     return {"top": f[0]["mechanism"] if f else None, "rivals": f[0]["rivals"] if f else [],
             "named": [x["mechanism"] for x in f], "confidence": f[0]["confidence"] if f else None,
-            "fit": res["augmented"]["mean_fit_percent"]}
+            "fit": res["augmented"]["mean_fit_percent"], "truth_tests": tests}
 
 
-def ctx_of(res, est, val, d):
-    """The design's simulation context again (for the PRBS predictions in the figure)."""
-    u_rest = np.clip(np.mean(est.u, axis=0), d["limits"]["u_min"], d["limits"]["u_max"])
-    return rival_context(res["_models"], tuple(d["rivals"]), d["duration"], float(est.ts), u_rest,
-                         np.mean(est.y, axis=0))
-
-
-def run_case(name, steps, seed=0):
+def run_case(name, steps, seed=0, criterion="nuisance", duration="val"):
+    """One case on one seed: the printer (seed), the PRBS records (10 seed + 1), their noise
+    (10 seed + 2), the noise of the new records (10 seed + 3, the same draw in both arms)."""
     truth, eff, zones, t_est, t_val, levels, hold, noise, measured = CASES[name]
     pr = P.make_printer(zones, effects=eff, seed=seed)
     u_rest = 0.5 * (levels[0] + levels[1])
-    u = np.asarray(prbs(seed + 1, t_est + t_val, pr.n_inputs, levels=levels, hold=hold), float)
-    rec = run_printer(pr, u, seed + 2, noise, u_rest, measured)
+    u = np.asarray(prbs(10 * seed + 1, t_est + t_val, pr.n_inputs, levels=levels, hold=hold), float)
+    rec = run_printer(pr, u, 10 * seed + 2, noise, u_rest, measured)
     est = rec.replace(u=rec.u[:t_est], y=rec.y[:t_est], w=rec.w[:t_est])
     val = rec.replace(u=rec.u[t_est:], y=rec.y[t_est:], w=rec.w[t_est:], t0=float(t_est))
     t0 = time.perf_counter()
     res = diagnose(est, val, seed=seed)
-    first = summary(to_json(res))
+    first = summary(to_json(res), truth)
     t1 = time.perf_counter()
-    d = design_experiment(res, est, val, duration=t_val, n_steps=steps, seed=seed)
+    T_new = t_val if duration == "val" else t_est
+    d = design_experiment(res, est, val, duration=T_new, n_steps=steps, seed=seed, criterion=criterion)
     t2 = time.perf_counter()
-    out = {"case": name, "truth": truth, "effects": eff, "zones": zones, "noise": noise,
-           "estimation_s": t_est, "record_s": t_val, "prbs_diagnosis": first,
+    out = {"case": name, "seed": seed, "truth": truth, "effects": eff, "zones": zones, "noise": noise,
+           "estimation_s": t_est, "record_s": T_new, "prbs_diagnosis": first,
            "design": design_json(d), "design_seconds": t2 - t1, "diagnose_seconds": t1 - t0}
     for kind, uu in (("designed", d["u"]), ("prbs", d["u_prbs"])):
-        new = run_printer(pr, np.asarray(uu), seed + 3, noise, u_rest, measured)
+        new = run_printer(pr, np.asarray(uu), 10 * seed + 3, noise, u_rest, measured)
         for how, (e, v) in (("as_validation", (est, new)), ("as_estimation", (new, val))):
-            r = summary(to_json(diagnose(e, v, seed=seed)))
+            r = summary(to_json(diagnose(e, v, seed=seed)), truth)
             r["named_truth"] = r["top"] == truth
             r["rival_left"] = bool(r["rivals"])
             out[f"{kind}_{how}"] = r
-    yp = np.asarray(predictions(jax.numpy.asarray(d["u_prbs"]), ctx_of(res, est, val, d)))
-    arrays = {"u": d["u"], "u_prbs": d["u_prbs"], "gap": d["predictions"][0] - d["predictions"][1],
-              "gap_prbs": yp[0] - yp[1], "history": d["history"]}
+    weakest = int(np.argmin([v["designed"] for v in d["pair_separations"].values()]))
+    arrays = {"u": d["u"], "u_prbs": d["u_prbs"], "gap": d["gaps"][weakest], "gap_prbs": d["gaps_prbs"][weakest],
+              "pair": list(d["pair_separations"])[weakest], "history": d["history"]}
     return out, arrays
 
 
 def figure(rows, arrays, path):
+    """Per case (first seed): the designed and the PRBS input in separate lanes, and the weakest
+    pair's prediction gap left after the nuisance refit, in noise units, on both."""
     from matplotlib.figure import Figure
 
     from jthermo.plots import save_figure
 
-    fig = Figure(figsize=(10, 2.1 * len(rows)), layout="constrained")
-    axes = fig.subplots(len(rows), 2, squeeze=False)
+    fig = Figure(figsize=(11, 2.3 * len(rows)), layout="constrained")
+    axes = fig.subplots(len(rows), 2, squeeze=False, width_ratios=(1, 1.3))
     for r, (a1, a2) in zip(rows, axes):
-        ar = arrays[r["case"]]
+        ar = arrays[(r["case"], r["seed"])]
         t = np.arange(len(ar["u"]))
-        a1.step(t, ar["u_prbs"][:, 0], lw=0.6, color="0.6", label="PRBS")
-        a1.step(t, ar["u"][:, 0], lw=0.9, color="tab:blue", label="designed")
-        a1.set_ylabel("u")
-        a1.set_title(f"{r['case']}: truth {r['truth']}; design separates "
-                     f"{' / '.join(r['design']['rivals'])}", fontsize="small")
-        a1.legend(fontsize="x-small", loc="upper right")
-        a2.plot(t, ar["gap"][:, 0], lw=0.8, color="tab:blue", label="designed")
-        a2.plot(t, ar["gap_prbs"][:, 0], lw=0.6, color="0.6", label="PRBS")
-        a2.set_ylabel("ŷ_top − ŷ_rival (°C)")
-        a2.legend(fontsize="x-small", loc="upper right")
-        a2.set_title(f"prediction gap of the first two models; weakest-pair separation ×"
-                     f"{r['design']['separation_ratio']:.1f} of PRBS", fontsize="small")
+        lo, hi = r["design"]["limits"]["u_min"][0], r["design"]["limits"]["u_max"][0]
+        span = hi - lo
+        a1.step(t, ar["u"][:, 0], where="post", lw=0.9, color="tab:blue", label="designed")
+        a1.step(t, ar["u_prbs"][:, 0] - 1.4 * span, where="post", lw=0.8, color="0.45", label="PRBS (offset)")
+        a1.set_yticks([lo - 1.4 * span, hi - 1.4 * span, lo, hi],
+                      [f"{lo:.2f}", f"{hi:.2f}", f"{lo:.2f}", f"{hi:.2f}"], fontsize="x-small")
+        a1.set_ylabel("heater command")
+        a1.set_title(f"{r['case']} (truth {r['truth']}): designed (top), PRBS (below), hold "
+                     f"{r['design']['hold']} s", fontsize="small")
+        g, gp = ar["gap"], ar["gap_prbs"]
+        a2.plot(t, gp, lw=0.7, color="0.45", label=f"PRBS  S = {np.sum(gp ** 2):.3g}")
+        a2.plot(t, g, lw=0.9, color="tab:blue", label=f"designed  S = {np.sum(g ** 2):.3g}")
+        a2.axhspan(-1, 1, color="tab:orange", alpha=0.15, lw=0, label="±1 noise σ")
+        a2.set_ylabel("gap / σ")
+        a2.legend(fontsize="x-small", loc="upper right", ncol=3)
+        a2.set_title(f"weakest pair {ar['pair'].replace('/', ' vs ')}: gap after the nuisance refit",
+                     fontsize="small")
     for a in axes[-1]:
         a.set_xlabel("time (s)")
     save_figure(fig, path)
 
 
-def write(rows, out, load):
+def write(rows, out, load, tag):
     yes = lambda b: "yes" if b else "no"
+    crit = rows[0]["design"].get("criterion", "span")
     lines = ["# Designed experiments against PRBS (issue 14 item 3)", "",
-             "Made by `experiments/design_experiment_study.py`. Virtual printer, one zone, Ts = 1 s, white +",
+             f"Made by `experiments/design_experiment_study.py` (criterion `{crit}`). Virtual printer, one zone, "
+             "Ts = 1 s, white +",
              "AR(1) sensor noise (same noise draw in both arms); PRBS estimation + validation records are",
-             "diagnosed first; the design separates the top finding and its rivals (or the top finding and",
-             "the baseline, or with no finding the two best candidates); then the designed record and a",
-             "PRBS record of the same length, limits and minimum switching time (10 s) are run on the same",
-             "printer. Separation = the models' prediction gap outside what a new record's nuisances absorb",
-             "(initial level; drift when the surroundings are unmeasured), over the noise power, for the",
-             "weakest pair (`jthermo/diagnose/experiment.py`).",
+             "diagnosed first; the design separates the top finding and its rivals (with no rival: the top",
+             "finding, the runner-up and the baseline; with no finding the two best candidates and the",
+             "baseline); then the designed record and a PRBS record of the same length, limits and minimum",
+             "switching time (10 s) are run on the same printer. Separation S = the models' prediction gap",
+             "outside what a new record's re-estimated nuisances absorb (`jthermo/diagnose/experiment.py`),",
+             "over the noise power, for the weakest pair. Seeds: printer s, PRBS 10s+1, noise 10s+2, new",
+             "records' noise 10s+3.",
              f"Load average when the table was written (1, 5, 15 min): {load}; the machine was shared.", "",
              "Each new record is diagnosed twice: as the validation record (models fitted on the PRBS",
              "estimation record: the protocol the design assumes) and as the estimation record (validated",
              "on the PRBS validation record). Cells: named truth? (top finding; rivals left).", "",
-             ("| case | truth | PRBS est/val: top (rivals) | models separated | new PRBS as val | designed as val | "
-              "new PRBS as est | designed as est | weakest-pair separation designed / PRBS |"),
-             "|---|---|---|---|---|---|---|---|---|"]
+             "## Counts (top finding = truth, over seeds)", "",
+             "| case | truth | seeds | PRBS est/val | new PRBS as val | designed as val | new PRBS as est | "
+             "designed as est | rival left: PRBS/designed as val | median S designed / PRBS |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    for c in cases:
+        rs = [r for r in rows if r["case"] == c]
+        k = lambda key, sub="named_truth": f"{sum(bool(r[key][sub]) for r in rs)}/{len(rs)}"
+        first = f"{sum(r['prbs_diagnosis']['top'] == r['truth'] for r in rs)}/{len(rs)}"
+        lines.append(f"| {c} | {rs[0]['truth']} | {len(rs)} | {first} | {k('prbs_as_validation')} | "
+                     f"{k('designed_as_validation')} | {k('prbs_as_estimation')} | {k('designed_as_estimation')} | "
+                     f"{k('prbs_as_validation', 'rival_left')} / {k('designed_as_validation', 'rival_left')} | "
+                     f"{np.median([r['design']['separation_designed'] for r in rs]):.3g} / "
+                     f"{np.median([r['design']['separation_prbs'] for r in rs]):.3g} |")
+    tot = lambda key, sub="named_truth": f"{sum(bool(r[key][sub]) for r in rows)}/{len(rows)}"
+    lines += ["", f"All: PRBS est/val {sum(r['prbs_diagnosis']['top'] == r['truth'] for r in rows)}/{len(rows)}; "
+              f"as validation designed {tot('designed_as_validation')} (rival left "
+              f"{tot('designed_as_validation', 'rival_left')}), PRBS of the same length {tot('prbs_as_validation')} "
+              f"(rival left {tot('prbs_as_validation', 'rival_left')}); as estimation designed "
+              f"{tot('designed_as_estimation')} (rival left {tot('designed_as_estimation', 'rival_left')}), PRBS "
+              f"{tot('prbs_as_estimation')} (rival left {tot('prbs_as_estimation', 'rival_left')}).", "",
+              "## Every run", "",
+              ("| case | seed | PRBS est/val: top (rivals) | models separated | new PRBS as val | designed as val | "
+               "new PRBS as est | designed as est | weakest-pair S designed / PRBS | truth's tests, designed as val: "
+               "z/z_crit, LR/LR_crit |"),
+              "|---|---|---|---|---|---|---|---|---|---|"]
     cell = lambda c: f"{yes(c['named_truth'])} ({c['top']}; {', '.join(c['rivals']) or '-'})"
+
+    def tests(c):
+        t = c.get("truth_tests")
+        return "-" if not t else (f"{t['validation_z']:.2f}/{t['validation_z_critical']:.2f}, "
+                                  f"{t['estimation_lr']:.1f}/{t['estimation_lr_critical']:.1f}")
     for r in rows:
         f = r["prbs_diagnosis"]
-        lines.append(f"| {r['case']} | {r['truth']} | {f['top']} ({', '.join(f['rivals']) or '-'}) | "
+        lines.append(f"| {r['case']} | {r.get('seed', 0)} | {f['top']} ({', '.join(f['rivals']) or '-'}) | "
                      f"{' / '.join(r['design']['rivals'])} | {cell(r['prbs_as_validation'])} | "
                      f"{cell(r['designed_as_validation'])} | {cell(r['prbs_as_estimation'])} | "
                      f"{cell(r['designed_as_estimation'])} | {r['design']['separation_designed']:.3g} / "
-                     f"{r['design']['separation_prbs']:.3g} = {r['design']['separation_ratio']:.2f} |")
-    count = lambda kind, key: f"{sum(r[kind][key] for r in rows)}/{len(rows)}"
-    lines += [""]
-    for how in ("as_validation", "as_estimation"):
-        lines.append(f"- new record {how.replace('_', ' ')}: designed named the truth "
-                     f"{count('designed_' + how, 'named_truth')} (rival left "
-                     f"{count('designed_' + how, 'rival_left')}); PRBS of the same length "
-                     f"{count('prbs_' + how, 'named_truth')} (rival left {count('prbs_' + how, 'rival_left')})")
-    lines += ["", "![inputs and rival prediction gaps](design_experiment.png)", ""]
-    atomic_write_text(out / "design_experiment.md", "\n".join(lines))
-    atomic_write_text(out / "design_experiment.json", json.dumps(rows, indent=1, default=float))
+                     f"{r['design']['separation_prbs']:.3g} = {r['design']['separation_ratio']:.2f} | "
+                     f"{tests(r['designed_as_validation'])} |")
+    lines += ["", f"![inputs and rival prediction gaps](design_experiment{tag}.png)", ""]
+    atomic_write_text(out / f"design_experiment{tag}.md", "\n".join(lines))
+    atomic_write_text(out / f"design_experiment{tag}.json", json.dumps(rows, indent=1, default=float))
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--seeds", default="0", help="comma-separated printer/noise seeds, each case on each")
+    ap.add_argument("--criterion", default="nuisance", choices=("nuisance", "span"))
+    ap.add_argument("--duration", default="val", choices=("val", "est"),
+                    help="designed record's length: the validation record's or the estimation record's")
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--out", default="experiments/results")
+    ap.add_argument("--tag", default="", help="suffix of the result files")
     ap.add_argument("--rewrite", metavar="LOAD", help="only rewrite the Markdown from the JSON in --out")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.rewrite is not None:
-        write(json.loads((out / "design_experiment.json").read_text()), out, args.rewrite)
+        write(json.loads((out / f"design_experiment{args.tag}.json").read_text()), out, args.rewrite, args.tag)
         return 0
     rows, arrays = [], {}
-    for name in args.cases.split(","):
-        t0 = time.perf_counter()
-        row, ar = run_case(name, args.steps)
-        row["seconds"] = time.perf_counter() - t0
-        rows.append(row)
-        arrays[name] = ar
-        got = "; ".join(f"{k} {row[k]['top']} {row[k]['rivals']}" for k in
-                        ("prbs_as_validation", "designed_as_validation", "prbs_as_estimation",
-                         "designed_as_estimation"))
-        print(f"{name}: PRBS est/val {row['prbs_diagnosis']['top']} rivals {row['prbs_diagnosis']['rivals']}; "
-              f"design {row['design']['rivals']} x{row['design']['separation_ratio']:.2f}; {got} "
-              f"({row['seconds']:.0f} s)", flush=True)
-        load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
-        write(rows, out, load)
-    figure(rows, arrays, out / "design_experiment.png")
+    seeds = [int(x) for x in args.seeds.split(",")]
+    for seed in seeds:
+        for name in args.cases.split(","):
+            t0 = time.perf_counter()
+            row, ar = run_case(name, args.steps, seed, args.criterion, args.duration)
+            row["seconds"] = time.perf_counter() - t0
+            rows.append(row)
+            arrays[(name, seed)] = ar
+            got = "; ".join(f"{k} {row[k]['top']} {row[k]['rivals']}" for k in
+                            ("prbs_as_validation", "designed_as_validation", "prbs_as_estimation",
+                             "designed_as_estimation"))
+            print(f"{name} seed {seed}: PRBS est/val {row['prbs_diagnosis']['top']} rivals "
+                  f"{row['prbs_diagnosis']['rivals']}; design {row['design']['rivals']} "
+                  f"x{row['design']['separation_ratio']:.2f}; {got} ({row['seconds']:.0f} s)", flush=True)
+            load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+            rows.sort(key=lambda r: (list(CASES).index(r["case"]), r["seed"]))
+            write(rows, out, load, args.tag)
+    figure([r for r in rows if r["seed"] == seeds[0]], arrays, out / f"design_experiment{args.tag}.png")
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -34,6 +35,9 @@ def add_parsers(sub) -> None:
                     help="designed record's length in s (default: the estimation record's)")
     sp.add_argument("--design-hold", type=float, default=10.0, metavar="S",
                     help="designed input's minimum switching time in s (default 10)")
+    sp.add_argument("--design-max-temp", type=float, metavar="C",
+                    help="highest temperature any rival model may predict on the designed input "
+                         "(default: the highest recorded in the two records)")
     add_common(sp, plot=False)
 
 
@@ -79,8 +83,15 @@ def _design_samples(args, ts: float) -> tuple[int | None, int]:
     for what, v in (("--design-duration", args.design_duration), ("--design-hold", args.design_hold)):
         if v is not None and not v > 0:
             raise ConfigError(f"{what} must be positive, got {v:g}")
+    if args.design_max_temp is not None and not math.isfinite(args.design_max_temp):
+        raise ConfigError(f"--design-max-temp must be a finite temperature, got {args.design_max_temp:g}")
     duration = None if args.design_duration is None else max(1, round(args.design_duration / ts))
-    return duration, max(1, round(args.design_hold / ts))
+    hold = max(1, round(args.design_hold / ts))
+    if duration is not None and duration < 2 * hold:
+        # said before the diagnosis runs, not after it
+        raise ConfigError(f"--design-duration {args.design_duration:g} s must cover at least two "
+                          f"--design-hold ({args.design_hold:g} s) switching times")
+    return duration, hold
 
 
 def _design(result, est, val, args, path, duration, hold) -> dict:
@@ -88,9 +99,16 @@ def _design(result, est, val, args, path, duration, hold) -> dict:
     from ..data import save_csv
     from ..diagnose import experiment
 
-    d = experiment.design_experiment(result, est, val, duration=duration, hold=hold, seed=args.seed)
+    y_max = args.design_max_temp
+    if y_max is None:
+        import numpy as np
+
+        y_max = np.maximum(np.max(np.asarray(est.y, float), axis=0), np.max(np.asarray(val.y, float), axis=0))
+    d = experiment.design_experiment(result, est, val, duration=duration, hold=hold, seed=args.seed, y_max=y_max)
     save_csv(d["record"], path)
     js = experiment.to_json(d, path)
     info(args, f"designed experiment ({js['why']}): {' vs '.join(js['rivals'])}, separation "
-               f"{js['separation_designed']:.3g} (PRBS {js['separation_prbs']:.3g}), wrote {path}")
+               f"{js['separation_designed']:.3g} (PRBS {js['separation_prbs']:.3g}), highest predicted "
+               f"{max(js['max_predicted']):.1f} °C (limit {max(js['y_max']):.1f}"
+               f"{'' if js['within_y_max'] else ', exceeded: no input within the limits found'}), wrote {path}")
     return js

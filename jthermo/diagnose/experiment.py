@@ -9,10 +9,17 @@ $$S_{ab}(u) = \\sum_i \\frac{\\|(I - \\Pi_N)\\,(\\hat y_{a,i}(u) - \\hat y_{b,i}
 
 the expected log-likelihood gap per record between the two explanations under white noise of
 variance $\\sigma_i^2$ (the top model's validation residual power, zone $i$), after removing
-what the nuisance parameters re-estimated on a new record can absorb: $\\Pi_N$ projects onto a
-constant per zone (the initial level) and, when the surroundings are not measured, onto the
-piecewise-linear drift basis of `ambient_variation`. With three models (the top finding and two
-rivals) the design maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
+what the nuisance parameters re-estimated on a new record can absorb. $\\Pi_N$ projects onto
+the span of both models' sensitivities to exactly what the diagnosis re-estimates on a record
+it validates on (`nuisance_jacobians`): every zone's initial state, a body's initial state, the
+surroundings level where it is not measured, and then also a surroundings drift on the record's
+own knots, for every model (criterion `"nuisance"`, the default). The gap is the distance
+between the two models' prediction sets over those nuisances, linearised (weighted least
+squares); a transient from an unknown start, or a slow term a drift can follow, separates
+nothing. (The former criterion `"span"` projected onto a constant per zone and the raw drift
+hats only: it counted the decay of an unknown initial state as separation.) With three models
+(the top finding and two rivals, or with no rival the runner-up and the baseline) the design
+maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
 differentiable in $u$ through the coupled simulations (`mechanisms.simulate_full`).
 
 The input is held piecewise constant over `hold` samples (the minimum switching time) and kept
@@ -53,6 +60,12 @@ N_STEPS = 150
 LEARNING_RATE = 0.3
 #: rivals of the top finding the design separates, besides it
 MAX_RIVALS = 2
+#: what a new record's nuisances absorb of a prediction gap (`design_experiment`'s `criterion`)
+CRITERIA = ("nuisance", "span")
+#: weight of `over_limit` (per °C² and sample) against the objective, and the overshoot of
+#: `y_max` tolerated in the final choice (°C)
+OVER_PENALTY = 100.0
+OVER_TOL = 0.5
 #: PRBS start, unconstrained: sigmoid(±START) ≈ 0.05 / 0.95 of the actuator range
 START = 3.0
 
@@ -61,20 +74,30 @@ def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
     """(models, why): the explanations the design must separate (two or three names).
 
     The top finding and its rivals (at most two); with no rival, the top finding against the
-    baseline; with no finding, the two candidates that reduced the validation error most (or
-    the best one against the baseline when only one reduced it)."""
+    runner-up (the other candidate that reduced the validation error most, its closest
+    alternative explanation) and the baseline; with no finding, the two candidates that reduced
+    the validation error most and the baseline (the new record must also show the better one
+    significant), or the best one against the baseline when only one reduced it."""
     fs = result.get("findings") or []
     if fs and fs[0].get("rivals"):
         return (fs[0]["mechanism"], *fs[0]["rivals"][:MAX_RIVALS]), "the top finding and its rivals"
-    if fs:
-        return (fs[0]["mechanism"], "baseline"), "no rival: the top finding against the baseline"
-    cands = sorted((c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))),
+    cands = sorted((c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))
+                    and c["val_reduction"] > 0 and not (fs and c["mechanism"] == fs[0]["mechanism"])),
                    key=lambda c: -c["val_reduction"])
+    if fs:
+        if cands:
+            return ((fs[0]["mechanism"], cands[0]["mechanism"], "baseline"),
+                    "no rival: the top finding against the runner-up and the baseline")
+        return (fs[0]["mechanism"], "baseline"), "no rival: the top finding against the baseline"
     if not cands:
-        raise ConfigError("design_experiment: the diagnosis has no candidate to separate from the baseline")
-    if len(cands) > 1 and cands[1]["val_reduction"] > 0:
-        return ((cands[0]["mechanism"], cands[1]["mechanism"]),
-                "no finding: the two candidates that reduced the validation error most")
+        best = [c for c in result.get("candidates", []) if np.isfinite(c.get("val_reduction", np.nan))]
+        if not best:
+            raise ConfigError("design_experiment: the diagnosis has no candidate to separate from the baseline")
+        return ((max(best, key=lambda c: c["val_reduction"])["mechanism"], "baseline"),
+                "no finding: the best candidate against the baseline")
+    if len(cands) > 1:
+        return ((cands[0]["mechanism"], cands[1]["mechanism"], "baseline"),
+                "no finding: the two candidates that reduced the validation error most and the baseline")
     return (cands[0]["mechanism"], "baseline"), "no finding: the best candidate against the baseline"
 
 
@@ -118,37 +141,108 @@ def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
               "ts_free": jnp.asarray(float(models["ts_free"])), "wdev": jnp.zeros(Tw),
               "Phi": jnp.asarray(M.drift_basis(Tw, ts, kv)), "u_pad": jnp.asarray(u_rest),
               "ts": jnp.asarray(float(ts)), "t_ref": jnp.asarray(float(models["t_ref"]))}
+    # what the diagnosis re-estimates on a new record (`select.diagnose`'s `validate`): every
+    # zone's initial state, a body's initial state, the record's own surroundings level when
+    # it is not measured, and, with the surroundings unmeasured, a drift on the record's own
+    # knots, for every model (a drift is always a candidate explanation of slow residuals)
+    drift = not models["measured_ambient"]
+    kr = M.n_drift_knots(T, ts)
+    masks = np.zeros((len(names), 2 * n + kr + 1))
+    masks[:, :n] = 1.0
+    masks[:, n:2 * n] = np.array([float(m == "heat_accumulation") for m in names])[:, None]
+    masks[:, 2 * n:2 * n + kr] = float(drift)
+    masks[:, -1] = float(models["ts_free"])
+    ons_j = np.stack(ons)
+    ons_j[:, M.MECHANISMS.index("ambient_variation")] = np.maximum(ons_j[:, M.MECHANISMS.index(
+        "ambient_variation")], float(drift))
+    rec_r = [np.concatenate([r[:2 * n], np.zeros(kr), [0.0]]) for r in recs]
+    nuis = {"on": jnp.asarray(ons_j), "rec": jnp.asarray(np.stack(rec_r)), "mask": jnp.asarray(masks),
+            "f": {**shared, "events": jnp.asarray(ev[WARMUP:]), "wdev": jnp.zeros(T),
+                  "Phi": jnp.asarray(M.drift_basis(T, ts, kr))}}
     return (jnp.asarray(np.stack(thetas)), jnp.asarray(np.stack(ons)), jnp.asarray(delays),
-            jnp.asarray(np.stack(recs)), shared, lay)
+            jnp.asarray(np.stack(recs)), shared, lay, nuis)
 
 
 def predictions(u, ctx):
     """The models' coupled simulations `(K, T, n)` on the input `u (T, nu)` (warm-up dropped)."""
-    Th, on, delay, rec, shared, lay = ctx
+    Th, on, delay, rec, shared, lay = ctx[:6]
     Tw = shared["Phi"].shape[0]
     full = jnp.concatenate([jnp.broadcast_to(shared["u_pad"], (Tw - u.shape[0], u.shape[1])), u])
     sim = lambda th, o, d, r: M.simulate_full(th, o, {**shared, "u": full, "delay": d}, lay, r)
     return jax.vmap(sim)(Th, on, delay, rec)[:, Tw - u.shape[0]:]
 
 
+def nuisance_jacobians(u, ctx):
+    """`(K, T n, R)`: each model's sensitivity to what a new record re-estimates (zero columns
+    for what it does not), simulated from the record's start on the input `u (T, nu)`: what a
+    refit of those nuisances can absorb of a prediction gap. Exact for the models that are
+    linear in their states (all but radiation), a linearisation at the nominal start otherwise."""
+    Th, on, delay, _rec, _shared, lay, nuis = ctx
+    T, n = u.shape[0], lay.n
+
+    def jac(th, o, d, r, m):
+        sim = lambda rr: M.simulate_full(th, o, {**nuis["f"], "u": u, "delay": d}, lay, rr)
+        return jax.jacfwd(sim)(r).reshape(T * n, -1) * m[None, :]
+
+    return jax.vmap(jac)(Th, nuis["on"], delay, nuis["rec"], nuis["mask"])
+
+
+def gap_residuals(u, ctx, Q, sigma):
+    """`(P, T n)`: every pair's ($a < b$, `itertools.combinations` order) prediction gap on the
+    input `u` outside what a new record's nuisances absorb, in noise units (zone fastest). With
+    `Q (T, k)` given (the former criterion), that span is `Q`'s columns in every zone; with
+    `Q = None` it is the span of both models' `nuisance_jacobians` (weighted least squares)."""
+    y = predictions(u, ctx)
+    K, T, n = y.shape
+    a, b = np.triu_indices(K, 1)
+    d = y[a] - y[b]
+    if Q is not None:
+        d = d - jnp.einsum("tk,pkn->ptn", Q, jnp.einsum("tk,ptn->pkn", Q, d))
+        return (d / sigma).reshape(len(a), T * n)
+    w = jnp.tile(1.0 / sigma, T)                                   # (T n,), zone fastest
+    J = jax.lax.stop_gradient(nuisance_jacobians(u, ctx)) * w[None, :, None]
+    X = jnp.concatenate([J[a], J[b]], axis=2)                      # (P, T n, 2R)
+    X = X / jnp.maximum(jnp.linalg.norm(X, axis=1, keepdims=True), 1e-12)
+    dw = d.reshape(len(a), T * n) * w[None, :]
+    G = jnp.einsum("pti,ptj->pij", X, X) + 1e-9 * jnp.eye(X.shape[2])
+    coef = jnp.linalg.solve(G, jnp.einsum("pti,pt->pi", X, dw)[..., None])[..., 0]
+    return dw - jnp.einsum("pti,pi->pt", X, coef)
+
+
 def separations(u, ctx, Q, sigma):
     """$S_{ab}(u)$ of every pair $a < b$ of the models (≥ 0), in `itertools.combinations` order:
-    their prediction gap outside the nuisance span, in noise units."""
-    y = predictions(u, ctx)
-    a, b = np.triu_indices(y.shape[0], 1)
-    d = y[a] - y[b]
-    d = d - jnp.einsum("tk,pkn->ptn", Q, jnp.einsum("tk,ptn->pkn", Q, d))
-    return jnp.sum(d ** 2 / sigma ** 2, axis=(1, 2))
+    the squared norm of their `gap_residuals`."""
+    return jnp.sum(gap_residuals(u, ctx, Q, sigma) ** 2, axis=1)
 
 
-def objective(u, ctx, Q, sigma):
-    """$\\sum_{a<b} \\log S_{ab}(u)$: every pair must separate (a product, like a D-criterion)."""
-    return jnp.sum(jnp.log(separations(u, ctx, Q, sigma) + 1e-300))
+def pair_mask(names) -> np.ndarray:
+    """1.0 for the pairs ($a < b$, `itertools.combinations` order) of `names` the design must
+    separate: every pair, except that the baseline need only be told from the first model (the
+    top finding, or the best candidate): a runner-up against the baseline settles nothing."""
+    a, b = np.triu_indices(len(names), 1)
+    return np.array([float(not ("baseline" in (names[i], names[j]) and i != 0)) for i, j in zip(a, b)])
 
 
-def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
+def objective(u, ctx, Q, sigma, pm=None):
+    """$\\sum_{a<b} \\log S_{ab}(u)$ over the pairs `pm` (default: all) keeps: every pair must
+    separate (a product, like a D-criterion)."""
+    ls = jnp.log(separations(u, ctx, Q, sigma) + 1e-300)
+    return jnp.sum(ls if pm is None else pm * ls)
+
+
+def over_limit(u, ctx, y_max):
+    """$\\sum$ over models, samples and zones of $\\max(0, \\hat y - y_{max})^2$ (°C²): how far the
+    models' predicted temperatures on `u` go above `y_max (n,)`."""
+    return jnp.sum(jax.nn.relu(predictions(u, ctx) - y_max) ** 2)
+
+
+def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max):
     opt = optax.adam(lr)
-    loss = lambda z: -objective(squash(z, lo, hi, hold, T), ctx, Q, sigma)
+
+    def loss(z):
+        u = squash(z, lo, hi, hold, T)
+        pen = 0.0 if y_max is None else OVER_PENALTY * over_limit(u, ctx, y_max)
+        return -objective(u, ctx, Q, sigma, pm) + pen
 
     def step(carry, _):
         z, st, best_z, best_l = carry
@@ -166,15 +260,16 @@ def _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
 
 
 @eqx.filter_jit
-def _optimise_starts(Z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr):
+def _optimise_starts(Z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max):
     """`_optimise` from each start `Z0 (S, segments, nu)`; the best end point and histories."""
-    z, l, hist = jax.vmap(lambda z0: _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr))(Z0)
+    z, l, hist = jax.vmap(lambda z0: _optimise(z0, lo, hi, hold, T, ctx, Q, sigma, n_steps, lr, pm, y_max))(Z0)
     return z[jnp.argmin(l)], hist
 
 
 def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int | None = None,
                       hold: int = HOLD, u_min=None, u_max=None, seed: int = 0,
-                      n_steps: int = N_STEPS, learning_rate: float = LEARNING_RATE) -> dict:
+                      n_steps: int = N_STEPS, learning_rate: float = LEARNING_RATE,
+                      criterion: str = "nuisance", y_max=None) -> dict:
     """Design the input that best separates the diagnosis' rival explanations.
 
     **Arguments:**
@@ -186,11 +281,20 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
       (default: the range the two records' inputs span); inputs the diagnosis left out (idle)
       stay at their recorded value.
     - `seed`: the PRBS start and the PRBS it is compared with.
+    - `criterion`: what a new record's re-estimated nuisances are taken to absorb of a gap
+      (`CRITERIA`): `"nuisance"`, the span of both models' sensitivities to exactly what the
+      diagnosis re-estimates (`nuisance_jacobians`); `"span"`, a constant and (surroundings
+      unmeasured) the drift hats.
+    - `y_max`: highest temperature (°C, per output or one for all) that any of the models may
+      predict on the designed input (a penalty in the objective; of the final candidates a
+      design within it is preferred); `None`: no limit.
 
     **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
     `separation_designed` and `separation_prbs` (the weakest pair's $S$, on the design and on
-    a PRBS over the same limits, switching time and length), `pair_separations`, `duration`
+    a PRBS over the same limits, switching time and length), `pair_separations` (the pairs
+    `pair_mask` keeps), `duration`
     (samples), `duration_s`, `u` `(T, nu)`, `u_prbs`, `predictions` `(K, T, n)` on `u`,
+    `gaps` and `gaps_prbs` (`gap_residuals` on `u` and on the PRBS, `(pairs, T n)`),
     `history` (−objective per iteration and start), `limits` and `record` (an `IOData` in the
     layout of `est`: the designed inputs, the top model's predicted outputs, measured signals at
     their means).
@@ -214,15 +318,21 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
         raise ConfigError("design_experiment: the actuator limits need u_max > u_min for every input")
     names, why = rival_set(result)
+    pm = pair_mask(names)
+    jpm = jnp.asarray(pm)
     ts = float(est.ts)
     y_val = np.asarray(val.y, float)
     yhat = np.asarray(result["_arrays"]["yhat_augmented"])
     sigma = np.sqrt(np.maximum(np.mean((y_val - yhat) ** 2, axis=0), 1e-12))
     u_rest = np.clip(np.mean(np.asarray(est.u, float)[:, keep], axis=0), lo, hi)
     ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
-    # an unmeasured surroundings drift is always a candidate explanation of slow residuals:
-    # what it can absorb separates nothing
-    Q = jnp.asarray(nuisance_basis(T, ts, not models["measured_ambient"]))
+    if criterion not in CRITERIA:
+        raise ConfigError(f"design_experiment: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    # "span" (the former criterion): a constant and, with the surroundings unmeasured (a drift
+    # is always a candidate explanation of slow residuals), the drift hats, in every zone;
+    # "nuisance": the span of the models' sensitivities to what the diagnosis re-estimates
+    Q = (jnp.asarray(nuisance_basis(T, ts, not models["measured_ambient"])) if criterion == "span"
+         else None)
     nseg = math.ceil(T / hold)
     bits = np.asarray(prbs(seed, nseg, len(keep), levels=(0.0, 1.0), hold=(1, 4)), float)
     small = np.asarray(jax.random.normal(jax.random.key(seed), bits.shape, jnp.float64))
@@ -230,33 +340,49 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     # (from which the gradient grows the most separating direction, as a power iteration does)
     Z0 = jnp.asarray(np.stack([START * (2.0 * bits - 1.0), 0.1 * small]))
     jlo, jhi, jsig = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sigma)
+    if y_max is not None:
+        y_max = np.broadcast_to(np.asarray(y_max, float), (est.n_outputs,))
+        if not np.all(np.isfinite(y_max)):
+            raise ConfigError("design_experiment: y_max must be finite")
+    jymax = None if y_max is None else jnp.asarray(y_max)
     z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
-                               float(learning_rate))
+                               float(learning_rate), jpm, jymax)
     u_prbs = lo + (hi - lo) * np.repeat(bits, hold, axis=0)[:T]
     # the squash never reaches the limits; its bang-bang rounding (often the optimum under
-    # amplitude limits) and the PRBS start are candidates too: the best of the three is kept
+    # amplitude limits) and the PRBS start are candidates too: the best of the three is kept,
+    # of those whose predictions stay within `y_max` (to `OVER_TOL`) if any does
     u_opt = np.asarray(squash(z, jlo, jhi, int(hold), int(T)))
     u_snap = np.where(u_opt >= 0.5 * (lo + hi), hi, lo)
-    score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig))
-    u = max(((score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:2])[2]
+    score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig, jpm))
+    top = lambda c: np.max(np.asarray(predictions(jnp.asarray(c), ctx)), axis=(0, 1))      # (n,)
+    within = lambda c: y_max is None or bool(np.all(top(c) <= y_max + OVER_TOL))
+    u = max(((within(c), score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))),
+            key=lambda x: x[:3])[3]
     s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
     s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
     yp = np.asarray(predictions(jnp.asarray(u), ctx))
     w = np.broadcast_to(np.mean(np.asarray(est.w, float), axis=0), (T, est.w.shape[1]))
+    u_k, u_prbs_k = u, u_prbs
     u, u_prbs = (with_idle(v, np.asarray(est.u, float)[0], keep) for v in (u, u_prbs))
     record = from_arrays(u, yp[0], ts, w, input_names=est.input_names, output_names=est.output_names,
                          signal_names=est.signal_names,
                          notes=((f"designed experiment: inputs separate {', '.join(names)}; outputs are "
                                  f"`{names[0]}`'s prediction, to be replaced by the measurement"),))
-    return {"rivals": list(names), "why": why, "separation_designed": float(s_design.min()),
-            "separation_prbs": float(s_prbs.min()),
+    used = pm > 0
+    return {"rivals": list(names), "why": why, "separation_designed": float(s_design[used].min()),
+            "separation_prbs": float(s_prbs[used].min()),
             "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
-                                 for p, a, b in zip(pairs, s_design, s_prbs)},
-            "duration": int(T), "duration_s": T * ts, "hold": int(hold),
+                                 for p, a, b, k in zip(pairs, s_design, s_prbs, used) if k},
+            "duration": int(T), "duration_s": T * ts, "hold": int(hold), "criterion": criterion,
+            "y_max": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
+            "max_predicted": top(u_k).tolist(), "max_predicted_prbs": top(u_prbs_k).tolist(),
             "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
                        "u_max": hi.tolist()}, "sigma": sigma.tolist(),
-            "u": u, "u_prbs": u_prbs, "predictions": yp, "history": np.asarray(hist),
+            "u": u, "u_prbs": u_prbs, "predictions": yp,
+            "gaps": np.asarray(gap_residuals(jnp.asarray(u_k), ctx, Q, jsig))[used],
+            "gaps_prbs": np.asarray(gap_residuals(jnp.asarray(u_prbs_k), ctx, Q, jsig))[used],
+            "history": np.asarray(hist),
             "record": record}
 
 
@@ -271,7 +397,8 @@ def with_idle(u_keep, u_idle, keep) -> np.ndarray:
 def to_json(design: dict, path=None) -> dict:
     """The JSON-ready summary of a design (no arrays); `path` the CSV it was written to."""
     keys = ("rivals", "why", "separation_designed", "separation_prbs", "pair_separations", "duration", "duration_s",
-            "hold", "limits", "sigma")
+            "hold", "criterion", "y_max", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
+            "sigma")
     out = {k: design[k] for k in keys}
     out["separation_ratio"] = (design["separation_designed"] / design["separation_prbs"]
                                if design["separation_prbs"] > 0 else float("inf"))
@@ -279,5 +406,6 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["design_experiment", "nuisance_basis", "objective", "predictions", "rival_context", "rival_set",
+__all__ = ["CRITERIA", "design_experiment", "gap_residuals", "nuisance_basis", "nuisance_jacobians", "objective",
+           "over_limit", "pair_mask", "predictions", "rival_context", "rival_set",
            "separations", "squash", "to_json", "with_idle"]

@@ -70,6 +70,36 @@ def test_objective_gradient_matches_central_differences():
     assert S.shape == (3,) and np.all(S > 0) and np.isclose(float(f(z)), np.sum(np.log(S)))
 
 
+def test_nuisance_criterion_removes_an_initial_state_transient_and_has_its_gradient():
+    # two baselines that differ only in their start: a refit of the new record's initial state
+    # absorbs the whole gap (the former constant-only span does not); a lag against a delay
+    # keeps a gap, whose gradient matches central differences (the sensitivities of a model
+    # linear in its states do not depend on the input)
+    res = _result()
+    ctx = X.rival_context(res["_models"], ("baseline", "baseline"), T, 1.0, np.array([0.5]),
+                          np.array([TS + 29.0]))
+    ctx = (*ctx[:3], ctx[3].at[1, 0].add(30.0), *ctx[4:])   # decays over the warm-up to 0.2 °C
+    sig = jnp.array([0.05])
+    u = jnp.asarray(_records()[0].u)
+    Q0 = jnp.asarray(X.nuisance_basis(T, 1.0, drift=False))
+    raw = float(X.separations(u, ctx, Q0, sig)[0])
+    assert raw > 50.0 and float(X.separations(u, ctx, None, sig)[0]) < 1e-6 * raw
+    ctx = X.rival_context(res["_models"], ("heater_lag", "input_delay"), T, 1.0, np.array([0.5]),
+                          np.array([TS + 29.0]))
+    lo, hi, hold = jnp.array([0.3]), jnp.array([0.7]), 5
+    f = jax.jit(lambda z: X.objective(X.squash(z, lo, hi, hold, T), ctx, None, sig))
+    z = jnp.asarray(np.random.default_rng(4).normal(size=(T // hold, 1)))
+    g = np.asarray(jax.jit(jax.grad(f))(z))
+    eps = 1e-6
+    for idx in [(0, 0), (9, 0), (20, 0)]:
+        dz = jnp.zeros_like(z).at[idx].set(eps)
+        fd = (float(f(z + dz)) - float(f(z - dz))) / (2 * eps)
+        assert abs(g[idx] - fd) <= 1e-5 * max(1.0, np.max(np.abs(g)))
+    J = np.asarray(X.nuisance_jacobians(u, ctx))
+    assert J.shape[:2] == (2, T) and np.all(J[:, :, 1] == 0.0)       # no body: its state is not re-estimated
+    assert np.allclose(J[:, 1:, 0] / J[:, :-1, 0], math.exp(-A_RATE), rtol=1e-6)   # e^{-a t}
+
+
 def test_nuisance_projection_removes_constant_and_drift():
     Q = X.nuisance_basis(900, 1.0, drift=True)
     t = np.arange(900.0)
@@ -95,14 +125,36 @@ def test_design_beats_its_prbs_within_limits_and_is_deterministic():
     assert js["separation_ratio"] > 1 and js["path"] == "x.csv" and json.dumps(js)
 
 
-def test_no_rival_designs_against_the_baseline_and_says_so():
+def test_no_rival_designs_against_the_runner_up_and_the_baseline_and_says_so():
     assert X.rival_set(_result(rivals=())) == (("heater_lag", "baseline"),
                                               "no rival: the top finding against the baseline")
+    res = _result(rivals=())
+    res["candidates"] = [{"mechanism": "heater_lag", "val_reduction": 0.3},
+                         {"mechanism": "radiative_loss", "val_reduction": -0.01},
+                         {"mechanism": "input_delay", "val_reduction": 0.2}]
+    assert X.rival_set(res)[0] == ("heater_lag", "input_delay", "baseline")
+    # the runner-up need not be told from the baseline: that pair is left out of the objective
+    assert X.pair_mask(("heater_lag", "input_delay", "baseline")).tolist() == [1.0, 1.0, 0.0]
+    assert X.pair_mask(("heater_lag", "input_delay", "radiative_loss")).tolist() == [1.0, 1.0, 1.0]
     nothing = {"findings": [], "candidates": [{"mechanism": "heater_lag", "val_reduction": 0.01},
                                               {"mechanism": "input_delay", "val_reduction": 0.02}]}
-    assert X.rival_set(nothing)[0] == ("input_delay", "heater_lag")
+    assert X.rival_set(nothing)[0] == ("input_delay", "heater_lag", "baseline")
     nothing["candidates"][0]["val_reduction"] = -0.01
     assert X.rival_set(nothing)[0] == ("input_delay", "baseline")
+    nothing["candidates"][1]["val_reduction"] = -0.02
+    assert X.rival_set(nothing)[0] == ("heater_lag", "baseline")
+
+
+def test_a_temperature_limit_keeps_every_model_below_it():
+    est, val = _records()
+    free = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    cap = max(free["max_predicted"]) - 1.5          # the unconstrained design goes 1.5 °C above it
+    d = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2, y_max=cap)
+    assert free["y_max"] is None and free["within_y_max"]
+    assert d["within_y_max"] and max(d["max_predicted"]) <= cap + X.OVER_TOL
+    assert np.max(d["predictions"]) <= cap + X.OVER_TOL < np.max(free["predictions"]) and d["separation_designed"] > 0
+    with pytest.raises(ConfigError, match="y_max must be finite"):
+        X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2, y_max=float("nan"))
 
 
 def test_an_idle_input_is_held_at_its_recorded_value():
@@ -139,7 +191,7 @@ def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypa
         "verdict": "mismatch", "baseline": {"mean_fit_percent": 90.0}, **_result()})
     out, js = tmp_path / "next.csv", tmp_path / "d.json"
     rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
-                   "--design-hold", "5", "--json", str(js)])
+                   "--design-hold", "5", "--design-max-temp", "400", "--json", str(js)])
     err = capsys.readouterr().err
     assert rc == 0, err
     rec = load_csv(out)
@@ -153,6 +205,15 @@ def test_cli_writes_the_design_and_refuses_a_bad_path(tmp_path, capsys, monkeypa
     rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
                    "--design-hold", "0"])
     assert rc == 2 and "--design-hold" in capsys.readouterr().err
+
+    def never(*a, **kw):
+        raise AssertionError("the diagnosis ran before the options were checked")
+
+    monkeypatch.setattr(diag, "diagnose", never)
+    rc = cli.main(["diagnose", str(pe), "--validation", str(pv), "--design-experiment", str(out),
+                   "--design-duration", "15", "--design-hold", "10"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "two --design-hold" in err and len(err.strip().splitlines()) == 1
 
 
 def test_report_has_the_next_experiment(tmp_path):
