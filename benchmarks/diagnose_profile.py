@@ -173,6 +173,7 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:
             "augmented_fit": js["augmented"]["mean_fit_percent"],
             "augmented_fit_per_zone": js["augmented"]["fit_percent"],
             "parameters": js["augmented"]["parameters"],
+            "findings_detail": js["findings"],
             "combinations": [{k: c[k] for k in ("mechanisms", "accepted", "mean_fit_percent")}
                              for c in js["combinations"]]}
 
