@@ -18,14 +18,6 @@ finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s2
 `_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
 (`benchmarks/diagnose_latency_s26.py`).
 
-A problem's fit is one long sequential loop (the LM iterations, each a scan over the record),
-which XLA runs on one core. On a machine with two cores or more the problems of a call are
-therefore fitted `WORKERS` (two) at a time in threads, each one call of the compiled program
-for a single problem (one program for every problem count; the first call runs alone until it
-has compiled or loaded it): the same iterates, in about half the wall time where a second core
-is free. Their traced programs are kept in the cache directory (`runtime.exported_call`): a
-later process neither traces nor lowers them.
-
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
@@ -59,10 +51,6 @@ from .mechanisms import simulate_full, simulate_zone
 #: share of its cost (see the module docstring)
 RTOL = 1e-10
 
-#: problems fitted at the same time, each in its own thread (one per core, at most two): one
-#: problem's fit is one long sequential loop, which XLA runs on one core
-WORKERS = max(1, min(2, os.cpu_count() or 1))
-
 
 @functools.cache
 def _compiled(fn, static: tuple, quick: bool = True):
@@ -94,21 +82,8 @@ def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
 def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
-    `n_active` (static) at least the largest number of free parameters of one problem.
-    With `WORKERS` > 1 (and concrete arrays) each problem is one call of the compiled program
-    for a single problem, `WORKERS` at a time in threads (see `fit_joint`)."""
-    static = ("lay", "n_iter", "n_active")
-    B = theta0.shape[0]
-    if WORKERS < 2 or B < 2 or not top_level():
-        return _run(_fit_zones, static, theta0, mask, on, per, shared, lay, n_iter, n_active)
-    host = jax.tree_util.tree_map(np.asarray, (theta0, mask, on, per))
-
-    def call(j):
-        one = jax.tree_util.tree_map(lambda x: jnp.asarray(x[j:j + 1]), host)
-        return _run(_fit_zones, static, *one, shared, lay, n_iter, n_active)
-
-    outs = _in_threads(call, list(range(B)))
-    return tuple(np.concatenate([np.asarray(o[i]) for o in outs]) for i in range(3))
+    `n_active` (static) at least the largest number of free parameters of one problem."""
+    return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active)
 
 
 def _sim_zones(theta, on, per, shared, lay):
@@ -161,6 +136,11 @@ def _first_copies(*trees) -> np.ndarray:
     first: dict = {}
     return np.array([first.setdefault(b"".join(np.ascontiguousarray(a[j]).tobytes() for a in arrs), j)
                      for j in range(M)])
+
+
+#: joint models fitted at the same time, each in its own thread (one per core, at most two):
+#: a model's fit is one long sequential loop, so XLA runs it on one core
+WORKERS = max(1, min(2, os.cpu_count() or 1))
 
 
 def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
