@@ -34,16 +34,13 @@ equal to 7e-11).
 from __future__ import annotations
 
 import functools
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..identify.lm import masked_lm
-from ..runtime import exported_call, quick_compile, top_level
+from ..runtime import exported_call, quick_compile
 from .mechanisms import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
@@ -138,11 +135,6 @@ def _first_copies(*trees) -> np.ndarray:
                      for j in range(M)])
 
 
-#: joint models fitted at the same time, each in its own thread (one per core, at most two):
-#: a model's fit is one long sequential loop, so XLA runs it on one core
-WORKERS = max(1, min(2, os.cpu_count() or 1))
-
-
 def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
     """Fit M coupled models jointly over all zones by simulation error (output error): the zones'
     parameters `Theta0 (M, n, P)` and the record parameters `rec0 (M, R)` (initial states, drift,
@@ -154,47 +146,11 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     The models are fitted one after another (`lax.map`, not `vmap`), so that each forms its
     Jacobian only where its parameters moved (`masked_lm(..., budget=...)`: a rejected step
     reuses it) and a model that repeats an earlier one (padding to a fixed number of slots)
-    is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve.
-    With `WORKERS` > 1 (and concrete arrays) each distinct model is one call of the compiled
-    program for a single model, `WORKERS` of them running at once in threads; the copies are
-    taken on the host."""
+    is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
     src = _first_copies(Theta0, on, rec0, mask, f_per)
-    uniq = np.flatnonzero(src == np.arange(src.size))
-    static = ("lay", "n_iter", "n_active")
-    if WORKERS < 2 or uniq.size < 2 or not top_level():
-        budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
-        return _run(_fit_joint, static, Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter,
-                    n_active, jnp.asarray(budget), jnp.asarray(src))
-    per = [np.asarray(x) for x in (Theta0, on, rec0, mask)]
-    fp = {k: np.asarray(v) for k, v in f_per.items()}
-    one = jnp.full(1, n_iter, jnp.int32)
-
-    def call(j):
-        return _run(_fit_joint, static, *(jnp.asarray(x[j:j + 1]) for x in per), y, weight,
-                    {k: jnp.asarray(v[j:j + 1]) for k, v in fp.items()}, f_shared, lay, n_iter, n_active, one)
-
-    outs = dict(zip(uniq.tolist(), _in_threads(call, uniq.tolist())))
-    return tuple(np.concatenate([np.asarray(outs[int(s)][i]) for s in src]) for i in range(4))
-
-
-def _in_threads(call, items: list) -> list:
-    """`[call(x) for x in items]` blocked until ready, `WORKERS` at a time in threads; the others
-    wait until the first item's call has returned (it compiles or loads the program once for all;
-    JAX then runs it asynchronously)."""
-    ready = threading.Event()
-
-    def task(i):
-        if i > 0:
-            ready.wait()
-            return jax.block_until_ready(call(items[i]))
-        try:
-            out = call(items[0])
-        finally:
-            ready.set()
-        return jax.block_until_ready(out)
-
-    with ThreadPoolExecutor(WORKERS) as pool:
-        return list(pool.map(task, range(len(items))))
+    budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
+    return _run(_fit_joint, ("lay", "n_iter", "n_active"), Theta0, on, rec0, mask, y, weight, f_per, f_shared,
+                lay, n_iter, n_active, jnp.asarray(budget), jnp.asarray(src))
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
