@@ -3,7 +3,7 @@
 Two revisions are extracted (`git archive REV jthermo`) into temporary folders and put first on
 `PYTHONPATH`; each diagnoses the latency record (`benchmarks/diagnose_profile.py`'s child: 1 h,
 4 zones, 30 min validation, in-process, every compiled fit timed) in a fresh process, in the
-order cold base, cold this, warm base, warm this (cold: an empty compilation cache of its
+order: every tree cold, then every tree warm (cold: an empty compilation cache of its
 own; warm: a second process on the cache its cold run filled), `--repeats` times. CPU s = user
 + system of the process (all threads; the load-robust figure on 2 shared cores), the 1-minute
 load beside. The answers are compared between the trees: verdict, findings, augmented model,
@@ -87,12 +87,12 @@ def compare(a: dict, b: dict) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True)
-    ap.add_argument("--this", default="HEAD")
+    ap.add_argument("--this", default="HEAD", help="revision(s) to compare with --base, comma-separated")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
     revs = {}
-    for label in (args.base, args.this):
+    for label in [args.base] + args.this.split(","):
         revs[label] = subprocess.run(["git", "rev-parse", "--short", label], cwd=ROOT, check=True,
                                      capture_output=True, text=True).stdout.strip()
     runs = []
@@ -118,13 +118,13 @@ def main() -> None:
                 os.environ.pop("PYTHONPATH", None)
             else:
                 os.environ["PYTHONPATH"] = old
-    base, this = list(revs)
+    base = args.base
     lines = [f"# `jthermo diagnose` before / after on snapshots (issue 13, session 27{args.tag})", "",
              f"`python benchmarks/diagnose_latency_s27.py --base {args.base} --this {args.this} --repeats "
-             f"{args.repeats}{' --tag ' + args.tag if args.tag else ''}`: base = `{revs[base]}`, this = "
-             f"`{revs[this]}` (`git archive` snapshots). The latency record (1 h, 4 zones; 30 min validation) "
-             "diagnosed in a fresh process per run (`diagnose_profile.py`'s child), interleaved cold base, "
-             "cold this, warm base, warm this. CPU s = user + system (all threads), the load-robust figure; "
+             f"{args.repeats}{' --tag ' + args.tag if args.tag else ''}`: "
+             + ", ".join(f"`{lab}` = `{rev}`" for lab, rev in revs.items()) + " (`git archive` snapshots). The latency record (1 h, 4 zones; 30 min validation) "
+             "diagnosed in a fresh process per run (`diagnose_profile.py`'s child), interleaved: every "
+             "tree cold, then every tree warm (on its own cold run's cache). CPU s = user + system (all threads), the load-robust figure; "
              "wall s follows the load (2 shared cores).", "",
              "| repeat | phase | tree | wall s | CPU s | compile s (trace / lowering / backend) | joint stage CPU s "
              "| load | answer |", "|---|---|---|---|---|---|---|---|---|"]
@@ -144,17 +144,17 @@ def main() -> None:
             lines.append(f"| {phase} | {lab} | {med(lambda r: r['total_wall_s']):.1f} | "
                          f"{med(lambda r: r['total_cpu_s']):.1f} | {med(lambda r: r['compile_s']):.1f} | "
                          f"{med(_joint):.1f} |")
-    lines += ["", "Answers, this against base (same repeat and phase):", "",
-              "| repeat | phase | same names | augmented fit rel. diff | combinations' fits rel. diff | "
-              "parameters rel. diff | findings' numbers rel. diff |", "|---|---|---|---|---|---|---|"]
+    lines += ["", "Answers, each tree against base (same repeat and phase):", "",
+              "| repeat | phase | tree | same names | augmented fit rel. diff | combinations' fits rel. diff | "
+              "parameters rel. diff | findings' numbers rel. diff |", "|---|---|---|---|---|---|---|---|"]
     cmp = []
     for r in runs:
-        if r["tree"] != this:
+        if r["tree"] == base:
             continue
         b = next(x for x in runs if x["tree"] == base and x["repeat"] == r["repeat"] and x["phase"] == r["phase"])
         c = compare(r, b)
-        cmp.append(c)
-        lines.append(f"| {r['repeat']} | {r['phase']} | {c['same_names']} | {c['augmented_fit_rel']:.1e} | "
+        cmp.append({"tree": r["tree"], **c})
+        lines.append(f"| {r['repeat']} | {r['phase']} | {r['tree']} | {c['same_names']} | {c['augmented_fit_rel']:.1e} | "
                      f"{c['combination_fits_rel']:.1e} | {c['parameters_rel']:.1e} | {c['findings_rel']:.1e} |")
     RESULTS.mkdir(exist_ok=True)
     stem = RESULTS / f"diagnose_latency_s27{args.tag}"

@@ -18,6 +18,9 @@ finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s2
 `_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
 (`benchmarks/diagnose_latency_s26.py`).
 
+The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
+neither traces them nor lowers them again (the same programs, the same executables).
+
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
