@@ -48,7 +48,7 @@ def main() -> None:
         lines.append(f"| {k} | {same} | {a['top']} / {', '.join(a['found'])} | "
                      f"{_rel([a['base_fit'], a['aug_fit'], a['gain']], [b['base_fit'], b['aug_fit'], b['gain']]):.1e} | "
                      f"{_rel(a['params'], b['params']):.1e} | {a['cpu_seconds']:.0f} | {b['cpu_seconds']:.0f} | "
-                     f"{a["load"]:.2f} | {b["load"]:.2f} |")
+                     f"{a['load']:.2f} | {b['load']:.2f} |")
     Path(args.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
