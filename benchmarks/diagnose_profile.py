@@ -58,8 +58,12 @@ class _Clock:
         self.compile_s = 0.0
         self.compiles = 0
         self.loads = 0
+        self.by_event: dict[str, float] = {}
 
     def on_duration(self, event: str, secs: float, **_):
+        if event.startswith("/jax/core/compile/"):
+            key = event.rsplit("/", 1)[1]
+            self.by_event[key] = self.by_event.get(key, 0.0) + secs
         if event == "/jax/core/compile/backend_compile_duration":
             self.compiles += 1
             self.compile_s += secs
@@ -162,12 +166,14 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:
     clock.add("report (to_json)", s0)
     return {"rows": clock.rows, "total_wall_s": time.perf_counter() - t0, "total_cpu_s": _cpu() - c0,
             "compile_s": clock.compile_s, "compiles": clock.compiles, "cache_loads": clock.loads,
+            "compile_by_event": clock.by_event,
             "verdict": js["verdict"], "findings": [f["mechanism"] for f in js["findings"]],
             "augmented": js["augmented"]["mechanisms"],
             "baseline_fit": js["baseline"]["mean_fit_percent"],
             "augmented_fit": js["augmented"]["mean_fit_percent"],
             "augmented_fit_per_zone": js["augmented"]["fit_percent"],
             "parameters": js["augmented"]["parameters"],
+            "findings_detail": js["findings"],
             "combinations": [{k: c[k] for k in ("mechanisms", "accepted", "mean_fit_percent")}
                              for c in js["combinations"]]}
 
@@ -194,6 +200,8 @@ def _table(run: dict) -> list[str]:
              f"({run['process_wall_s']:.1f} s process), {run['total_cpu_s']:.1f} CPU s, compile "
              f"{run['compile_s']:.1f} s ({run['compiles']} backend compiles, {run['cache_loads']} "
              f"cache loads), load {run['load_before']:.2f} → {run['load_after']:.2f}", "",
+             "compile seconds by JAX event: " + ", ".join(
+                 f"{k} {v:.2f}" for k, v in sorted(run.get("compile_by_event", {}).items())), "",
              "| stage: call | calls | wall s | CPU s | compile s | compiles |", "|---|---|---|---|---|---|"]
     for k, r in run["rows"].items():
         lines.append(f"| {k} | {r['calls']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | "

@@ -401,12 +401,36 @@ def exported_call(fn, args: tuple, fallback, compiler_options: dict | None = Non
     if program is None:
         return fallback(*args)
     exp, arrays = program
-    import jax
-
     try:
-        return jax.jit(exp.call, compiler_options=compiler_options)(*arrays)
+        return _caller(exp, compiler_options)(*arrays)
     except Exception:  # noqa: BLE001  (a program this JAX cannot call: trace it afresh)
         return fallback(*args)
+
+
+#: this process's programs read or written by `exported_call`: path -> (file's stat, header,
+#: Exported), and their jitted callers: (id of the Exported, options) -> (Exported, jitted call)
+_programs: dict = {}
+_callers: dict = {}
+
+
+def _stamp(path: Path):
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size, st.st_ino
+
+
+def _caller(exp, options: dict | None):
+    """`jax.jit(exp.call, compiler_options=options)`, one per program and options in a process:
+    a program called again is neither deserialized nor lowered again."""
+    import jax
+
+    key = (id(exp), repr(sorted((options or {}).items())))
+    hit = _callers.get(key)
+    if hit is None or hit[0] is not exp:
+        hit = _callers[key] = (exp, jax.jit(exp.call, compiler_options=options))
+    return hit[1]
 
 
 def _exported_program(fn, args: tuple):
@@ -422,6 +446,10 @@ def _exported_program(fn, args: tuple):
     name, digest = key
     path = Path(_state["dir"]) / EXPORT_SUBDIR / f"{name}-{digest[:32]}.jaxexport"
     header = f"jthermo-export {digest}\n".encode()
+    known = _programs.get(path)
+    stamp = _stamp(path)
+    if known is not None and stamp is not None and known[0] == stamp and known[1] == header:
+        return known[2], arrays     # this process read or wrote this very file already
     exp = _read_export(path, header, arrays)
     if exp is None:
         def flat(*xs):
@@ -431,6 +459,9 @@ def _exported_program(fn, args: tuple):
 
         exp = export.export(jax.jit(flat))(*arrays)
         _write_atomic(path, header + exp.serialize())
+    stamp = _stamp(path)
+    if stamp is not None:
+        _programs[path] = (stamp, header, exp)
     return exp, arrays
 
 

@@ -157,3 +157,26 @@ def test_a_jax_setting_that_shapes_the_trace_is_part_of_the_key(folder):
     with jax.numpy_rank_promotion("warn"):
         runtime.exported_call(scaled_sums, args, fb)
     assert fb.calls == 0 and len(_files(folder)) == 2
+
+
+def test_a_program_called_again_in_one_process_is_not_read_again(folder, monkeypatch):
+    """The process keeps what it read or wrote: a second call neither deserializes the file nor
+    traces; a file replaced on disk (another stat) is read again."""
+    args = _args()
+    ref = scaled_sums(*args)
+    fb = Counting()
+    _same(runtime.exported_call(scaled_sums, args, fb), ref)
+
+    def no_reading(*a, **k):
+        raise AssertionError("read again although this process holds the program")
+
+    monkeypatch.setattr(export, "deserialize", no_reading)
+    monkeypatch.setattr(export, "export", no_reading)
+    _same(runtime.exported_call(scaled_sums, args, fb), ref)
+    assert fb.calls == 0
+    monkeypatch.undo()
+    monkeypatch.setitem(runtime._state, "dir", folder.parent)
+    (path,) = _files(folder)
+    path.write_bytes(b"")                     # replaced: read again, found damaged, rewritten
+    _same(runtime.exported_call(scaled_sums, args, fb), ref)
+    assert _reads_as(path, args)

@@ -18,6 +18,9 @@ finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s2
 `_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
 (`benchmarks/diagnose_latency_s26.py`).
 
+The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
+neither traces them nor lowers them again (the same programs, the same executables).
+
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
@@ -40,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.lm import masked_lm
-from ..runtime import quick_compile
+from ..runtime import exported_call, quick_compile
 from .mechanisms import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
@@ -54,6 +57,13 @@ def _compiled(fn, static: tuple, quick: bool = True):
     """`fn` jitted with `static` argument names, with `runtime.quick_compile()` options if
     `quick` (once per process: the options are probed on first use, not at import)."""
     return jax.jit(fn, static_argnames=static, compiler_options=quick_compile() if quick else None)
+
+
+def _run(fn, static: tuple, *args):
+    """`fn(*args)` compiled with `runtime.quick_compile()` options (`static` its static argument
+    names), through `runtime.exported_call`: a process after the first loads the traced program
+    from the cache directory instead of tracing it (the same program, the same executable)."""
+    return exported_call(fn, args, _compiled(fn, static), compiler_options=quick_compile())
 
 
 def _zone_residual(theta, on, z, lay):
@@ -73,8 +83,7 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
     `n_active` (static) at least the largest number of free parameters of one problem."""
-    return _compiled(_fit_zones, ("lay", "n_iter", "n_active"))(theta0, mask, on, per, shared, lay, n_iter,
-                                                                 n_active)
+    return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active)
 
 
 def _sim_zones(theta, on, per, shared, lay):
@@ -83,7 +92,7 @@ def _sim_zones(theta, on, per, shared, lay):
 
 def sim_zones(theta, on, per, shared, lay):
     """Per-zone (series-parallel) simulations of B problems, `(B, T)`."""
-    return _compiled(_sim_zones, ("lay",))(theta, on, per, shared, lay)
+    return _run(_sim_zones, ("lay",), theta, on, per, shared, lay)
 
 
 def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_iter, n_active):
@@ -143,8 +152,8 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
     src = _first_copies(Theta0, on, rec0, mask, f_per)
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
-    return _compiled(_fit_joint, ("lay", "n_iter", "n_active"))(Theta0, on, rec0, mask, y, weight, f_per,
-                                                                 f_shared, lay, n_iter, n_active, budget, src)
+    return _run(_fit_joint, ("lay", "n_iter", "n_active"), Theta0, on, rec0, mask, y, weight, f_per, f_shared,
+                lay, n_iter, n_active, jnp.asarray(budget), jnp.asarray(src))
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
