@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from .decide import ar_filter, whiten
+
 #: periods (s) searched for periodic drops
 PERIOD_RANGE = (10.0, 600.0)
 #: folding statistic (in standard errors) above which a periodic drop is reported
@@ -116,10 +118,26 @@ def _peak_centre(s: np.ndarray, P: float, sd: float, stat: float) -> tuple[float
     return Pc, int(kc[0])
 
 
+def prewhitened_differences(D: np.ndarray) -> np.ndarray:
+    """The differenced residuals `D (T-1, n)` of each zone filtered by their own AR noise model
+    (`decide.ar_filter`, as the tests whiten), aligned with `D` (the first samples, which the
+    filter needs, set to 0). Coloured noise differenced is far from white: its slow wander folds
+    into deep phase bins at every trial period, and a drop that the baseline's slow recovery
+    follows is smeared over the next samples; whitened, the noise folds as independent samples
+    (the statistic's standard error holds) and a drop is one spike again. A zone whose filter is
+    refused (`ar_filter`: a root near the unit circle) keeps its plain differences."""
+    D = np.asarray(D, float)
+    a = ar_filter(D)
+    p = a.shape[1]
+    if D.shape[0] <= 2 * p:
+        return D
+    return np.vstack([np.zeros((p, D.shape[1])), whiten(D, a)])
+
+
 def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> dict:
     """Epoch-folding search for periodic sudden drops in residuals `R (T, n)`.
 
-    The differenced residual averaged over zones is folded at every trial period in
+    The differenced residual, prewhitened (`prewhitened_differences`) and averaged over zones, is folded at every trial period in
     `period_range` (`period_grid`: fractions of a sample included); the statistic is the deepest
     folded mean of three consecutive phases (a sweep spreads a drop over a few samples) in units
     of its standard error.
@@ -128,11 +146,15 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
     """
     R = np.asarray(R, float)
     T, n = R.shape
-    D = np.diff(R, axis=0)
+    D_raw = np.diff(R, axis=0)
+    D = prewhitened_differences(D_raw)
     s = D.mean(axis=1)
     sd = np.std(s) + 1e-300
     pmin = max(3.0, period_range[0] / ts)
-    pmax = min(period_range[1] / ts, (T - 1) / 4)
+    # a search needs four periods in the record; a given period (a one-point range: the phases
+    # of a period found on another record) needs one
+    known = period_range[0] == period_range[1]
+    pmax = min(period_range[1] / ts, (T - 1) / (1 if known else 4))
     grid = period_grid(pmin, pmax, len(s)) if pmax >= pmin else np.zeros(0)
     best = (0.0, 0.0, 0)
     for lo in range(0, grid.size, 512):
@@ -151,11 +173,12 @@ def detect_periodic(R: np.ndarray, ts: float, *, period_range=PERIOD_RANGE) -> d
     zone_phase, zone_drop = [], []
     for i in range(n):
         fi, _ = _fold(D[:, i], P)
+        fr, _ = _fold(D_raw[:, i], P)
         # the zone's own drop lies within a quarter period after the bed's first drop
         win = [(k + j) % nb for j in range(-2, max(nb // 4, 4))]
         j = win[int(np.argmin(fi[win]))]
         zone_phase.append(int(j + 1))               # D[t] = R[t+1] - R[t]: the drop shows at t+1
-        zone_drop.append(float(-(fi[j] + min(fi[(j + 1) % nb], 0) + min(fi[(j - 1) % nb], 0))))
+        zone_drop.append(float(-(fr[j] + min(fr[(j + 1) % nb], 0) + min(fr[(j - 1) % nb], 0))))
     out.update(period_s=float(P * ts), phase=int(k + 1), zone_phase=zone_phase,
                zone_drop_C=zone_drop)
     return out
@@ -239,4 +262,4 @@ def localise(R: np.ndarray, y: np.ndarray, u: np.ndarray, ts: float) -> dict:
     }
 
 
-__all__ = ["PERIOD_DRIFT", "PERIOD_THRESHOLD", "detect_periodic", "event_matrix", "localise", "period_grid"]
+__all__ = ["PERIOD_DRIFT", "PERIOD_THRESHOLD", "detect_periodic", "prewhitened_differences", "event_matrix", "localise", "period_grid"]

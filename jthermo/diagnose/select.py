@@ -244,7 +244,12 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                         ts0=thb[i, lay.sl("ts0")][0],
                                         xw0=(y[0].mean() - level - thb[i, lay.sl("ts0")][0]) / 2.0)
                         for i in range(n)])
-    thc, res_c = fit_sets([(m,) for m in cands], np.stack([neutral] * K))
+    # a stored-heat body also from slow starts (`mechanisms.body_starts`), each zone its best
+    extra_b = M.body_starts(neutral, lay) if "heat_accumulation" in cands else []
+    thc, res_c = fit_sets([(m,) for m in cands] + [("heat_accumulation",)] * len(extra_b),
+                          np.stack([neutral] * K + extra_b))
+    if extra_b:
+        thc, res_c = M.best_of_starts(thc, res_c, cands.index("heat_accumulation"), range(K, K + len(extra_b)))
     tick({"stage": "candidates"})
 
     # ---- 4. validation: simulate every model coupled, initial states re-estimated -----------------
