@@ -30,6 +30,15 @@ REAL = ROOT / ".." / "shared" / "data" / "real" / "klipper_onionheater"
 JT = [str(Path(sys.executable).parent / "jthermo")]     # the installed command, as from the shell
 
 
+def _shown(path) -> str:
+    """A record's path as the results show it: relative to the repository beside ../shared,
+    else its name (a temporary file): no path of this machine in committed results."""
+    path = Path(path).resolve()
+    if path.is_relative_to(ROOT.parent.resolve()):
+        return os.path.relpath(path, ROOT)
+    return path.name
+
+
 def sh(args, timeout=900):
     t0 = time.perf_counter()
     p = subprocess.run(JT + [str(a) for a in args], capture_output=True, text=True, timeout=timeout)
@@ -62,7 +71,7 @@ def check_design(name, pe, pv, tmp, hold_s=10.0):
     out, js = tmp / f"{name}_next.csv", tmp / f"{name}.json"
     rc, err, secs = sh(["diagnose", pe, "--validation", pv, "--design-experiment", out,
                         "--design-hold", hold_s, "--json", js, "--quiet"])
-    row = {"case": name, "est": str(pe), "val": str(pv), "rc": rc, "seconds": round(secs, 1),
+    row = {"case": name, "est": _shown(pe), "val": _shown(pv), "rc": rc, "seconds": round(secs, 1),
            "stderr_tail": err.splitlines()[-1] if err else ""}
     if rc != 0:
         return row
