@@ -8,13 +8,12 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Mapping
-from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
 from ..control._base import AbstractController
 from ..errors import ConfigError
@@ -23,11 +22,9 @@ from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
 from ..runtime import exported_call, simulate_compile
 from .checks import check_loop
-from .compact import CompactScenario, Events, compact_cost, model_steady_state
+from .compact import CompactScenario, compact_cost, model_steady_state
 from .scenarios import (
     REALISTIC_EFFECTS,
-    WINDOW_C,
-    ModelDisturbance,
     Scenario,
     Trajectory,
     make_scenario,

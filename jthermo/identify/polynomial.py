@@ -17,7 +17,6 @@ import os
 from typing import Callable, NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
