@@ -9,6 +9,7 @@ reported in the report with its one-line reason, and the later stages go on with
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 import traceback
@@ -71,6 +72,20 @@ class _Stages:
         self.say(f"[{k}/{self.total}] {name}: {rec['status']} ({rec['seconds']:.1f} s)"
                  + (f" — {rec['message']}" if "message" in rec else ""))
         return out
+
+
+@functools.cache
+def _quick_simulate():
+    """`closedloop.simulate` as one program with `runtime.simulate_compile()` options (the
+    scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): the three
+    ran in 4.7-5.2 instead of 19.4-21.0 CPU s cold, eager with default options
+    (`python benchmarks/evaluate_compile.py`, benchmarks/results/evaluate_compile.md)."""
+    import equinox as eqx
+
+    from .closedloop import simulate
+    from .runtime import simulate_compile
+
+    return eqx.filter_jit(simulate, compiler_options=simulate_compile())
 
 
 def _progress(desc: str, quiet: bool, total: int | None = None):
@@ -274,8 +289,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
         best = "pi_lambda (tuned)" if "pi_lambda (tuned)" in controllers else names[0]
         for k in SCENARIOS:
-            sc = cl.make_scenario(k, plant, cfg["scenario_s"], jax.random.key(seed + HELD_OUT))
-            tr = cl.simulate(plant, controllers[best], sc)
+            sc = cl.compiled_make_scenario()(k, plant, cfg["scenario_s"], jax.random.key(seed + HELD_OUT))
+            tr = _quick_simulate()(plant, controllers[best], sc)
             t = np.arange(sc.n_samples) * sc.ts
             plots.plot_closed_loop(t, np.asarray(tr.y), np.asarray(tr.u), np.asarray(tr.r),
                                    path=figs / f"closed_loop_{k}.png")

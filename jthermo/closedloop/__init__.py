@@ -22,13 +22,14 @@ from .scenarios import (
     DEFAULT_DURATION as DEFAULT_DURATION, KINDS as KINDS, REALISTIC_EFFECTS as REALISTIC_EFFECTS,
     STEP_C as STEP_C, WINDOW_C as WINDOW_C, ModelDisturbance as ModelDisturbance,
     Scenario as Scenario, Trajectory as Trajectory, make_scenario as make_scenario,
+    compiled_make_scenario as compiled_make_scenario,
     PREVIEW_S as PREVIEW_S, event_schedule as event_schedule,
     MODEL_KINDS as MODEL_KINDS, model_duration as model_duration,
     model_scenario as model_scenario,
 )
 from .scoring import (
     DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, RunningMetrics as RunningMetrics,
-    cost as cost, metrics as metrics,
+    cost as cost, metric_arrays as metric_arrays, metrics as metrics,
 )
 from .compact import CompactScenario as CompactScenario, Events as Events
 from .engine import (

@@ -5,6 +5,7 @@ printer or, through a reference printer, on a fitted model (`make_scenario`)."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
@@ -32,6 +33,7 @@ from ..printer import (
     grid_edges,
     simulate_open_loop,
 )
+from ..runtime import one_shot
 
 #: default scenario lengths, s
 DEFAULT_DURATION = {"tracking": 900.0, "powder": 1200.0, "print": 1200.0, "preheat": 1800.0,
@@ -257,6 +259,16 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
     return Scenario(r=r, d=d, v=v, y0=y0, s=s, kind=kind, window=float(window),
                     edges=grid_edges(printer.zones), ts=printer.ts,
                     cold_start=(kind == "preheat"))
+
+
+@functools.cache
+def compiled_make_scenario():
+    """`make_scenario` as one compiled program with `runtime.one_shot()` options (the same
+    arguments; non-array ones static), for scenarios built once per process: -O0 compiles its
+    scenario program in a fraction of the default options' time (`runtime.ONE_SHOT`); with
+    `demo`'s jitted runs, the demo's three figure runs took 4.7-5.2 instead of 19.4-21.0 CPU s
+    cold (`python benchmarks/evaluate_compile.py`)."""
+    return eqx.filter_jit(make_scenario, compiler_options=one_shot())
 
 
 @eqx.filter_jit

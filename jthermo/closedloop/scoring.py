@@ -114,11 +114,14 @@ def metrics(traj: Trajectory, scenario: Scenario, *, per_rollout: bool = False) 
     return {k: float(np.mean(np.asarray(v))) for k, v in vals.items()}
 
 
-@eqx.filter_jit
-def _metrics_jit(traj, scenario):
+def metric_arrays(traj: Trajectory, scenario: Scenario) -> dict[str, Array]:
+    """`metrics(traj, scenario, per_rollout=True)` as traceable arrays (inside `jax.jit`)."""
     if traj.temperature.ndim == 3:
         return jax.vmap(_metrics_one, in_axes=(0, 0))(traj, scenario)
     return _metrics_one(traj, scenario)
+
+
+_metrics_jit = eqx.filter_jit(metric_arrays)
 
 
 class RunningMetrics(eqx.Module):
