@@ -3,6 +3,7 @@ open-loop experiments as `IOData` (`generate`)."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import equinox as eqx
@@ -13,6 +14,7 @@ from jaxtyping import Array, Float
 
 from ..data import IOData, from_arrays
 from ..errors import ConfigError
+from ..runtime import one_shot
 from .geometry import AREA_NAMES
 from .plant import Printer, PrinterDisturbance, PrinterState, steady_state
 
@@ -127,14 +129,24 @@ def _prbs(seed: int, n_samples: int, n_channels: int, levels, hold=(3, 15)) -> n
     return u
 
 
-@eqx.filter_jit
-def _generate_core(printer, u, key, u_mean, noise_std, steady: bool):
+def _generate_fn(printer, u, key, u_mean, noise_std, steady: bool):
     T = u.shape[0]
     k_d, k_v = jax.random.split(key)
     d = disturbances(printer, T, k_d)
     x0 = steady_state(printer, u_mean) if steady else printer.ambient_state()
     y, _ = simulate_open_loop(printer, u, d, x0)
     return y + printer.sample_noise(k_v, T, noise_std), d
+
+
+@functools.cache
+def _generate_core():
+    """`_generate_fn` compiled with `runtime.one_shot()` options (-O0; probed on first use, not
+    at import): an experiment is simulated once per record shape, and compiles in about half
+    the CPU time for a slower run (`jthermo demo`'s two 4-zone records: 10.5-12.6 -> 5.9-6.3
+    CPU s cold; 10 h of 9 zones: compile + run 8.7-8.8 -> 3.5-4.0 CPU s, a repeat run 0.35 ->
+    0.52 s; outputs equal to 5e-12 °C: `python benchmarks/generate_compile.py`,
+    benchmarks/results/generate_compile.md)."""
+    return eqx.filter_jit(_generate_fn, compiler_options=one_shot())
 
 
 def input_names(printer: Printer) -> tuple[str, ...]:
@@ -180,7 +192,7 @@ def generate(printer: Printer, experiment: str = "prbs", duration: float = 3600.
     else:
         u = np.full((T, nu), 0.5 * (lo + hi))
     key = jax.random.key(int(seed))
-    y, d = _generate_core(printer, jnp.asarray(u, printer.capacity.dtype), key,
+    y, d = _generate_core()(printer, jnp.asarray(u, printer.capacity.dtype), key,
                           0.5 * (lo + hi), noise_std, start == "steady")
     y = np.asarray(y)
     measured = printer.has("ambient_variation") and bool(printer.param("ambient_variation", "measured"))
