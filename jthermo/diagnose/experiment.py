@@ -12,12 +12,18 @@ variance $\\sigma_i^2$ (the top model's validation residual power, zone $i$), af
 what the nuisance parameters re-estimated on a new record can absorb. $\\Pi_N$ projects onto
 the span of both models' sensitivities to exactly what the diagnosis re-estimates on a record
 it validates on (`nuisance_jacobians`): every zone's initial state, a body's initial state, the
-surroundings level where it is not measured, and then also a surroundings drift on the record's
-own knots, for every model (criterion `"nuisance"`, the default). The gap is the distance
-between the two models' prediction sets over those nuisances, linearised (weighted least
-squares); a transient from an unknown start, or a slow term a drift can follow, separates
-nothing. (The former criterion `"span"` projected onto a constant per zone and the raw drift
-hats only: it counted the decay of an unknown initial state as separation.) With three models
+surroundings level where it is not measured, and, for the surroundings-drift model
+(`ambient_variation`) with the surroundings unmeasured, a drift on the record's own knots
+(criterion `"nuisance"`, the default). The gap is the distance between the two models'
+prediction sets over those nuisances, linearised (weighted least squares); a transient from an
+unknown start separates nothing, and a slow term separates a drift from another model only as
+far as the drift cannot follow it. Criterion `"nuisance_drift"` (the default before) let every
+model re-estimate a drift, which the diagnosis never does: a slow body's input-driven warming
+then separated nothing from the baseline either, and the design avoided exactly the slow power
+swings that make a body significant (`experiments/results/design_experiment.md`, body case).
+(The first criterion, `"span"`, projected onto a
+constant per zone and the raw drift hats only: it counted the decay of an unknown initial state
+as separation.) With three models
 (the top finding and two rivals, or with no rival the runner-up and the baseline) the design
 maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
 differentiable in $u$ through the coupled simulations (`mechanisms.simulate_full`).
@@ -61,7 +67,7 @@ LEARNING_RATE = 0.3
 #: rivals of the top finding the design separates, besides it
 MAX_RIVALS = 2
 #: what a new record's nuisances absorb of a prediction gap (`design_experiment`'s `criterion`)
-CRITERIA = ("nuisance", "span")
+CRITERIA = ("nuisance", "nuisance_drift", "span")
 #: weight of `over_limit` (per °C² and sample) against the objective, and the overshoot of
 #: `y_max` tolerated in the final choice (°C)
 OVER_PENALTY = 100.0
@@ -117,9 +123,11 @@ def squash(z, lo, hi, hold: int, T: int):
     return (lo + (hi - lo) * jax.nn.sigmoid(jnp.repeat(z, hold, axis=0)))[:T]
 
 
-def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
+def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start, drift_all: bool = False):
     """Stacked parameters, switches, per-model simulation inputs and record states of the models
-    `names` (mechanisms of the diagnosis' single-mechanism refits, or `baseline`)."""
+    `names` (mechanisms of the diagnosis' single-mechanism refits, or `baseline`); `drift_all`:
+    every model, not only `ambient_variation`, re-estimates a drift on the new record (criterion
+    `nuisance_drift`)."""
     lay = models["layout"]
     n = lay.n
     Tw = T + WARMUP
@@ -144,17 +152,18 @@ def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
     # what the diagnosis re-estimates on a new record (`select.diagnose`'s `validate`): every
     # zone's initial state, a body's initial state, the record's own surroundings level when
     # it is not measured, and, with the surroundings unmeasured, a drift on the record's own
-    # knots, for every model (a drift is always a candidate explanation of slow residuals)
+    # knots for the drift model (`drift_all`: for every model, the former criterion)
     drift = not models["measured_ambient"]
     kr = M.n_drift_knots(T, ts)
     masks = np.zeros((len(names), 2 * n + kr + 1))
     masks[:, :n] = 1.0
     masks[:, n:2 * n] = np.array([float(m == "heat_accumulation") for m in names])[:, None]
-    masks[:, 2 * n:2 * n + kr] = float(drift)
+    masks[:, 2 * n:2 * n + kr] = float(drift) * np.array([float(drift_all or m == "ambient_variation")
+                                                          for m in names])[:, None]
     masks[:, -1] = float(models["ts_free"])
     ons_j = np.stack(ons)
-    ons_j[:, M.MECHANISMS.index("ambient_variation")] = np.maximum(ons_j[:, M.MECHANISMS.index(
-        "ambient_variation")], float(drift))
+    ia = M.MECHANISMS.index("ambient_variation")
+    ons_j[:, ia] = np.maximum(ons_j[:, ia], masks[:, 2 * n])
     rec_r = [np.concatenate([r[:2 * n], np.zeros(kr), [0.0]]) for r in recs]
     nuis = {"on": jnp.asarray(ons_j), "rec": jnp.asarray(np.stack(rec_r)), "mask": jnp.asarray(masks),
             "f": {**shared, "events": jnp.asarray(ev[WARMUP:]), "wdev": jnp.zeros(T),
@@ -325,9 +334,10 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     yhat = np.asarray(result["_arrays"]["yhat_augmented"])
     sigma = np.sqrt(np.maximum(np.mean((y_val - yhat) ** 2, axis=0), 1e-12))
     u_rest = np.clip(np.mean(np.asarray(est.u, float)[:, keep], axis=0), lo, hi)
-    ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
     if criterion not in CRITERIA:
         raise ConfigError(f"design_experiment: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0),
+                        drift_all=criterion == "nuisance_drift")
     # "span" (the former criterion): a constant and, with the surroundings unmeasured (a drift
     # is always a candidate explanation of slow residuals), the drift hats, in every zone;
     # "nuisance": the span of the models' sensitivities to what the diagnosis re-estimates
