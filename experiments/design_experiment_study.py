@@ -231,6 +231,13 @@ def write(rows, out, load, tag, before=None):
              "estimation record: the protocol the design assumes), as the estimation record (validated",
              "on the PRBS validation record) and, where run, twice: the same input run again as the",
              "validation record. Cells: named truth? (top finding; rivals left).", "",
+             (f"Slow body against drift: the designed and PRBS records of these two cases are "
+              f"{DESIGN_S.get('body')} s long (a 40-min body"),
+             "shows in no 15-min record). The diagnosis orders the two by whether the unmeasured",
+             "surroundings drift the drift model fits follows the input-driven temperature (`decide.input_dependence`),",
+             "tested on every record with at least 8 drift knots (2400 s) and combined (`decide.combined_dependence`):",
+             "the 1800-s PRBS estimation record is too short, so as validation only the new record's test counts,",
+             "as estimation only its own, twice both.", "",
              "## Counts (top finding = truth, over seeds)", "",
              "| case | truth | seeds | new record s | PRBS est/val | "
              + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)

@@ -12,15 +12,19 @@ variance $\\sigma_i^2$ (the top model's validation residual power, zone $i$), af
 what the nuisance parameters re-estimated on a new record can absorb. $\\Pi_N$ projects onto
 the span of both models' sensitivities to exactly what the diagnosis re-estimates on a record
 it validates on (`nuisance_jacobians`): every zone's initial state, a body's initial state, the
-surroundings level where it is not measured, and, for the surroundings-drift model
-(`ambient_variation`) with the surroundings unmeasured, a drift on the record's own knots
-(criterion `"nuisance"`, the default). The gap is the distance between the two models'
-prediction sets over those nuisances, linearised (weighted least squares); a transient from an
-unknown start separates nothing, and a slow term separates a drift from another model only as
-far as the drift cannot follow it. Criterion `"nuisance_drift"` (the default before) let every
-model re-estimate a drift, which the diagnosis never does: a slow body's input-driven warming
-then separated nothing from the baseline either, and the design avoided exactly the slow power
-swings that make a body significant (`experiments/results/design_experiment.md`, body case).
+surroundings level where it is not measured, and, with the surroundings' variation unmeasured, a
+drift on the record's own knots (criterion `"nuisance"`, the default): for the surroundings-drift
+model (`ambient_variation`) alone when it is one of the models separated, as the diagnosis
+re-estimates it, and for every model when it is not (`drift_for_all`: the drift is then a
+candidate the design does not model, which would take any slow gap it can follow, so such a gap
+separates nothing). The gap is the distance between the two models' prediction sets over those
+nuisances, linearised (weighted least squares); a transient from an unknown start separates
+nothing. Criterion `"nuisance_drift"` (the default before) let every model re-estimate a drift
+in every case: with the drift among the rivals, a slow body's input-driven warming then
+separated nothing from the baseline either, and the design avoided exactly the slow power swings
+that make a body significant (`experiments/results/design_experiment.md`, body case); with the
+drift not among them, letting it follow nothing made the design's slow swings go to a drift
+(radiation case, `design_experiment_own_drift.md`).
 (The first criterion, `"span"`, projected onto a
 constant per zone and the raw drift hats only: it counted the decay of an unknown initial state
 as separation.) With three models
@@ -121,6 +125,14 @@ def squash(z, lo, hi, hold: int, T: int):
     """Inputs `(T, nu)` from free variables `z (segments, nu)`: $lo + (hi - lo)\\,\\sigma(z)$,
     each held for `hold` samples."""
     return (lo + (hi - lo) * jax.nn.sigmoid(jnp.repeat(z, hold, axis=0)))[:T]
+
+
+def drift_for_all(names, criterion: str = "nuisance") -> bool:
+    """Whether every model of `names` re-estimates a surroundings drift on the new record (when
+    the surroundings' variation is unmeasured): always under `"nuisance_drift"`; under
+    `"nuisance"` only when the drift model (`ambient_variation`) is not one of `names` (it then
+    re-estimates its own drift alone, as the diagnosis does)."""
+    return bool(criterion == "nuisance_drift" or "ambient_variation" not in names)
 
 
 def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start, drift_all: bool = False):
@@ -337,7 +349,7 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     if criterion not in CRITERIA:
         raise ConfigError(f"design_experiment: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0),
-                        drift_all=criterion == "nuisance_drift")
+                        drift_all=drift_for_all(names, criterion))
     # "span" (the former criterion): a constant and, with the surroundings unmeasured (a drift
     # is always a candidate explanation of slow residuals), the drift hats, in every zone;
     # "nuisance": the span of the models' sensitivities to what the diagnosis re-estimates
@@ -416,6 +428,6 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["CRITERIA", "design_experiment", "gap_residuals", "nuisance_basis", "nuisance_jacobians", "objective",
-           "over_limit", "pair_mask", "predictions", "rival_context", "rival_set",
-           "separations", "squash", "to_json", "with_idle"]
+__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "gap_residuals", "nuisance_basis",
+           "nuisance_jacobians", "objective", "over_limit", "pair_mask", "predictions", "rival_context",
+           "rival_set", "separations", "squash", "to_json", "with_idle"]

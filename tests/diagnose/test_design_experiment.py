@@ -250,3 +250,7 @@ def test_only_the_drift_model_re_estimates_a_drift_under_the_nuisance_criterion(
     assert np.asarray(ctx_a[6]["mask"])[:, 2:2 + kr].tolist() == [[1.0] * kr, [0.0] * kr]
     s, s_d = (float(X.separations(u, c, None, sig)[0]) for c in (ctx, ctx_d))
     assert s > 0 and s >= s_d * (1 - 1e-9) and s > 1.01 * s_d
+    # ... when the drift model is one of the rivals; when it is not, every model follows a drift
+    # (a drift candidate the design does not model would take a slow gap)
+    assert X.drift_for_all(names) and X.drift_for_all(("ambient_variation", "heat_accumulation"), "nuisance_drift")
+    assert not X.drift_for_all(("heat_accumulation", "ambient_variation", "baseline"))
