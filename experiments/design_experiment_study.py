@@ -263,8 +263,9 @@ def write(rows, out, load, tag, before=None):
               "record (0: too short to test, fewer than 8 drift knots), shown for the designed record's arms.", "",
               ("| case | seed | PRBS est/val: top (rivals) | models separated | "
                + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)
-               + " | weakest-pair S designed / PRBS | truth's tests, designed as val: z/z_crit, LR/LR_crit |"),
-              "|---|---|---|---|" + "---|---|" * len(arms) + "---|---|"]
+               + " | weakest-pair S designed / PRBS | truth's tests, designed as val: z/z_crit, LR/LR_crit | "
+                 "truth's LR/LR_crit as est: designed / PRBS |"),
+              "|---|---|---|---|" + "---|---|" * len(arms) + "---|---|---|"]
 
     def cell(c, dep=False):
         z = c.get("input_dependence_z")
@@ -275,6 +276,9 @@ def write(rows, out, load, tag, before=None):
         t = c.get("truth_tests")
         return "-" if not t else (f"{t['validation_z']:.2f}/{t['validation_z_critical']:.2f}, "
                                   f"{t['estimation_lr']:.1f}/{t['estimation_lr_critical']:.1f}")
+    def lr(c):
+        t = c.get("truth_tests")
+        return "-" if not t else f"{t['estimation_lr']:.1f}/{t['estimation_lr_critical']:.1f}"
     for r in rows:
         f = r["prbs_diagnosis"]
         slow = r["truth"] in ("heat_accumulation", "ambient_variation")
@@ -283,7 +287,8 @@ def write(rows, out, load, tag, before=None):
                      + " | ".join(f"{cell(r['prbs_' + a])} | {cell(r['designed_' + a], slow)}" for a in arms)
                      + f" | {r['design']['separation_designed']:.3g} / "
                      f"{r['design']['separation_prbs']:.3g} = {r['design']['separation_ratio']:.2f} | "
-                     f"{tests(r['designed_as_validation'])} |")
+                     f"{tests(r['designed_as_validation'])} | {lr(r['designed_as_estimation'])} / "
+                     f"{lr(r['prbs_as_estimation'])} |")
     if before:
         lines += ["", "## Before → after", "",
                   f"Before: `{before[0]}` (the committed run of the former code: criterion `nuisance_drift`, every",
