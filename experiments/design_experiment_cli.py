@@ -91,7 +91,7 @@ def check_design(name, pe, pv, tmp, hold_s=10.0):
                 "rivals": (res.get("findings") or [{}])[0].get("rivals", []),
                 "separated": x["rivals"], "why": x["why"], "criterion": x.get("criterion"),
                 "separation_designed": x["separation_designed"], "separation_prbs": x["separation_prbs"],
-                "y_max": x.get("y_max"), "within_y_max": x.get("within_y_max"), "max_predicted": x.get("max_predicted"),
+                "y_max": x.get("y_max"), "y_max_effective": x.get("y_max_effective"), "within_y_max": x.get("within_y_max"), "max_predicted": x.get("max_predicted"),
                 "max_predicted_prbs": x.get("max_predicted_prbs"), "recorded_max": float(max(e.y.max(), v.y.max())),
                 "loads": True, "same_layout": (d.input_names == e.input_names and d.output_names == e.output_names
                                                and abs(d.ts - e.ts) < 1e-9),
@@ -159,7 +159,7 @@ def main(argv=None):
              f"Load average at the end (1, 5, 15 min): {load}; the machine was shared.", "",
              "| records | exit | s wall | findings (rivals) | separated | S designed / PRBS | loads, same layout | "
              "samples (est) | within recorded limits | shortest run / hold (samples) | highest predicted °C: designed / "
-             "PRBS (limit = recorded max) |",
+             "PRBS (limit = recorded max; effective: at least what holding the rest input reaches) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["rc"] != 0:
@@ -171,7 +171,9 @@ def main(argv=None):
                      f"{yes(r['loads'] and r['same_layout'])} | {r['samples']} ({r['est_samples']}) | "
                      f"{yes(r['within_limits'])} {r['u_range']} in {r['limits']} | "
                      f"{r['shortest_run_samples']} / {r['hold_samples']} ({yes(r['holds'])}) | "
-                     f"{max(r['max_predicted']):.1f} / {max(r['max_predicted_prbs']):.1f} ({max(r['y_max']):.1f}, "
+                     f"{r['max_predicted'] and [round(v, 1) for v in r['max_predicted']]} / "
+                     f"{[round(v, 1) for v in r['max_predicted_prbs']]} ({[round(v, 1) for v in r['y_max']]}; "
+                     f"effective {[round(v, 1) for v in r.get('y_max_effective') or r['y_max']]}, "
                      f"within: {yes(r['within_y_max'])}) |")
     lines += ["", "Bad options (on the virtual-printer pair): exit code 2 and one stderr line, before the diagnosis:", "",
               "| option | exit | stderr lines | s wall | stderr | ok |", "|---|---|---|---|---|---|"]

@@ -308,7 +308,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
       unmeasured) the drift hats.
     - `y_max`: highest temperature (°C, per output or one for all) that any of the models may
       predict on the designed input (a penalty in the objective; of the final candidates a
-      design within it is preferred); `None`: no limit.
+      design within it is preferred, and with none within, the one that exceeds it least); an
+      output the models predict higher when the rest input is held (where the designed record
+      starts) gets that as its limit (`y_max_effective`); `None`: no limit.
 
     **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
     `separation_designed` and `separation_prbs` (the weakest pair's $S$, on the design and on
@@ -362,10 +364,17 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     # (from which the gradient grows the most separating direction, as a power iteration does)
     Z0 = jnp.asarray(np.stack([START * (2.0 * bits - 1.0), 0.1 * small]))
     jlo, jhi, jsig = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sigma)
+    y_given = None
     if y_max is not None:
         y_max = np.broadcast_to(np.asarray(y_max, float), (est.n_outputs,))
         if not np.all(np.isfinite(y_max)):
             raise ConfigError("design_experiment: y_max must be finite")
+        # the designed record starts from the models' state at the rest input (the warm-up): what
+        # holding it reaches is allowed, else a model warmer there than any record (a short record
+        # short of its steady state) would leave only the input that cools fastest (TCLab one heater)
+        y_given = y_max
+        rest = np.asarray(predictions(jnp.broadcast_to(jnp.asarray(u_rest), (int(T), len(keep))), ctx))
+        y_max = np.maximum(y_max, np.max(rest, axis=(0, 1)))
     jymax = None if y_max is None else jnp.asarray(y_max)
     z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
                                float(learning_rate), jpm, jymax)
@@ -378,8 +387,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig, jpm))
     top = lambda c: np.max(np.asarray(predictions(jnp.asarray(c), ctx)), axis=(0, 1))      # (n,)
     within = lambda c: y_max is None or bool(np.all(top(c) <= y_max + OVER_TOL))
-    u = max(((within(c), score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))),
-            key=lambda x: x[:3])[3]
+    # with none within `y_max`, the one that exceeds it least (the penalised optimum, not the PRBS)
+    rank = lambda c: (True, score(c)) if within(c) else (False, -float(np.max(top(c) - y_max)))
+    u = max(((*rank(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:3])[3]
     s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
     s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
@@ -397,7 +407,8 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
             "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
                                  for p, a, b, k in zip(pairs, s_design, s_prbs, used) if k},
             "duration": int(T), "duration_s": T * ts, "hold": int(hold), "criterion": criterion,
-            "y_max": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
+            "y_max": None if y_given is None else y_given.tolist(),
+            "y_max_effective": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
             "max_predicted": top(u_k).tolist(), "max_predicted_prbs": top(u_prbs_k).tolist(),
             "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
                        "u_max": hi.tolist()}, "sigma": sigma.tolist(),
@@ -419,7 +430,7 @@ def with_idle(u_keep, u_idle, keep) -> np.ndarray:
 def to_json(design: dict, path=None) -> dict:
     """The JSON-ready summary of a design (no arrays); `path` the CSV it was written to."""
     keys = ("rivals", "why", "separation_designed", "separation_prbs", "pair_separations", "duration", "duration_s",
-            "hold", "criterion", "y_max", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
+            "hold", "criterion", "y_max", "y_max_effective", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
             "sigma")
     out = {k: design[k] for k in keys}
     out["separation_ratio"] = (design["separation_designed"] / design["separation_prbs"]
