@@ -2,14 +2,16 @@
 
 On a virtual-printer record pair (the study's `lag` case, seed 0) and on real single-heater
 recordings (Klipper OnionHeater hot end: `heattest_fan_200` estimation, `heattest_fan_200_2`
-validation, and the reverse), the command is run as a user would (a subprocess); the written
+validation, and the reverse; TCLab CACE 2020, two heaters and one heater, `id_*` estimation,
+`val_*` validation), the command is run as a user would (a subprocess); the written
 OUT.csv must load with `jthermo.data.load` in the estimation record's layout and stay within the
 recorded input limits and the minimum switching time; bad options must fail with exit code 2 and
 one line on stderr, before the diagnosis runs.
 
     .venv/bin/python experiments/design_experiment_cli.py [--out experiments/results]
+        [--sets virtual,klipper,tclab] [--tag T]
 
-Writes `experiments/results/design_experiment_cli.md` and `.json`.
+Writes `experiments/results/design_experiment_cli{T}.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT / ".." / "shared" / "data" / "real" / "klipper_onionheater"
+TCLAB = ROOT / ".." / "shared" / "data" / "real" / "tclab_cace2020"
+SETS = ("virtual", "klipper", "tclab")
 JT = [str(Path(sys.executable).parent / "jthermo")]     # the installed command, as from the shell
 
 
@@ -87,7 +91,7 @@ def check_design(name, pe, pv, tmp, hold_s=10.0):
                 "rivals": (res.get("findings") or [{}])[0].get("rivals", []),
                 "separated": x["rivals"], "why": x["why"], "criterion": x.get("criterion"),
                 "separation_designed": x["separation_designed"], "separation_prbs": x["separation_prbs"],
-                "y_max": x.get("y_max"), "within_y_max": x.get("within_y_max"), "max_predicted": x.get("max_predicted"),
+                "y_max": x.get("y_max"), "y_max_effective": x.get("y_max_effective"), "within_y_max": x.get("within_y_max"), "max_predicted": x.get("max_predicted"),
                 "max_predicted_prbs": x.get("max_predicted_prbs"), "recorded_max": float(max(e.y.max(), v.y.max())),
                 "loads": True, "same_layout": (d.input_names == e.input_names and d.output_names == e.output_names
                                                and abs(d.ts - e.ts) < 1e-9),
@@ -123,18 +127,29 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--skip-real", action="store_true")
+    ap.add_argument("--sets", default=",".join(SETS), help=f"comma-separated of {', '.join(SETS)}")
+    ap.add_argument("--tag", default="", help="suffix of the result files")
     args = ap.parse_args(argv)
+    sets = [x for x in args.sets.split(",") if x and not (args.skip_real and x != "virtual")]
     out = Path(args.out)
     tmp = Path(tempfile.mkdtemp(prefix="jthermo_design_cli_"))
-    pe, pv = virtual_pair(tmp)
-    rows = [check_design("virtual printer (lag, seed 0)", pe, pv, tmp)]
-    print(rows[-1], flush=True)
-    if not args.skip_real:
+    rows, bad = [], []
+    if "virtual" in sets:
+        pe, pv = virtual_pair(tmp)
+        rows.append(check_design("virtual printer (lag, seed 0)", pe, pv, tmp))
+        print(rows[-1], flush=True)
+    if "klipper" in sets:
         a, b = REAL / "heattest_fan_200" / "data.csv", REAL / "heattest_fan_200_2" / "data.csv"
         for name, (e, v) in (("klipper fan_200 -> fan_200_2", (a, b)), ("klipper fan_200_2 -> fan_200", (b, a))):
             rows.append(check_design(name, e.resolve(), v.resolve(), tmp))
             print(rows[-1], flush=True)
-    bad = bad_options(pe, pv, tmp)
+    if "tclab" in sets:
+        for k in ("2heaters", "1heater"):
+            e, v = TCLAB / f"id_{k}" / "data.csv", TCLAB / f"val_{k}" / "data.csv"
+            rows.append(check_design(f"tclab cace2020 id_{k} -> val_{k}", e.resolve(), v.resolve(), tmp))
+            print(rows[-1], flush=True)
+    if "virtual" in sets:
+        bad = bad_options(pe, pv, tmp)
     for r in bad:
         print(r, flush=True)
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
@@ -144,7 +159,7 @@ def main(argv=None):
              f"Load average at the end (1, 5, 15 min): {load}; the machine was shared.", "",
              "| records | exit | s wall | findings (rivals) | separated | S designed / PRBS | loads, same layout | "
              "samples (est) | within recorded limits | shortest run / hold (samples) | highest predicted °C: designed / "
-             "PRBS (limit = recorded max) |",
+             "PRBS (limit = recorded max; effective: at least what holding the rest input reaches) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["rc"] != 0:
@@ -156,15 +171,18 @@ def main(argv=None):
                      f"{yes(r['loads'] and r['same_layout'])} | {r['samples']} ({r['est_samples']}) | "
                      f"{yes(r['within_limits'])} {r['u_range']} in {r['limits']} | "
                      f"{r['shortest_run_samples']} / {r['hold_samples']} ({yes(r['holds'])}) | "
-                     f"{max(r['max_predicted']):.1f} / {max(r['max_predicted_prbs']):.1f} ({max(r['y_max']):.1f}, "
+                     f"{r['max_predicted'] and [round(v, 1) for v in r['max_predicted']]} / "
+                     f"{[round(v, 1) for v in r['max_predicted_prbs']]} ({[round(v, 1) for v in r['y_max']]}; "
+                     f"effective {[round(v, 1) for v in r.get('y_max_effective') or r['y_max']]}, "
                      f"within: {yes(r['within_y_max'])}) |")
     lines += ["", "Bad options (on the virtual-printer pair): exit code 2 and one stderr line, before the diagnosis:", "",
               "| option | exit | stderr lines | s wall | stderr | ok |", "|---|---|---|---|---|---|"]
     for r in bad:
         lines.append(f"| {r['option']} | {r['rc']} | {r['lines']} | {r['seconds']} | `{r['stderr']}` | {yes(r['ok'])} |")
     out.mkdir(parents=True, exist_ok=True)
-    (out / "design_experiment_cli.md").write_text("\n".join(lines) + "\n")
-    (out / "design_experiment_cli.json").write_text(json.dumps({"runs": rows, "bad_options": bad}, indent=1))
+    (out / f"design_experiment_cli{args.tag}.md").write_text("\n".join(lines) + "\n")
+    (out / f"design_experiment_cli{args.tag}.json").write_text(json.dumps({"runs": rows, "bad_options": bad},
+                                                                          indent=1))
     return 0 if all(r["ok"] for r in bad) and all(r["rc"] == 0 for r in rows) else 1
 
 

@@ -6,11 +6,16 @@ radiation / lamp nonlinearity). A PRBS estimation and validation record are diag
 input that separates the two explanations (`jthermo.diagnose.experiment.design_experiment`, the
 top finding and its rivals; with no rival the runner-up and the baseline) is run
 on the true printer, and the diagnosis is repeated with that record as the validation record
-(the models are fitted on the same estimation record). The comparison is a PRBS record of the
-same length, actuator limits and minimum switching time, run on the same printer.
+(the models are fitted on the same estimation record), as the estimation record (validated on
+the PRBS validation record), and as both (the designed input run twice, new noise and
+surroundings each time). The comparison is a PRBS record of the same length, actuator limits and
+minimum switching time, run on the same printer. The designed record is as long as the
+validation record, or `DESIGN_S` for the slow cases (a body of 40 min shows in no 15-min
+record).
 
     .venv/bin/python experiments/design_experiment_study.py [--cases a,b] [--seeds 0,1,2]
-        [--criterion nuisance|span] [--duration val|est] [--steps 150] [--out experiments/results] [--tag T]
+        [--criterion nuisance|nuisance_drift|span] [--duration case|val|est] [--steps 150]
+        [--out experiments/results] [--tag T]
 
 Writes `experiments/results/design_experiment{T}.md`, `.json` and `design_experiment{T}.png`.
 """
@@ -54,6 +59,11 @@ CASES = {
     "nonlinearity": ("input_nonlinearity", {"input_nonlinearity": {"exponent": 1.15}}, 1, 1200, 600,
                      (0.2, 0.8), (20, 60), 0.05, True),
 }
+
+#: designed record's length (s) of the slow cases under `--duration case` (others: the validation record's)
+DESIGN_S = {"body": 3600, "drift": 3600}
+#: how each new record is used: (key, estimation, validation) with "new" the new record, "new2" its rerun
+ARMS = (("as_validation", "est", "new"), ("as_estimation", "new", "val"), ("twice", "new", "new2"))
 
 
 def run_printer(pr, u, seed, noise, u_rest, measured):
@@ -99,16 +109,20 @@ def run_case(name, steps, seed=0, criterion="nuisance", duration="val"):
     res = diagnose(est, val, seed=seed)
     first = summary(to_json(res), truth)
     t1 = time.perf_counter()
-    T_new = t_val if duration == "val" else t_est
+    T_new = {"val": t_val, "est": t_est, "case": DESIGN_S.get(name, t_val)}[duration]
     d = design_experiment(res, est, val, duration=T_new, n_steps=steps, seed=seed, criterion=criterion)
     t2 = time.perf_counter()
     out = {"case": name, "seed": seed, "truth": truth, "effects": eff, "zones": zones, "noise": noise,
            "estimation_s": t_est, "record_s": T_new, "prbs_diagnosis": first,
            "design": design_json(d), "design_seconds": t2 - t1, "diagnose_seconds": t1 - t0}
     for kind, uu in (("designed", d["u"]), ("prbs", d["u_prbs"])):
-        new = run_printer(pr, np.asarray(uu), 10 * seed + 3, noise, u_rest, measured)
-        for how, (e, v) in (("as_validation", (est, new)), ("as_estimation", (new, val))):
-            r = summary(to_json(diagnose(e, v, seed=seed)), truth)
+        recs = {"est": est, "val": val,
+                "new": run_printer(pr, np.asarray(uu), 10 * seed + 3, noise, u_rest, measured),
+                "new2": run_printer(pr, np.asarray(uu), 10 * seed + 4, noise, u_rest, measured)}
+        for how, e, v in ARMS:
+            res_n = diagnose(recs[e], recs[v], seed=seed)
+            r = summary(to_json(res_n), truth)
+            r["input_dependence_z"] = res_n["localisation"].get("drift_input_dependence_records_z")
             r["named_truth"] = r["top"] == truth
             r["rival_left"] = bool(r["rivals"])
             out[f"{kind}_{how}"] = r
@@ -152,12 +166,58 @@ def figure(rows, arrays, path):
     save_figure(fig, path)
 
 
-def write(rows, out, load, tag):
+ARM_LABEL = {"as_validation": "as val", "as_estimation": "as est", "twice": "twice (est + val)"}
+
+
+def figure_counts(rows, before, path):
+    """Named truth per case, before → after: the designed record and the PRBS of the same length,
+    as validation record (before and after) and run twice (after only)."""
+    from matplotlib.figure import Figure
+
+    from jthermo.plots import save_figure
+
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    bars = [("before", "designed_as_validation", "designed as val, before", "tab:blue", 0.35),
+            ("before", "prbs_as_validation", "PRBS as val, before", "0.45", 0.35),
+            ("after", "designed_as_validation", "designed as val", "tab:blue", 1.0),
+            ("after", "prbs_as_validation", "PRBS as val", "0.45", 1.0),
+            ("after", "designed_twice", "designed twice", "tab:green", 1.0),
+            ("after", "prbs_twice", "PRBS twice", "0.7", 1.0)]
+    fig = Figure(figsize=(10, 3.2), layout="constrained")
+    ax = fig.subplots()
+    w = 0.8 / len(bars)
+    for b, (when, key, label, color, alpha) in enumerate(bars):
+        vals = []
+        for c in cases:
+            rs = [r for r in rows if r["case"] == c]
+            if when == "before":
+                seeds = {r["seed"] for r in rs}
+                rs = [r for r in before if r["case"] == c and r.get("seed", 0) in seeds]
+            vals.append((sum(bool(r[key]["named_truth"]) for r in rs), len(rs)) if rs and key in rs[0]
+                        else (np.nan, 1))
+        x = np.arange(len(cases)) + (b - len(bars) / 2 + 0.5) * w
+        ax.bar(x, [v / m for v, m in vals], w, color=color, alpha=alpha, label=label,
+               hatch="//" if when == "before" else None)
+        for xi, (v, m) in zip(x, vals):
+            if np.isfinite(v):
+                ax.text(xi, v / m + 0.02, f"{v}/{m}", ha="center", fontsize="xx-small")
+    ax.set_xticks(np.arange(len(cases)), cases)
+    ax.set_ylabel("share of seeds named right")
+    ax.set_ylim(0, 1.12)
+    ax.legend(fontsize="x-small", loc="center left", bbox_to_anchor=(1.0, 0.5))
+    ax.set_title("top finding = truth, before (hatched) and after", fontsize="small")
+    save_figure(fig, path)
+
+
+def write(rows, out, load, tag, before=None):
+    """The Markdown table and the JSON of `rows`; `before`: (path, rows) of an earlier run to
+    compare with, case by case."""
     yes = lambda b: "yes" if b else "no"
     crit = rows[0]["design"].get("criterion", "span")
+    arms = [a for a, _, _ in ARMS if f"designed_{a}" in rows[0]]
     lines = ["# Designed experiments against PRBS (issue 14 item 3)", "",
-             f"Made by `experiments/design_experiment_study.py` (criterion `{crit}`). Virtual printer, one zone, "
-             "Ts = 1 s, white +",
+             (f"Made by `experiments/design_experiment_study.py` (criterion `{crit}`). Virtual printer, one "
+              "zone, Ts = 1 s, white +"),
              "AR(1) sensor noise (same noise draw in both arms); PRBS estimation + validation records are",
              "diagnosed first; the design separates the top finding and its rivals (with no rival: the top",
              "finding, the runner-up and the baseline; with no finding the two best candidates and the",
@@ -165,51 +225,96 @@ def write(rows, out, load, tag):
              "switching time (10 s) are run on the same printer. Separation S = the models' prediction gap",
              "outside what a new record's re-estimated nuisances absorb (`jthermo/diagnose/experiment.py`),",
              "over the noise power, for the weakest pair. Seeds: printer s, PRBS 10s+1, noise 10s+2, new",
-             "records' noise 10s+3.",
+             "records' noise (and surroundings) 10s+3, the rerun's 10s+4.",
              f"Load average when the table was written (1, 5, 15 min): {load}; the machine was shared.", "",
-             "Each new record is diagnosed twice: as the validation record (models fitted on the PRBS",
-             "estimation record: the protocol the design assumes) and as the estimation record (validated",
-             "on the PRBS validation record). Cells: named truth? (top finding; rivals left).", "",
+             "Each new record is diagnosed as the validation record (models fitted on the PRBS",
+             "estimation record: the protocol the design assumes), as the estimation record (validated",
+             "on the PRBS validation record) and, where run, twice: the same input run again as the",
+             "validation record. Cells: named truth? (top finding; rivals left).", "",
+             (f"Slow body against drift: the designed and PRBS records of these two cases are "
+              f"{DESIGN_S.get('body')} s long (a 40-min body"),
+             "shows in no 15-min record). The diagnosis orders the two by whether the unmeasured",
+             "surroundings drift the drift model fits follows the input-driven temperature (`decide.input_dependence`),",
+             "tested on every record with at least 8 drift knots (2400 s) and combined (`decide.combined_dependence`):",
+             "the 1800-s PRBS estimation record is too short, so as validation only the new record's test counts,",
+             "as estimation only its own, twice both.", "",
              "## Counts (top finding = truth, over seeds)", "",
-             "| case | truth | seeds | PRBS est/val | new PRBS as val | designed as val | new PRBS as est | "
-             "designed as est | rival left: PRBS/designed as val | median S designed / PRBS |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| case | truth | seeds | new record s | PRBS est/val | "
+             + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)
+             + " | rival left as val: PRBS/designed | median S designed / PRBS |",
+             "|---|---|---|---|---|" + "---|---|" * len(arms) + "---|---|"]
     cases = list(dict.fromkeys(r["case"] for r in rows))
     for c in cases:
         rs = [r for r in rows if r["case"] == c]
-        k = lambda key, sub="named_truth": f"{sum(bool(r[key][sub]) for r in rs)}/{len(rs)}"
+        k = lambda key, sub="named_truth", rs=rs: f"{sum(bool(r[key][sub]) for r in rs)}/{len(rs)}"
         first = f"{sum(r['prbs_diagnosis']['top'] == r['truth'] for r in rs)}/{len(rs)}"
-        lines.append(f"| {c} | {rs[0]['truth']} | {len(rs)} | {first} | {k('prbs_as_validation')} | "
-                     f"{k('designed_as_validation')} | {k('prbs_as_estimation')} | {k('designed_as_estimation')} | "
-                     f"{k('prbs_as_validation', 'rival_left')} / {k('designed_as_validation', 'rival_left')} | "
+        lines.append(f"| {c} | {rs[0]['truth']} | {len(rs)} | {rs[0].get('record_s', '-')} | {first} | "
+                     + " | ".join(f"{k('prbs_' + a)} | {k('designed_' + a)}" for a in arms)
+                     + f" | {k('prbs_as_validation', 'rival_left')} / {k('designed_as_validation', 'rival_left')} | "
                      f"{np.median([r['design']['separation_designed'] for r in rs]):.3g} / "
                      f"{np.median([r['design']['separation_prbs'] for r in rs]):.3g} |")
     tot = lambda key, sub="named_truth": f"{sum(bool(r[key][sub]) for r in rows)}/{len(rows)}"
     lines += ["", f"All: PRBS est/val {sum(r['prbs_diagnosis']['top'] == r['truth'] for r in rows)}/{len(rows)}; "
-              f"as validation designed {tot('designed_as_validation')} (rival left "
-              f"{tot('designed_as_validation', 'rival_left')}), PRBS of the same length {tot('prbs_as_validation')} "
-              f"(rival left {tot('prbs_as_validation', 'rival_left')}); as estimation designed "
-              f"{tot('designed_as_estimation')} (rival left {tot('designed_as_estimation', 'rival_left')}), PRBS "
-              f"{tot('prbs_as_estimation')} (rival left {tot('prbs_as_estimation', 'rival_left')}).", "",
+              + "; ".join(f"{ARM_LABEL[a]} designed {tot('designed_' + a)} (rival left "
+                          f"{tot('designed_' + a, 'rival_left')}), PRBS of the same length {tot('prbs_' + a)} "
+                          f"(rival left {tot('prbs_' + a, 'rival_left')})" for a in arms) + ".", "",
               "## Every run", "",
-              ("| case | seed | PRBS est/val: top (rivals) | models separated | new PRBS as val | designed as val | "
-               "new PRBS as est | designed as est | weakest-pair S designed / PRBS | truth's tests, designed as val: "
-               "z/z_crit, LR/LR_crit |"),
-              "|---|---|---|---|---|---|---|---|---|---|"]
-    cell = lambda c: f"{yes(c['named_truth'])} ({c['top']}; {', '.join(c['rivals']) or '-'})"
+              "Input dependence z of the body/drift test (`decide.input_dependence`), estimation / validation",
+              "record (0: too short to test, fewer than 8 drift knots), shown for the designed record's arms.", "",
+              ("| case | seed | PRBS est/val: top (rivals) | models separated | "
+               + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)
+               + " | weakest-pair S designed / PRBS | truth's tests, designed as val: z/z_crit, LR/LR_crit | "
+                 "truth's LR/LR_crit as est: designed / PRBS |"),
+              "|---|---|---|---|" + "---|---|" * len(arms) + "---|---|---|"]
+
+    def cell(c, dep=False):
+        z = c.get("input_dependence_z")
+        zs = f"; z_in {z[0]:.2f}/{z[1]:.2f}" if dep and z else ""
+        return f"{yes(c['named_truth'])} ({c['top']}; {', '.join(c['rivals']) or '-'}{zs})"
 
     def tests(c):
         t = c.get("truth_tests")
         return "-" if not t else (f"{t['validation_z']:.2f}/{t['validation_z_critical']:.2f}, "
                                   f"{t['estimation_lr']:.1f}/{t['estimation_lr_critical']:.1f}")
+    def lr(c):
+        t = c.get("truth_tests")
+        return "-" if not t else f"{t['estimation_lr']:.1f}/{t['estimation_lr_critical']:.1f}"
     for r in rows:
         f = r["prbs_diagnosis"]
+        slow = r["truth"] in ("heat_accumulation", "ambient_variation")
         lines.append(f"| {r['case']} | {r.get('seed', 0)} | {f['top']} ({', '.join(f['rivals']) or '-'}) | "
-                     f"{' / '.join(r['design']['rivals'])} | {cell(r['prbs_as_validation'])} | "
-                     f"{cell(r['designed_as_validation'])} | {cell(r['prbs_as_estimation'])} | "
-                     f"{cell(r['designed_as_estimation'])} | {r['design']['separation_designed']:.3g} / "
+                     f"{' / '.join(r['design']['rivals'])} | "
+                     + " | ".join(f"{cell(r['prbs_' + a])} | {cell(r['designed_' + a], slow)}" for a in arms)
+                     + f" | {r['design']['separation_designed']:.3g} / "
                      f"{r['design']['separation_prbs']:.3g} = {r['design']['separation_ratio']:.2f} | "
-                     f"{tests(r['designed_as_validation'])} |")
+                     f"{tests(r['designed_as_validation'])} | {lr(r['designed_as_estimation'])} / "
+                     f"{lr(r['prbs_as_estimation'])} |")
+    if before:
+        lines += ["", "## Before → after", "",
+                  f"Before: `{before[0]}` (the committed run of the former code: criterion `nuisance_drift`, every",
+                  "model re-estimating a drift on the new record; new records as long as the validation record;",
+                  "body and drift ordered by the estimation record's input dependence only). Named truth",
+                  "(rival left) over the seeds run in both.", "",
+                  ("| case | new record s before → after | designed as val | PRBS as val | designed as est | "
+                   "PRBS as est | designed twice | PRBS twice |"), "|---|---|---|---|---|---|---|---|"]
+        old = before[1]
+        for c in cases:
+            rs = [r for r in rows if r["case"] == c]
+            seeds = {r["seed"] for r in rs}
+            os_ = [r for r in old if r["case"] == c and r.get("seed", 0) in seeds]
+            if not os_:
+                continue
+
+            def ba(key, old_rows=os_, new_rows=rs):
+                f = lambda rr: (f"{sum(bool(r[key]['named_truth']) for r in rr)}/{len(rr)}"
+                                if key in rr[0] else "-")
+                g = lambda rr: (f"{sum(bool(r[key]['rival_left']) for r in rr)}" if key in rr[0] else "-")
+                return f"{f(old_rows)} ({g(old_rows)}) → {f(new_rows)} ({g(new_rows)})"
+            lines.append(f"| {c} | {os_[0].get('record_s', '-')} → {rs[0].get('record_s', '-')} | "
+                         f"{ba('designed_as_validation')} | {ba('prbs_as_validation')} | "
+                         f"{ba('designed_as_estimation')} | {ba('prbs_as_estimation')} | "
+                         f"{ba('designed_twice')} | {ba('prbs_twice')} |")
+        lines += ["", f"![named truth before and after](design_experiment{tag}_counts.png)"]
     lines += ["", f"![inputs and rival prediction gaps](design_experiment{tag}.png)", ""]
     atomic_write_text(out / f"design_experiment{tag}.md", "\n".join(lines))
     atomic_write_text(out / f"design_experiment{tag}.json", json.dumps(rows, indent=1, default=float))
@@ -219,18 +324,24 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--seeds", default="0", help="comma-separated printer/noise seeds, each case on each")
-    ap.add_argument("--criterion", default="nuisance", choices=("nuisance", "span"))
-    ap.add_argument("--duration", default="val", choices=("val", "est"),
-                    help="designed record's length: the validation record's or the estimation record's")
+    ap.add_argument("--criterion", default="nuisance", choices=("nuisance", "nuisance_drift", "span"))
+    ap.add_argument("--duration", default="case", choices=("case", "val", "est"),
+                    help="designed record's length: the case's (`DESIGN_S`, else the validation record's), "
+                         "the validation record's or the estimation record's")
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--tag", default="", help="suffix of the result files")
     ap.add_argument("--rewrite", metavar="LOAD", help="only rewrite the Markdown from the JSON in --out")
+    ap.add_argument("--before", metavar="JSON", help="an earlier run's JSON to compare with (before → after)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    before = None if args.before is None else (args.before, json.loads(Path(args.before).read_text()))
     if args.rewrite is not None:
-        write(json.loads((out / f"design_experiment{args.tag}.json").read_text()), out, args.rewrite, args.tag)
+        rows = json.loads((out / f"design_experiment{args.tag}.json").read_text())
+        write(rows, out, args.rewrite, args.tag, before)
+        if before is not None:
+            figure_counts(rows, before[1], out / f"design_experiment{args.tag}_counts.png")
         return 0
     rows, arrays = [], {}
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -242,15 +353,16 @@ def main(argv=None):
             rows.append(row)
             arrays[(name, seed)] = ar
             got = "; ".join(f"{k} {row[k]['top']} {row[k]['rivals']}" for k in
-                            ("prbs_as_validation", "designed_as_validation", "prbs_as_estimation",
-                             "designed_as_estimation"))
+                            (f"{w}_{a}" for a, _, _ in ARMS for w in ("prbs", "designed")))
             print(f"{name} seed {seed}: PRBS est/val {row['prbs_diagnosis']['top']} rivals "
                   f"{row['prbs_diagnosis']['rivals']}; design {row['design']['rivals']} "
                   f"x{row['design']['separation_ratio']:.2f}; {got} ({row['seconds']:.0f} s)", flush=True)
             load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
             rows.sort(key=lambda r: (list(CASES).index(r["case"]), r["seed"]))
-            write(rows, out, load, args.tag)
+            write(rows, out, load, args.tag, before)
     figure([r for r in rows if r["seed"] == seeds[0]], arrays, out / f"design_experiment{args.tag}.png")
+    if before is not None:
+        figure_counts(rows, before[1], out / f"design_experiment{args.tag}_counts.png")
     return 0
 
 

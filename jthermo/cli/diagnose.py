@@ -37,7 +37,8 @@ def add_parsers(sub) -> None:
                     help="designed input's minimum switching time in s (default 10)")
     sp.add_argument("--design-max-temp", type=float, metavar="C",
                     help="highest temperature any rival model may predict on the designed input "
-                         "(default: the highest recorded in the two records)")
+                         "(default: the highest recorded in the two records; raised per output to what "
+                         "holding the mean input, where the design starts, reaches)")
     add_common(sp, plot=False)
 
 

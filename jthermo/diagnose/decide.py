@@ -176,7 +176,7 @@ def input_dependence(drift: np.ndarray, drive: np.ndarray, ts: float, step: int,
     d = np.asarray(drift, float)
     s = np.asarray(drive, float)
     idx = np.arange(0, d.size, max(int(step), 1))
-    if idx.size < 8 or not (np.all(np.isfinite(d)) and np.all(np.isfinite(s))):
+    if idx.size < MIN_DEPENDENCE_POINTS or not (np.all(np.isfinite(d)) and np.all(np.isfinite(s))):
         return 0.0
     stat = lambda sig: max(_lag_t(d, sig, ts, idx, tau) for tau in taus)
     t0 = stat(s)
@@ -186,6 +186,33 @@ def input_dependence(drift: np.ndarray, drive: np.ndarray, ts: float, step: int,
     null = np.array([stat(np.roll(s, int(k))) for k in shifts])
     p = (1.0 + np.sum(null >= t0)) / (1.0 + n_shifts)
     return float(norm.isf(p))
+
+
+#: fewest points (drift knots) on which `input_dependence` tests anything
+MIN_DEPENDENCE_POINTS = 8
+
+
+def dependence_testable(T: int, step: int) -> bool:
+    """Whether a record of `T` samples, tested every `step` samples, has the
+    `MIN_DEPENDENCE_POINTS` that `input_dependence` needs (below them it returns 0: no evidence)."""
+    return bool(math.ceil(T / max(int(step), 1)) >= MIN_DEPENDENCE_POINTS)
+
+
+def combined_dependence(zs, testable) -> float:
+    """Stouffer's $z = \\sum_r z_r / \\sqrt{m}$ of the `input_dependence` statistics `zs` of the
+    records that could be tested (`testable`, `m` of them; 0 when none): the estimation record's
+    fitted drift and the drift re-estimated on the validation record test the same hypothesis on
+    independent records (under an exogenous drift each $z$ is standard normal, so the sum over
+    $\\sqrt m$ is too). A record too short to test adds nothing, so a designed validation record
+    long enough to test can decide where the estimation record cannot, and a short one leaves the
+    estimation record's statistic as it was. Combined, each $z$ is first clipped to the largest
+    magnitude a rank p-value of `N_SHIFTS` shifts gives (a record whose drift lies below every
+    shifted drive's, p = 1, is $-\\infty$ alone)."""
+    z = [float(v) for v, ok in zip(zs, testable) if ok and not np.isnan(v)]
+    if len(z) < 2:
+        return z[0] if z else 0.0
+    zb = float(norm.isf(1.0 / (1.0 + N_SHIFTS)))
+    return float(sum(np.clip(z, -zb, zb)) / math.sqrt(len(z)))
 
 
 def input_dependent(z_input: float) -> bool:
@@ -327,8 +354,8 @@ def is_rival(z_top_vs_other: float) -> bool:
     return bool(z_top_vs_other < norm.isf(RIVAL_LEVEL))
 
 
-__all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "ar_filter",
-           "body_drift_tied", "body_identified", "common_drift", "common_drift_z", "confidence",
-           "input_dependence", "input_dependent", "is_rival", "lag_filter", "likelihood_ratio",
-           "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
+__all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
+           "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
+           "confidence", "dependence_testable", "input_dependence", "input_dependent", "is_rival", "lag_filter",
+           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

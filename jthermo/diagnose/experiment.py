@@ -12,12 +12,22 @@ variance $\\sigma_i^2$ (the top model's validation residual power, zone $i$), af
 what the nuisance parameters re-estimated on a new record can absorb. $\\Pi_N$ projects onto
 the span of both models' sensitivities to exactly what the diagnosis re-estimates on a record
 it validates on (`nuisance_jacobians`): every zone's initial state, a body's initial state, the
-surroundings level where it is not measured, and then also a surroundings drift on the record's
-own knots, for every model (criterion `"nuisance"`, the default). The gap is the distance
-between the two models' prediction sets over those nuisances, linearised (weighted least
-squares); a transient from an unknown start, or a slow term a drift can follow, separates
-nothing. (The former criterion `"span"` projected onto a constant per zone and the raw drift
-hats only: it counted the decay of an unknown initial state as separation.) With three models
+surroundings level where it is not measured, and, with the surroundings' variation unmeasured, a
+drift on the record's own knots (criterion `"nuisance"`, the default): for the surroundings-drift
+model (`ambient_variation`) alone when it is one of the models separated, as the diagnosis
+re-estimates it, and for every model when it is not (`drift_for_all`: the drift is then a
+candidate the design does not model, which would take any slow gap it can follow, so such a gap
+separates nothing). The gap is the distance between the two models' prediction sets over those
+nuisances, linearised (weighted least squares); a transient from an unknown start separates
+nothing. Criterion `"nuisance_drift"` (the default before) let every model re-estimate a drift
+in every case: with the drift among the rivals, a slow body's input-driven warming then
+separated nothing from the baseline either, and the design avoided exactly the slow power swings
+that make a body significant (`experiments/results/design_experiment.md`, body case); with the
+drift not among them, letting it follow nothing made the design's slow swings go to a drift
+(radiation case, `design_experiment_own_drift.md`).
+(The first criterion, `"span"`, projected onto a
+constant per zone and the raw drift hats only: it counted the decay of an unknown initial state
+as separation.) With three models
 (the top finding and two rivals, or with no rival the runner-up and the baseline) the design
 maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
 differentiable in $u$ through the coupled simulations (`mechanisms.simulate_full`).
@@ -61,7 +71,7 @@ LEARNING_RATE = 0.3
 #: rivals of the top finding the design separates, besides it
 MAX_RIVALS = 2
 #: what a new record's nuisances absorb of a prediction gap (`design_experiment`'s `criterion`)
-CRITERIA = ("nuisance", "span")
+CRITERIA = ("nuisance", "nuisance_drift", "span")
 #: weight of `over_limit` (per °C² and sample) against the objective, and the overshoot of
 #: `y_max` tolerated in the final choice (°C)
 OVER_PENALTY = 100.0
@@ -117,9 +127,19 @@ def squash(z, lo, hi, hold: int, T: int):
     return (lo + (hi - lo) * jax.nn.sigmoid(jnp.repeat(z, hold, axis=0)))[:T]
 
 
-def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
+def drift_for_all(names, criterion: str = "nuisance") -> bool:
+    """Whether every model of `names` re-estimates a surroundings drift on the new record (when
+    the surroundings' variation is unmeasured): always under `"nuisance_drift"`; under
+    `"nuisance"` only when the drift model (`ambient_variation`) is not one of `names` (it then
+    re-estimates its own drift alone, as the diagnosis does)."""
+    return bool(criterion == "nuisance_drift" or "ambient_variation" not in names)
+
+
+def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start, drift_all: bool = False):
     """Stacked parameters, switches, per-model simulation inputs and record states of the models
-    `names` (mechanisms of the diagnosis' single-mechanism refits, or `baseline`)."""
+    `names` (mechanisms of the diagnosis' single-mechanism refits, or `baseline`); `drift_all`:
+    every model, not only `ambient_variation`, re-estimates a drift on the new record (criterion
+    `nuisance_drift`)."""
     lay = models["layout"]
     n = lay.n
     Tw = T + WARMUP
@@ -144,17 +164,18 @@ def rival_context(models: dict, names, T: int, ts: float, u_rest, x_start):
     # what the diagnosis re-estimates on a new record (`select.diagnose`'s `validate`): every
     # zone's initial state, a body's initial state, the record's own surroundings level when
     # it is not measured, and, with the surroundings unmeasured, a drift on the record's own
-    # knots, for every model (a drift is always a candidate explanation of slow residuals)
+    # knots for the drift model (`drift_all`: for every model, the former criterion)
     drift = not models["measured_ambient"]
     kr = M.n_drift_knots(T, ts)
     masks = np.zeros((len(names), 2 * n + kr + 1))
     masks[:, :n] = 1.0
     masks[:, n:2 * n] = np.array([float(m == "heat_accumulation") for m in names])[:, None]
-    masks[:, 2 * n:2 * n + kr] = float(drift)
+    masks[:, 2 * n:2 * n + kr] = float(drift) * np.array([float(drift_all or m == "ambient_variation")
+                                                          for m in names])[:, None]
     masks[:, -1] = float(models["ts_free"])
     ons_j = np.stack(ons)
-    ons_j[:, M.MECHANISMS.index("ambient_variation")] = np.maximum(ons_j[:, M.MECHANISMS.index(
-        "ambient_variation")], float(drift))
+    ia = M.MECHANISMS.index("ambient_variation")
+    ons_j[:, ia] = np.maximum(ons_j[:, ia], masks[:, 2 * n])
     rec_r = [np.concatenate([r[:2 * n], np.zeros(kr), [0.0]]) for r in recs]
     nuis = {"on": jnp.asarray(ons_j), "rec": jnp.asarray(np.stack(rec_r)), "mask": jnp.asarray(masks),
             "f": {**shared, "events": jnp.asarray(ev[WARMUP:]), "wdev": jnp.zeros(T),
@@ -287,7 +308,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
       unmeasured) the drift hats.
     - `y_max`: highest temperature (°C, per output or one for all) that any of the models may
       predict on the designed input (a penalty in the objective; of the final candidates a
-      design within it is preferred); `None`: no limit.
+      design within it is preferred, and with none within, the one that exceeds it least); an
+      output the models predict higher when the rest input is held (where the designed record
+      starts) gets that as its limit (`y_max_effective`); `None`: no limit.
 
     **Returns:** a dict with `rivals` (the K = 2 or 3 models separated, top first), `why`,
     `separation_designed` and `separation_prbs` (the weakest pair's $S$, on the design and on
@@ -325,9 +348,10 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     yhat = np.asarray(result["_arrays"]["yhat_augmented"])
     sigma = np.sqrt(np.maximum(np.mean((y_val - yhat) ** 2, axis=0), 1e-12))
     u_rest = np.clip(np.mean(np.asarray(est.u, float)[:, keep], axis=0), lo, hi)
-    ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0))
     if criterion not in CRITERIA:
         raise ConfigError(f"design_experiment: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    ctx = rival_context(models, names, T, ts, u_rest, np.mean(np.asarray(est.y, float), axis=0),
+                        drift_all=drift_for_all(names, criterion))
     # "span" (the former criterion): a constant and, with the surroundings unmeasured (a drift
     # is always a candidate explanation of slow residuals), the drift hats, in every zone;
     # "nuisance": the span of the models' sensitivities to what the diagnosis re-estimates
@@ -340,10 +364,17 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     # (from which the gradient grows the most separating direction, as a power iteration does)
     Z0 = jnp.asarray(np.stack([START * (2.0 * bits - 1.0), 0.1 * small]))
     jlo, jhi, jsig = jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sigma)
+    y_given = None
     if y_max is not None:
         y_max = np.broadcast_to(np.asarray(y_max, float), (est.n_outputs,))
         if not np.all(np.isfinite(y_max)):
             raise ConfigError("design_experiment: y_max must be finite")
+        # the designed record starts from the models' state at the rest input (the warm-up): what
+        # holding it reaches is allowed, else a model warmer there than any record (a short record
+        # short of its steady state) would leave only the input that cools fastest (TCLab one heater)
+        y_given = y_max
+        rest = np.asarray(predictions(jnp.broadcast_to(jnp.asarray(u_rest), (int(T), len(keep))), ctx))
+        y_max = np.maximum(y_max, np.max(rest, axis=(0, 1)))
     jymax = None if y_max is None else jnp.asarray(y_max)
     z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
                                float(learning_rate), jpm, jymax)
@@ -356,8 +387,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig, jpm))
     top = lambda c: np.max(np.asarray(predictions(jnp.asarray(c), ctx)), axis=(0, 1))      # (n,)
     within = lambda c: y_max is None or bool(np.all(top(c) <= y_max + OVER_TOL))
-    u = max(((within(c), score(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))),
-            key=lambda x: x[:3])[3]
+    # with none within `y_max`, the one that exceeds it least (the penalised optimum, not the PRBS)
+    rank = lambda c: (True, score(c)) if within(c) else (False, -float(np.max(top(c) - y_max)))
+    u = max(((*rank(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:3])[3]
     s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
     s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
@@ -375,7 +407,8 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
             "pair_separations": {p: {"designed": float(a), "prbs": float(b)}
                                  for p, a, b, k in zip(pairs, s_design, s_prbs, used) if k},
             "duration": int(T), "duration_s": T * ts, "hold": int(hold), "criterion": criterion,
-            "y_max": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
+            "y_max": None if y_given is None else y_given.tolist(),
+            "y_max_effective": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
             "max_predicted": top(u_k).tolist(), "max_predicted_prbs": top(u_prbs_k).tolist(),
             "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
                        "u_max": hi.tolist()}, "sigma": sigma.tolist(),
@@ -397,7 +430,7 @@ def with_idle(u_keep, u_idle, keep) -> np.ndarray:
 def to_json(design: dict, path=None) -> dict:
     """The JSON-ready summary of a design (no arrays); `path` the CSV it was written to."""
     keys = ("rivals", "why", "separation_designed", "separation_prbs", "pair_separations", "duration", "duration_s",
-            "hold", "criterion", "y_max", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
+            "hold", "criterion", "y_max", "y_max_effective", "within_y_max", "max_predicted", "max_predicted_prbs", "limits",
             "sigma")
     out = {k: design[k] for k in keys}
     out["separation_ratio"] = (design["separation_designed"] / design["separation_prbs"]
@@ -406,6 +439,6 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["CRITERIA", "design_experiment", "gap_residuals", "nuisance_basis", "nuisance_jacobians", "objective",
-           "over_limit", "pair_mask", "predictions", "rival_context", "rival_set",
-           "separations", "squash", "to_json", "with_idle"]
+__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "gap_residuals", "nuisance_basis",
+           "nuisance_jacobians", "objective", "over_limit", "pair_mask", "predictions", "rival_context",
+           "rival_set", "separations", "squash", "to_json", "with_idle"]

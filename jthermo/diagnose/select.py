@@ -9,7 +9,11 @@ validation record, whitened residuals, family-wise false-alarm rate `decide.ALPH
 augmented model has to predict a record it was not fitted on, where only initial states (and
 the surroundings level when no surroundings signal is measured, for every model alike), and for
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
-Significant candidates are ranked by their validation MSE (a stored-heat body whose time constant the
+Significant candidates are ranked by their validation MSE; a slow body and an unmeasured drift are
+ordered by whether the drift follows the input-driven temperature, tested on the estimation
+record's fitted drift and on the drift re-estimated on the validation record, combined over the
+records long enough to test (`decide.combined_dependence`: a long designed validation record can
+settle the pair) (a stored-heat body whose time constant the
 record does not identify yields to a tied one-parameter mechanism: `decide.prefer_identified`);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
@@ -268,10 +272,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         dv = detect_periodic(yv - ybv, ts, period_range=(P * ts, P * ts))
         ev_v = event_matrix(Tv, P, dv["zone_phase"])
 
-    def validate(models):
+    def validate(models, with_rec=False):
         """Coupled simulations `(M, Tv, n)` of models on the validation record: (θ, mechanism set)
         pairs fitted per zone (surroundings as the baseline's), or (θ, set, setup) for the joint
-        fits (`JointFits.setup` of the validation record)."""
+        fits (`JointFits.setup` of the validation record); `with_rec`: also the record parameters
+        re-estimated on it `(M, 2 n + kv + 1)` (initial states, body states, drift knots, level)."""
         Mn = len(models)
         R = 2 * n + kv + 1              # + the record's own surroundings level (when not measured)
         rec0, rmask = np.zeros((Mn, R)), np.zeros((Mn, R))
@@ -293,16 +298,16 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                 "delay": jnp.asarray(np.array([best_delay if "input_delay" in m[1] else 0.0
                                                for m in models])),
                 **{k: jnp.asarray(np.stack([su[k] for su in setups], dtype=float)) for k in per_zone}}
-        _, yh, _ = fit_records(jnp.asarray(np.stack([m[0] for m in models])),
+        rec_fit, yh, _ = fit_records(jnp.asarray(np.stack([m[0] for m in models])),
                                jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
                                jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v, lay, 10)
-        return np.asarray(yh)
+        return (np.asarray(yh), np.asarray(rec_fit)) if with_rec else np.asarray(yh)
 
     def k_val(st):
         """Parameters re-estimated on the validation record beyond the zones' initial states."""
         return n * ("heat_accumulation" in st) + kv * ("ambient_variation" in st and not measured_var)
 
-    yhat_v = validate([(thb, ())] + [(thc[k], (m,)) for k, m in enumerate(cands)])
+    yhat_v, rec_v_fit = validate([(thb, ())] + [(thc[k], (m,)) for k, m in enumerate(cands)], with_rec=True)
     e_base = yv - yhat_v[0]
     e_c = [yv - yhat_v[k + 1] for k in range(K)]
     tick({"stage": "validation"})
@@ -343,10 +348,19 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     if "ambient_variation" in cands:
         # a slow body or a drift: the drift fitted on estimation follows the input-driven
         # (baseline-simulated) temperature through a lag only if it is a body (decide.py)
+        # (and, unmeasured, the drift re-estimated on the validation record follows the baseline's
+        # simulation of that record: a designed record can show it; the two records' tests are
+        # combined, `decide.combined_dependence`)
+        kstep = round(M.DRIFT_SPACING / ts)
         dr = np.median(thc[cands.index("ambient_variation")][:, lay.sl("drift")], axis=0)
-        loc["drift_input_dependence_z"] = D.input_dependence(rec_e["Phi"] @ (dr - dr.mean()),
-                                                             yb_e.mean(axis=1), ts,
-                                                             round(M.DRIFT_SPACING / ts))
+        z_e = D.input_dependence(rec_e["Phi"] @ (dr - dr.mean()), yb_e.mean(axis=1), ts, kstep)
+        dv = rec_v_fit[1 + cands.index("ambient_variation"), 2 * n:2 * n + kv]
+        z_v = (D.input_dependence(Phi_v @ (dv - dv.mean()), yhat_v[0].mean(axis=1), ts, kstep)
+               if not measured_var else 0.0)
+        loc["drift_input_dependence_records_z"] = [z_e, z_v]
+        loc["drift_input_dependence_z"] = D.combined_dependence(
+            [z_e, z_v], [D.dependence_testable(T, kstep),
+                         D.dependence_testable(Tv, kstep) and not measured_var])
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
     if sig:
         # a body slower than the record, tied with an identified one-parameter mechanism: the latter
@@ -462,7 +476,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         "seconds": time.perf_counter() - t_start,
     }
     # arrays for the report (not JSON): dropped by `to_json`
-    result["_arrays"] = {"yhat_baseline": yhat_v[0], "yhat_augmented": aug_yhat, "resid_est": R_e}
+    result["_arrays"] = {"yhat_baseline": yhat_v[0], "yhat_augmented": aug_yhat, "resid_est": R_e,
+                         "resid_val": {"baseline": e_base, **{m: e_c[k] for k, m in enumerate(cands)}},
+                         "k_val": {m: k_val((m,)) for m in cands}}
     # the fitted single-mechanism models and what simulating them needs (`experiment.py`)
     result["_models"] = {"theta": {"baseline": thb, **{m: thc[k] for k, m in enumerate(cands)}},
                          "layout": lay, "level": level, "ts_free": ts_free, "t_ref": t_ref,

@@ -108,3 +108,23 @@ def test_common_drift_needs_the_zones_to_agree():
     unrelated = [D.common_drift_z(rng.normal(size=(2, k.size))) for _ in range(200)]
     assert np.mean([D.common_drift(z) for z in unrelated]) <= 0.1      # about the 5 % level
     assert D.common_drift_z(same[:, :3]) == 0.0 and D.common_drift_z(same[:1]) == 0.0
+
+
+def test_a_record_too_short_to_test_adds_nothing_and_two_records_combine():
+    """Knots every 300 s: 2400 s give the 8 points the test needs, 2100 s do not (and return 0);
+    an untestable record leaves the other's statistic as it is, two testable ones combine as
+    Stouffer's sum over the square root of their number."""
+    assert D.dependence_testable(2400, STEP) and not D.dependence_testable(2100, STEP)
+    rng = np.random.default_rng(2)
+    s = _drive(rng)
+    body = 2.0 * D.lag_filter(s - s[0], TS, 1200.0) / 60.0
+    assert D.input_dependence(body[:2100], s[:2100], TS, STEP) == 0.0
+    z_long = D.input_dependence(body, s, TS, STEP)
+    assert D.input_dependent(z_long)
+    # a short (estimation) record and a long (designed validation) one: the long one decides
+    assert D.combined_dependence([0.0, z_long], [False, True]) == z_long
+    assert D.combined_dependence([z_long, 0.0], [True, False]) == z_long
+    assert np.isclose(D.combined_dependence([1.0, 1.5], [True, True]), 2.5 / np.sqrt(2.0))
+    assert D.combined_dependence([1.0, 2.0], [False, False]) == 0.0
+    # p = 1 on one record (-inf alone) counts as the rank test's largest magnitude
+    assert np.isclose(D.combined_dependence([-np.inf, 1.96], [True, True]), 0.0, atol=1e-2)

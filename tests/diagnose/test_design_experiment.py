@@ -228,3 +228,29 @@ def test_report_has_the_next_experiment(tmp_path):
     text = write_report(res, tmp_path, est, val).read_text()
     assert "## Next experiment" in text and "`heater_lag`, `input_delay`" in text and "next.csv" in text
     assert json.loads((tmp_path / "diagnosis.json").read_text())["experiment"]["separation_prbs"] == 27.0
+
+
+def test_only_the_drift_model_re_estimates_a_drift_under_the_nuisance_criterion():
+    # the diagnosis re-estimates a surroundings drift on a new record for `ambient_variation`
+    # alone: under `nuisance` a slow gap the other models leave counts as separation; the former
+    # `nuisance_drift` let every model follow a drift, so a gap can only shrink under it
+    res = _result()
+    names = ("heater_lag", "input_delay")
+    u = jnp.asarray(_records()[0].u)
+    sig = jnp.array([0.05])
+    ctx = X.rival_context(res["_models"], names, T, 1.0, np.array([0.5]), np.array([TS + 29.0]))
+    ctx_d = X.rival_context(res["_models"], names, T, 1.0, np.array([0.5]), np.array([TS + 29.0]),
+                            drift_all=True)
+    kr = M.n_drift_knots(T, 1.0)
+    assert np.all(np.asarray(ctx[6]["mask"])[:, 2:2 + kr] == 0.0)
+    assert np.all(np.asarray(ctx_d[6]["mask"])[:, 2:2 + kr] == 1.0)
+    ctx_a = X.rival_context(res["_models"] | {"theta": {**res["_models"]["theta"],
+                                                        "ambient_variation": res["_models"]["theta"]["baseline"]}},
+                            ("ambient_variation", "baseline"), T, 1.0, np.array([0.5]), np.array([TS + 29.0]))
+    assert np.asarray(ctx_a[6]["mask"])[:, 2:2 + kr].tolist() == [[1.0] * kr, [0.0] * kr]
+    s, s_d = (float(X.separations(u, c, None, sig)[0]) for c in (ctx, ctx_d))
+    assert s > 0 and s >= s_d * (1 - 1e-9) and s > 1.01 * s_d
+    # ... when the drift model is one of the rivals; when it is not, every model follows a drift
+    # (a drift candidate the design does not model would take a slow gap)
+    assert X.drift_for_all(names) and X.drift_for_all(("ambient_variation", "heat_accumulation"), "nuisance_drift")
+    assert not X.drift_for_all(("heat_accumulation", "ambient_variation", "baseline"))
