@@ -251,9 +251,12 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     if extra_b:
         thc, res_c = M.best_of_starts(thc, res_c, cands.index("heat_accumulation"), range(K, K + len(extra_b)))
     thc_own = thc
-    if "ambient_variation" in cands and not measured_var and n > 1:
-        # one surroundings drift for every zone (`joint.common_drift_fit`); the zones' own drifts
-        # are kept for the tests of agreement and input dependence below
+    if "ambient_variation" in cands and amb is None and n > 1:
+        # unmeasured surroundings: one drift for every zone (`joint.common_drift_fit`); the zones'
+        # own drifts are kept for the tests of agreement and input dependence below. Where a
+        # surroundings column is measured (constant), the per-zone drifts stay: there an estimated
+        # drift contradicts the measurement, and the common one outranked a shared body in the
+        # in-class study (`accumulation`, 6 zones)
         ka = cands.index("ambient_variation")
         thc, res_c = np.array(thc), np.array(res_c)
         res_own = res_c[ka].copy()
