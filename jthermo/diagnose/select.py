@@ -16,7 +16,8 @@ explanations within the test's resolution of the top one are reported as its `ri
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
 solved together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates
-all zones coupled. The augmented model is then refitted *jointly* over all zones (coupled
+all zones coupled. Where the surroundings are not measured, `ambient_variation` is then refitted
+with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified. The augmented model is then refitted *jointly* over all zones (coupled
 simulation error, `fitting.fit_joint`: zones interact through their simulated temperatures and
 the fitted exchange), with the surroundings at the record's rest level (its first sample: the
 heaters were off before it) unless both tests demand a fitted level, and grown by forward
