@@ -323,6 +323,22 @@ def common_drift(z_common: float) -> bool:
     return bool(z_common >= norm.isf(RIVAL_LEVEL))
 
 
+def drift_contradicted(lrs, n_knots: int) -> bool:
+    """Whether some zone contradicts one common surroundings drift: its own drift (the per-zone
+    fit) fits its record better than the drift shared by every zone (`joint.common_drift_fit`)
+    beyond chance. `lrs` the zones' likelihood ratios (own against common, whitened as
+    `likelihood_ratio`), each against the $\\chi^2$ quantile with the `n_knots - 1` drift shape
+    parameters a zone's own drift adds (its level is free in both), at the one-sided
+    `RIVAL_LEVEL` shared by the zones (Bonferroni). A zone that sees the drift too weakly to
+    determine it contradicts nothing (where `common_drift_z`, which compares the zones' own
+    drifts, finds no agreement: such a zone's own drift trades with its gains)."""
+    lrs = np.asarray(lrs, float)
+    if lrs.size == 0:
+        return True
+    crit = chi2.isf(RIVAL_LEVEL / lrs.size, max(int(n_knots) - 1, 1))
+    return bool(not np.all(np.isfinite(lrs)) or np.any(lrs > crit))
+
+
 #: a top finding whose confidence is below this is reported as uncertain: its improvement on the
 #: baseline, or its lead on the runner-up, is not established at the one-sided `RIVAL_LEVEL`
 #: (the same level that makes two explanations rivals)
@@ -356,6 +372,6 @@ def is_rival(z_top_vs_other: float) -> bool:
 
 __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
            "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
-           "confidence", "dependence_testable", "input_dependence", "input_dependent", "is_rival", "lag_filter",
+           "confidence", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
            "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

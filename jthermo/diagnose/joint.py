@@ -243,3 +243,41 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
     cur = {**cur, "level_mode": "measured" if js.measured else ("fitted" if free else "rest"),
            "level_test": level_test}
     return cur, tried, list(chosen)
+
+
+def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter) -> tuple:
+    """The `ambient_variation` candidate refitted over all zones with *one* surroundings drift
+    (unmeasured surroundings are one temperature every zone sees), from its per-zone fits
+    `theta (n, P)`: each zone's loss, heater gains (and level offset where it is free), every
+    zone's initial state and the common drift (knot values, started at the median of the zones'
+    own) by the simulation error. The zones' models are not coupled (no exchange, no wall), so
+    this is the per-zone problem with the drift shared. Per zone a drift is not identified: a
+    slow zone whose loss and level trade with its gains fits its record with a drift of another
+    shape, and then predicts a record whose one drift the other zones determine poorly.
+    Returns (θ (n, P) with the drift written mean-free per zone as `simulate_zone` reads it and
+    its mean in the level offset, residuals (T, n))."""
+    n, nd = lay.n, lay.n_drift
+    th = np.array(theta, float)
+    T = y.shape[0]
+    dr = th[:, lay.sl("drift")]
+    R = 2 * n + nd + 1
+    rec0 = np.zeros((1, R))
+    rec0[0, :n] = th[:, lay.sl("x0")][:, 0]
+    rec0[0, 2 * n:2 * n + nd] = np.median(dr - dr.mean(axis=1, keepdims=True), axis=0)
+    zone = ("log_a", "log_b") + (("ts0",) if ts_free else ())
+    mask = np.concatenate([np.tile(lay.mask(zone), n), np.ones(n), np.zeros(n), np.ones(nd), [0.0]])
+    fper = {"events": jnp.zeros((1, T, n)), "delay": jnp.zeros(1), "ts_level": jnp.asarray([float(level)]),
+            "ts_free": jnp.asarray([float(ts_free)]), "u_pad": jnp.asarray(sh["u_pad"])[None]}
+    n_act = 4 * math.ceil((n * (1 + lay.nu + int(bool(ts_free))) + n + nd) / 4)
+    thj, rec, yh, _ = fit_joint(jnp.asarray(th[None]), jnp.asarray(M.on_vector(("ambient_variation",))[None]),
+                                jnp.asarray(rec0), jnp.asarray(mask[None]), jnp.asarray(y), jnp.ones(T), fper,
+                                sh, lay, n_iter, n_act)
+    thj, rec = np.array(thj[0]), np.asarray(rec[0])
+    d = rec[2 * n:2 * n + nd]
+    thj[:, lay.sl("x0")] = rec[:n, None]
+    thj[:, lay.sl("drift")] = (d - d.mean())[None, :]
+    if ts_free:
+        thj[:, lay.sl("ts0")] += d.mean()
+    else:
+        thj[:, lay.sl("drift")] = d[None, :]
+    return thj, y - np.asarray(yh[0])
