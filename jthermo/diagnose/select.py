@@ -9,19 +9,20 @@ validation record, whitened residuals, family-wise false-alarm rate `decide.ALPH
 augmented model has to predict a record it was not fitted on, where only initial states (and
 the surroundings level when no surroundings signal is measured, for every model alike), and for
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
-Significant candidates are ranked by their validation MSE; a slow body and an unmeasured drift are
-ordered by whether the drift follows the input-driven temperature, tested on the estimation
-record's fitted drift and on the drift re-estimated on the validation record, combined over the
-records long enough to test (`decide.combined_dependence`: a long designed validation record can
-settle the pair) (a stored-heat body whose time constant the
-record does not identify yields to a tied one-parameter mechanism: `decide.prefer_identified`);
+Significant candidates are ranked by their validation MSE (a stored-heat body whose time
+constant the record does not identify yields to a tied one-parameter mechanism:
+`decide.prefer_identified`); a slow body and an unmeasured drift are ordered by whether the
+drift follows the input-driven temperature, tested on the estimation record's fitted drift and
+on the drift re-estimated on the validation record, combined over the records long enough to
+test (`decide.combined_dependence`: a long designed validation record can settle the pair);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
 solved together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates
 all zones coupled. Where the surroundings are not measured, `ambient_variation` is then refitted
-with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified. The augmented model is then refitted *jointly* over all zones (coupled
+with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified.
+The augmented model is then refitted *jointly* over all zones (coupled
 simulation error, `fitting.fit_joint`: zones interact through their simulated temperatures and
 the fitted exchange), with the surroundings at the record's rest level (its first sample: the
 heaters were off before it) unless both tests demand a fitted level, and grown by forward
