@@ -75,3 +75,21 @@ def test_held_out_terms_equal_evaluate():
             for q in ("cost", "mse"):
                 assert np.isclose(got[name]["p"]["scenarios"][k][q], ref["scenarios"][k][q],
                                   rtol=1e-9), (name, k, q)
+
+
+def test_evaluate_fitted_model_equals_plain_path():
+    """`evaluate` on a fitted model (whose scenarios check their envelope in Python, so they are
+    not built inside a compiled program) gives the cost and mse of the plain rollouts."""
+    from jthermo.closedloop import MODEL_KINDS, cost, make_scenario, metrics, rollouts
+    from jthermo.identify.fit import fit
+    from jthermo.printer import generate
+
+    plant = report.make_printer(2, (), seed=0)
+    model = fit(generate(plant, "prbs", 600.0, seed=0), "ss", (2,), seed=0, n_starts=1).model
+    ctrl = report.design("pi_lambda", model)
+    kind = MODEL_KINDS[0]
+    got = report.evaluate(ctrl, model, kind, (7,), rollouts=2, duration=120.0)
+    sc = make_scenario(kind, model, 120.0, jax.random.key(7), n_rollouts=2)
+    traj = rollouts(model, ctrl, sc)
+    assert np.isclose(got["cost"], float(cost(traj, sc)), rtol=1e-9)
+    assert np.isclose(got["scenarios"][kind]["mse"], metrics(traj, sc)["mse"], rtol=1e-9)

@@ -262,13 +262,23 @@ def make_scenario(kind: str, plant, duration: float | None = None, key=0, *,
 
 
 @functools.cache
-def compiled_make_scenario():
-    """`make_scenario` as one compiled program with `runtime.one_shot()` options (the same
-    arguments; non-array ones static), for scenarios built once per process: -O0 compiles its
-    scenario program in a fraction of the default options' time (`runtime.ONE_SHOT`); with
-    `demo`'s jitted runs, the demo's three figure runs took 4.7-5.2 instead of 19.4-21.0 CPU s
-    cold (`python benchmarks/evaluate_compile.py`)."""
+def _jitted_make_scenario():
     return eqx.filter_jit(make_scenario, compiler_options=one_shot())
+
+
+def compiled_make_scenario():
+    """`make_scenario` (the same arguments) with a printer's scenarios built as one compiled
+    program with `runtime.one_shot()` options (non-array arguments static), for scenarios built
+    once per process: -O0 compiles the scenario program in a fraction of the default options'
+    time (`runtime.ONE_SHOT`); with `demo`'s jitted runs, the demo's three figure runs took
+    4.7-5.2 instead of 19.4-21.0 CPU s cold (`python benchmarks/evaluate_compile.py`). A fitted
+    model's scenarios (which check their envelope in Python) are built by `make_scenario`."""
+    jitted = _jitted_make_scenario()
+
+    def build(kind, plant, *args, **kw):
+        return (jitted if isinstance(plant, Printer) else make_scenario)(kind, plant, *args, **kw)
+
+    return build
 
 
 @eqx.filter_jit
