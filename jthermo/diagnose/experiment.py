@@ -24,13 +24,12 @@ in every case: with the drift among the rivals, a slow body's input-driven warmi
 separated nothing from the baseline either, and the design avoided exactly the slow power swings
 that make a body significant (`experiments/results/design_experiment.md`, body case); with the
 drift not among them, letting it follow nothing made the design's slow swings go to a drift
-(radiation case, `design_experiment_own_drift.md`).
-(The first criterion, `"span"`, projected onto a
-constant per zone and the raw drift hats only: it counted the decay of an unknown initial state
-as separation.) With three models
-(the top finding and two rivals, or with no rival the runner-up and the baseline) the design
-maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair separates. $S$ is
-differentiable in $u$ through the coupled simulations (`mechanisms.simulate_full`).
+(radiation case, `design_experiment_own_drift.md`). (The first criterion, `"span"`, projected
+onto a constant per zone and the raw drift hats only: it counted the decay of an unknown initial
+state as separation.) With three models (the top finding and two rivals, or with no rival the
+runner-up and the baseline) the design maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair
+separates. $S$ is differentiable in $u$ through the coupled simulations
+(`mechanisms.simulate_full`).
 
 The input is held piecewise constant over `hold` samples (the minimum switching time) and kept
 within the actuator limits by a smooth squash, $u = u_{min} + (u_{max} - u_{min})\\,
