@@ -53,8 +53,9 @@ def _evaluate_fn(plant, controller, scenarios, weights):
 
 @functools.cache
 def _quick_evaluate():
-    """`_evaluate_fn` compiled with `runtime.simulate_compile()` options, and `make_scenario`
-    as one program with `runtime.one_shot()` options: compiled once per controller structure
+    """`_evaluate_fn` compiled with `runtime.simulate_compile()` options, and the scenario
+    builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
+    `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
     and scenario kind and run once, they took `jthermo demo`'s held-out scenarios of eleven
     classical designs from 43.6-47.3 to 29.3-33.5 CPU s cold, the same figures to 1e-14 (`python
     benchmarks/evaluate_compile.py`, benchmarks/results/evaluate_compile.md)."""
