@@ -165,6 +165,9 @@ def main() -> None:
     rows = json.loads(old.read_text())["rows"] if old.exists() else {}
     meta = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
             "python": platform.python_version()}
+    # the package's bytecode as `make` leaves it (`compileall` at install): a shell with
+    # PYTHONDONTWRITEBYTECODE would otherwise compile every changed module in every process
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(HERE.parent / "jthermo")], check=True)
     with tempfile.TemporaryDirectory(prefix="jthermo-latency-") as d:
         for n in names:
             rows[n] = measure(n, Path(d), args.no_cache_baseline)
