@@ -10,7 +10,7 @@ $(PY):
 
 $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e ".[dev]"
-	$(PY) -m compileall -q jthermo   # bytecode now: the first command imports, not compiles (0.2-0.3 CPU s)
+	$(PY) -m compileall -q jthermo   # bytecode now, not in the first command (benchmarks/bytecode_import.py)
 	touch $(STAMP)
 
 demo: $(STAMP)
