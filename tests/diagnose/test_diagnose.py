@@ -41,6 +41,9 @@ def test_concealed_mechanism_is_top_finding(results, mech):
     res, _, _ = results[mech]
     assert res["verdict"] == "mismatch"
     assert res["findings"][0]["mechanism"] == mech
+    # one concealed mechanism: nothing else joins the augmented model (the joint additions start
+    # where the smaller model ended; started afresh, conduction and a body joined the delay)
+    assert res["augmented"]["mechanisms"] == [mech]
     gain = res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"]
     assert gain >= 2.0
     if mech == "input_delay":
