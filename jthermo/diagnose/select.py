@@ -48,7 +48,7 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .fitting import fit_records, fit_zones, sim_zones
+from .fitting import fit_records, fit_zones, gain_start, sim_zones
 from .joint import JointFits, common_drift_fit, forward_select, grid_start, joint_active, joint_start
 from .localise import detect_periodic, event_matrix, localise
 
@@ -69,24 +69,6 @@ N_ITER = 25
 JOINT_ITER = 25
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
-
-
-#: a candidate refit starts each heater gain at no less than this share of the zone's largest
-#: (as `joint.grid_start` does). The linear baseline may put a gain on its bound, zero (stored
-#: as the variable projection's floor, 1e-12 of the largest: log -27.6 below it); a log
-#: parameter moves by at most 2 per Levenberg-Marquardt iteration (`identify.lm`), so such a
-#: gain needs 12 of the `N_ITER` iterations before it can act. Hard held-out set 8 case 02
-#: (convection, 3 zones): the radiative candidate's zone-2 fit took about 70 iterations (cost
-#: 0.0234 -> 0.0129 °C², the noise's is 0.0139) and its validation MSE reduction was 0.845
-#: after 25, behind a surroundings drift (0.886) that was named
-GAIN_START_FLOOR = 0.02
-
-
-def gain_start(log_b):
-    """Log heater gains `(nu,)` of a refit's start: the baseline's, each raised to at least
-    `GAIN_START_FLOOR` of the largest."""
-    log_b = np.asarray(log_b, float)
-    return np.maximum(log_b, np.max(log_b) + math.log(GAIN_START_FLOOR))
 
 
 def _fit_percent(y, yhat):
@@ -263,7 +245,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     cands = list(mechanisms)
     K = len(cands)
     # mechanism parameters start at their neutral values (baseline parameters kept; a heater gain
-    # the baseline put on its bound starts at `GAIN_START_FLOOR` of the zone's largest)
+    # the baseline put on its bound starts at `fitting.GAIN_START_FLOOR` of the zone's largest)
     neutral = np.stack([M.initial_theta(lay, log_a=thb[i, lay.sl("log_a")][0],
                                         log_b=gain_start(thb[i, lay.sl("log_b")]), x0=thb[i, lay.sl("x0")][0],
                                         ts0=thb[i, lay.sl("ts0")][0],
@@ -403,6 +385,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         k0 = sig[0]["k"]
         sig = D.prefer_identified(sig, T * ts, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
                                   lambda m: M.n_added_per_zone(m, lay))
+        # of the explanations the validation record leaves tied, the strongest on the estimation record
+        k0 = sig[0]["k"]
+        sig = D.prefer_evidence(sig, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
+                                lambda r: M.n_added_per_zone(r["mechanism"], lay) * n)
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
     added, level_mode, aug = [], None, {}
