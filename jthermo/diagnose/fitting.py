@@ -37,7 +37,6 @@ equal to 7e-11).
 from __future__ import annotations
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -65,24 +64,6 @@ def _run(fn, static: tuple, *args):
     names), through `runtime.exported_call`: a process after the first loads the traced program
     from the cache directory instead of tracing it (the same program, the same executable)."""
     return exported_call(fn, args, _compiled(fn, static), compiler_options=quick_compile())
-
-
-#: a candidate refit starts each heater gain at no less than this share of the zone's largest
-#: (as `joint.grid_start` does). The linear baseline may put a gain on its bound, zero (stored
-#: as the variable projection's floor, 1e-12 of the largest: log -27.6 below it); a log
-#: parameter moves by at most 2 per Levenberg-Marquardt iteration (`identify.lm`), so such a
-#: gain needs 12 of the `select.N_ITER` iterations before it can act. Hard held-out set 8 case 02
-#: (convection, 3 zones): the radiative candidate's zone-2 fit took about 70 iterations (cost
-#: 0.0234 -> 0.0129 °C², the noise's is 0.0139) and its validation MSE reduction was 0.845
-#: after 25, behind a surroundings drift (0.886) that was named
-GAIN_START_FLOOR = 0.02
-
-
-def gain_start(log_b):
-    """Log heater gains `(nu,)` of a refit's start: the baseline's, each raised to at least
-    `GAIN_START_FLOOR` of the largest."""
-    log_b = np.asarray(log_b, float)
-    return np.maximum(log_b, np.max(log_b) + math.log(GAIN_START_FLOOR))
 
 
 def _zone_residual(theta, on, z, lay):
@@ -185,4 +166,4 @@ def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     return r, yh, c
 
 
-__all__ = ["GAIN_START_FLOOR", "fit_joint", "fit_records", "fit_zones", "gain_start", "sim_zones"]
+__all__ = ["fit_joint", "fit_records", "fit_zones", "sim_zones"]

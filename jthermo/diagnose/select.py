@@ -48,7 +48,7 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .fitting import fit_records, fit_zones, gain_start, sim_zones
+from .fitting import fit_records, fit_zones, sim_zones
 from .joint import JointFits, common_drift_fit, forward_select, grid_start, joint_active, joint_start
 from .localise import detect_periodic, event_matrix, localise
 
@@ -244,10 +244,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     # ---- 3. one refit per mechanism -----------------------------------------------------------
     cands = list(mechanisms)
     K = len(cands)
-    # mechanism parameters start at their neutral values (baseline parameters kept; a heater gain
-    # the baseline put on its bound starts at `fitting.GAIN_START_FLOOR` of the zone's largest)
+    # mechanism parameters start at their neutral values (baseline parameters kept)
     neutral = np.stack([M.initial_theta(lay, log_a=thb[i, lay.sl("log_a")][0],
-                                        log_b=gain_start(thb[i, lay.sl("log_b")]), x0=thb[i, lay.sl("x0")][0],
+                                        log_b=thb[i, lay.sl("log_b")], x0=thb[i, lay.sl("x0")][0],
                                         ts0=thb[i, lay.sl("ts0")][0],
                                         xw0=(y[0].mean() - level - thb[i, lay.sl("ts0")][0]) / 2.0)
                         for i in range(n)])

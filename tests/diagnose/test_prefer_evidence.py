@@ -1,12 +1,7 @@
 """`decide.prefer_evidence`: of the candidates tied with the top on the validation record, the one
-with the strongest estimation evidence is named; and `fitting.gain_start` (issue 14, convection)."""
-
-import math
-
-import numpy as np
+with the strongest estimation evidence is named (issue 14)."""
 
 from jthermo.diagnose import decide as D
-from jthermo.diagnose.fitting import GAIN_START_FLOOR, gain_start
 
 # held-out set 7 case 02 (natural convection, one zone): the drift's validation MSE is lowest, the
 # radiative loss has the strongest estimation evidence for its one parameter
@@ -45,9 +40,3 @@ def test_equal_evidence_keeps_the_validation_order():
             {"mechanism": "radiative_loss", "estimation_lr": 30.0}]
     assert names(D.prefer_evidence(rows, lambda r: True, dof)) == names(rows)
     assert D.prefer_evidence(rows[:1], lambda r: True, dof) == rows[:1]
-
-
-def test_gain_start_lifts_only_gains_on_the_bound():
-    lb = np.log(np.array([0.2, 1e-12 * 0.2, 0.05]))
-    out = gain_start(lb)
-    np.testing.assert_allclose(out, [lb[0], math.log(0.2 * GAIN_START_FLOOR), lb[2]])
