@@ -297,6 +297,28 @@ def prefer_identified(rows: list, record_s: float, tied, n_params) -> list:
     return [alt] + [r for r in rows if r is not alt]
 
 
+def prefer_evidence(rows: list, tied, dof) -> list:
+    """`rows` (significant candidates, best first by validation MSE: dicts with `mechanism` and
+    `estimation_lr`) with the one of strongest estimation evidence, the smallest $\\chi^2$ tail
+    of its likelihood ratio with its own degrees of freedom (`dof(row)`: the parameters it adds),
+    moved first among the top and the candidates tied with it (`tied(row)`: the top does not beat
+    it on the validation record, `is_rival`). Where the validation record cannot separate two
+    explanations its MSE does not rank them fairly: a model that re-estimates parameters on that
+    record (a body's state, a drift's knots: the drift absorbs coloured noise too, and can predict
+    it better than the true plant) gains there what one that does not cannot; the estimation
+    record's likelihood ratio charges every parameter (as `joint.forward_select` ranks additions).
+    The slow body and the surroundings drift are ordered by their own test (`order_body_drift`):
+    of the two only the one ranked first can be moved. Ties keep the validation order."""
+    if len(rows) < 2:
+        return list(rows)
+    slow = ("heat_accumulation", "ambient_variation")
+    first_slow = next((r for r in rows if r["mechanism"] in slow), None)
+    pool = [rows[0]] + [r for r in rows[1:] if (r["mechanism"] not in slow or r is first_slow) and tied(r)]
+    ev = lambda r: float(chi2.logsf(r["estimation_lr"], max(int(dof(r)), 1)))
+    best = min(pool, key=ev)
+    return [best] + [r for r in rows if r is not best]
+
+
 def common_drift_z(drifts: np.ndarray) -> float:
     """$z$ that the zones' own fitted surroundings drifts `drifts (n, K)` (knot values, one row
     per zone's fit) are one common signal: the mean pairwise correlation $\\bar r$ of the
@@ -373,5 +395,6 @@ def is_rival(z_top_vs_other: float) -> bool:
 __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
            "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
            "confidence", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
-           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
+           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_evidence",
+           "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

@@ -384,6 +384,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         k0 = sig[0]["k"]
         sig = D.prefer_identified(sig, T * ts, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
                                   lambda m: M.n_added_per_zone(m, lay))
+        # of the explanations the validation record leaves tied, the strongest on the estimation record
+        k0 = sig[0]["k"]
+        sig = D.prefer_evidence(sig, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
+                                lambda r: M.n_added_per_zone(r["mechanism"], lay) * n)
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
     added, level_mode, aug = [], None, {}
