@@ -241,6 +241,30 @@ def order_body_drift(rows: list, z_input: float) -> list:
     return out
 
 
+def prefer_fewer_slow(rows: list, z_drift_over_body: float, k_body: int, k_drift: int) -> list:
+    """`rows` (dicts with `mechanism`, best first) with `heat_accumulation` moved ahead of an
+    `ambient_variation` named before it when the drift does not predict the validation record
+    better than the body beyond the parameters it re-estimates there (`z_drift_over_body`: the
+    `predictive_z` of the drift's residual against the body's, charged `k_drift - k_body`, below
+    the one-sided `RIVAL_LEVEL`) and the body re-estimates fewer (`k_body < k_drift`).
+
+    Both explain a slow component; the drift re-fits it on the validation record (a knot every
+    `DRIFT_SPACING` s), the body predicts it from the inputs and its re-estimated initial state,
+    so ranked by validation MSE the drift wins whenever it is not beaten. Of two explanations
+    within the test's resolution the one with fewer parameters is named (as `prefer_identified`);
+    the other stays its rival (`body_drift_tied`)."""
+    names = [r["mechanism"] for r in rows]
+    if ("heat_accumulation" not in names or "ambient_variation" not in names or k_body >= k_drift
+            or not is_rival(z_drift_over_body)):
+        return list(rows)
+    i, j = names.index("ambient_variation"), names.index("heat_accumulation")
+    if j < i:
+        return list(rows)
+    out = list(rows)
+    out.insert(i, out.pop(j))
+    return out
+
+
 def body_drift_tied(names, z_input: float) -> bool:
     """Both a slow body and a surroundings drift passed, and the drift's input dependence does
     not separate them: the one named second is the other's rival whatever the validation
@@ -373,5 +397,5 @@ def is_rival(z_top_vs_other: float) -> bool:
 __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
            "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
            "confidence", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
-           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_identified",
+           "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "prefer_fewer_slow", "predictive_z", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]
