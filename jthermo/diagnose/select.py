@@ -14,7 +14,10 @@ constant the record does not identify yields to a tied one-parameter mechanism:
 `decide.prefer_identified`); a slow body and an unmeasured drift are ordered by whether the
 drift follows the input-driven temperature, tested on the estimation record's fitted drift and
 on the drift re-estimated on the validation record, combined over the records long enough to
-test (`decide.combined_dependence`: a long designed validation record can settle the pair);
+test (`decide.combined_dependence`: a long designed validation record can settle the pair), and
+failing that by parsimony (a drift that does not out-predict the body beyond the knots it
+re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`; the body is
+also fitted from the drift restricted to its form, `slowbody.py`);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
@@ -51,7 +54,7 @@ from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones
 from .joint import JointFits, common_drift_fit, forward_select, grid_start, joint_active, joint_start
 from .localise import detect_periodic, event_matrix, localise
-from .slowbody import body_from_drift
+from .slowbody import order_by_parsimony, refit_body_from_drift
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
 MAX_DELAY = 12
@@ -68,8 +71,7 @@ N_ITER = 25
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
-#: the fit of a stored-heat body from the drift's start runs this many times `n_iter` iterations
-#: (its time constant, share and wall loss trade along a long valley)
+#: iterations of the body's fit from the drift's start, in `n_iter` (a long valley: `slowbody.py`)
 BODY_ITER_FACTOR = 2
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
@@ -261,16 +263,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                           np.stack([neutral] * K + extra_b))
     if extra_b:
         thc, res_c = M.best_of_starts(thc, res_c, cands.index("heat_accumulation"), range(K, K + len(extra_b)))
-    if "heat_accumulation" in cands and "ambient_variation" in cands:
-        # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`): a
-        # body near or beyond the record length, whose time constant and share trade along a
-        # long valley that the neutral starts do not follow; each zone keeps its better fit
-        sb = body_from_drift(thc[cands.index("ambient_variation")], rec_e["ybar"], rec_e["Phi"], level,
-                             ts_free, ts, lay)
-        if sb is not None:
-            thd, res_d = fit_sets([("heat_accumulation",)], sb[None], iters=BODY_ITER_FACTOR * n_iter)
-            thc, res_c = M.best_of_starts(np.concatenate([thc, thd]), np.concatenate([res_c, res_d]),
-                                          cands.index("heat_accumulation"), [K])
+    # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`)
+    thc, res_c = refit_body_from_drift(thc, res_c, cands, fit_sets, rec_e, level, ts_free, ts, lay,
+                                       BODY_ITER_FACTOR * n_iter)
     thc_own = thc
     if "ambient_variation" in cands and amb is None and n > 1:
         # unmeasured surroundings: one drift for every zone (`joint.common_drift_fit`); the zones'
@@ -394,13 +389,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
             [z_e, z_v], [D.dependence_testable(T, kstep),
                          D.dependence_testable(Tv, kstep) and not measured_var])
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
-        if "heat_accumulation" in cands:
-            # and by parsimony: a drift that re-fits the slow part on the validation record has to
-            # predict it better than the body, beyond its extra re-estimated parameters
-            kb, kd = ("heat_accumulation",), ("ambient_variation",)
-            loc["drift_over_body_z"] = D.predictive_z(e_c[cands.index(kb[0])], e_c[cands.index(kd[0])],
-                                                      k_val(kd) - k_val(kb))
-            sig = D.prefer_fewer_slow(sig, loc["drift_over_body_z"], k_val(kb), k_val(kd))
+        # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
+        sig = order_by_parsimony(sig, e_c, cands, k_val, loc)
     if sig:
         # a body slower than the record, tied with an identified one-parameter mechanism: the latter
         k0 = sig[0]["k"]

@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from . import decide as D
 from . import mechanisms as M
 
 #: effective body time constants tried (s), as multiples of the record length
@@ -41,8 +42,6 @@ def body_from_drift(theta_drift, ybar, Phi, level, ts_free, ts, lay, taus=None):
     $\\tau_w = \\tau (1 + \\gamma)$, $W_0 = \\beta a / c$, $\\gamma$ at its neutral start, the level
     moved by $\\kappa$ where it is free. Returns None when no zone's drift has a rising lag term
     (nothing a body explains)."""
-    from .decide import lag_filter
-
     th = np.array(theta_drift, float)
     n, T = th.shape[0], ybar.shape[0]
     t = np.arange(T) * ts
@@ -57,7 +56,7 @@ def body_from_drift(theta_drift, ybar, Phi, level, ts_free, ts, lay, taus=None):
         s = np.asarray(ybar, float) - L
         best = None
         for tau in taus:
-            X = np.stack([np.ones(T), lag_filter(s, ts, tau), np.exp(-t / tau)], axis=1)
+            X = np.stack([np.ones(T), D.lag_filter(s, ts, tau), np.exp(-t / tau)], axis=1)
             coef, *_ = np.linalg.lstsq(X, d, rcond=None)
             sse = float(np.sum((d - X @ coef) ** 2))
             if coef[1] > 0 and (best is None or sse < best[0]):
@@ -79,4 +78,35 @@ def body_from_drift(theta_drift, ybar, Phi, level, ts_free, ts, lay, taus=None):
     return out if found else None
 
 
-__all__ = ["body_from_drift"]
+def refit_body_from_drift(thc, res_c, cands, fit_sets, rec, level, ts_free, ts, lay, iters):
+    """The `heat_accumulation` candidate's per-zone fits `thc[k]`, residuals `res_c[k]` (candidates
+    in the order of `cands`) with each zone's fit replaced by the one from `body_from_drift`'s
+    start (the `ambient_variation` candidate's fit, `rec` the estimation record's arrays:
+    `ybar`, `Phi`) where that fits the record better: a body near or beyond the record length,
+    whose time constant and share trade along a long valley that the neutral starts do not
+    follow. `fit_sets(sets, starts, iters=...)` fits candidate sets; `iters` its iterations."""
+    if "heat_accumulation" not in cands or "ambient_variation" not in cands:
+        return thc, res_c
+    sb = body_from_drift(thc[cands.index("ambient_variation")], rec["ybar"], rec["Phi"], level, ts_free, ts, lay)
+    if sb is None:
+        return thc, res_c
+    thd, res_d = fit_sets([("heat_accumulation",)], sb[None], iters=iters)
+    return M.best_of_starts(np.concatenate([thc, thd]), np.concatenate([res_c, res_d]),
+                            cands.index("heat_accumulation"), [len(cands)])
+
+
+def order_by_parsimony(sig, e_c, cands, k_val, loc) -> list:
+    """The significant candidates `sig` (best first) reordered by `decide.prefer_fewer_slow`: an
+    `ambient_variation` drift, which re-fits the slow part on the validation record, goes behind
+    a `heat_accumulation` body that it does not out-predict there beyond its extra re-estimated
+    parameters (`k_val(set)`); `e_c` the candidates' validation residuals (order of `cands`).
+    Records the statistic in `loc["drift_over_body_z"]`."""
+    if "heat_accumulation" not in cands or "ambient_variation" not in cands:
+        return list(sig)
+    kb, kd = ("heat_accumulation",), ("ambient_variation",)
+    loc["drift_over_body_z"] = D.predictive_z(e_c[cands.index(kb[0])], e_c[cands.index(kd[0])],
+                                              k_val(kd) - k_val(kb))
+    return D.prefer_fewer_slow(sig, loc["drift_over_body_z"], k_val(kb), k_val(kd))
+
+
+__all__ = ["body_from_drift", "order_by_parsimony", "refit_body_from_drift"]
