@@ -229,15 +229,18 @@ def order_body_drift(rows: list, z_input: float) -> list:
     first there was wrong on the development records: printer slow-body test, hard set 0), so
     no evidence of input dependence leaves the validation ranking, and `body_drift_tied` makes
     the other its rival."""
+    return _body_ahead(rows) if input_dependent(z_input) else list(rows)
+
+
+def _body_ahead(rows: list) -> list:
+    """`rows` with `heat_accumulation` moved just ahead of an `ambient_variation` ranked before it."""
     names = [r["mechanism"] for r in rows]
-    if ("heat_accumulation" not in names or "ambient_variation" not in names
-            or not input_dependent(z_input)):
+    if "heat_accumulation" not in names or "ambient_variation" not in names:
         return list(rows)
     i, j = names.index("ambient_variation"), names.index("heat_accumulation")
-    if j < i:
-        return list(rows)
     out = list(rows)
-    out.insert(i, out.pop(j))
+    if i < j:
+        out.insert(i, out.pop(j))
     return out
 
 
@@ -253,16 +256,7 @@ def prefer_fewer_slow(rows: list, z_drift_over_body: float, k_body: int, k_drift
     so ranked by validation MSE the drift wins whenever it is not beaten. Of two explanations
     within the test's resolution the one with fewer parameters is named (as `prefer_identified`);
     the other stays its rival (`body_drift_tied`)."""
-    names = [r["mechanism"] for r in rows]
-    if ("heat_accumulation" not in names or "ambient_variation" not in names or k_body >= k_drift
-            or not is_rival(z_drift_over_body)):
-        return list(rows)
-    i, j = names.index("ambient_variation"), names.index("heat_accumulation")
-    if j < i:
-        return list(rows)
-    out = list(rows)
-    out.insert(i, out.pop(j))
-    return out
+    return _body_ahead(rows) if k_body < k_drift and is_rival(z_drift_over_body) else list(rows)
 
 
 def body_drift_tied(names, z_input: float) -> bool:
