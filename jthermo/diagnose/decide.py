@@ -229,16 +229,34 @@ def order_body_drift(rows: list, z_input: float) -> list:
     first there was wrong on the development records: printer slow-body test, hard set 0), so
     no evidence of input dependence leaves the validation ranking, and `body_drift_tied` makes
     the other its rival."""
+    return _body_ahead(rows) if input_dependent(z_input) else list(rows)
+
+
+def _body_ahead(rows: list) -> list:
+    """`rows` with `heat_accumulation` moved just ahead of an `ambient_variation` ranked before it."""
     names = [r["mechanism"] for r in rows]
-    if ("heat_accumulation" not in names or "ambient_variation" not in names
-            or not input_dependent(z_input)):
+    if "heat_accumulation" not in names or "ambient_variation" not in names:
         return list(rows)
     i, j = names.index("ambient_variation"), names.index("heat_accumulation")
-    if j < i:
-        return list(rows)
     out = list(rows)
-    out.insert(i, out.pop(j))
+    if i < j:
+        out.insert(i, out.pop(j))
     return out
+
+
+def prefer_fewer_slow(rows: list, z_drift_over_body: float, k_body: int, k_drift: int) -> list:
+    """`rows` (dicts with `mechanism`, best first) with `heat_accumulation` moved ahead of an
+    `ambient_variation` named before it when the drift does not predict the validation record
+    better than the body beyond the parameters it re-estimates there (`z_drift_over_body`: the
+    `predictive_z` of the drift's residual against the body's, charged `k_drift - k_body`, below
+    the one-sided `RIVAL_LEVEL`) and the body re-estimates fewer (`k_body < k_drift`).
+
+    Both explain a slow component; the drift re-fits it on the validation record (a knot every
+    `DRIFT_SPACING` s), the body predicts it from the inputs and its re-estimated initial state,
+    so ranked by validation MSE the drift wins whenever it is not beaten. Of two explanations
+    within the test's resolution the one with fewer parameters is named (as `prefer_identified`);
+    the other stays its rival (`body_drift_tied`)."""
+    return _body_ahead(rows) if k_body < k_drift and is_rival(z_drift_over_body) else list(rows)
 
 
 def body_drift_tied(names, z_input: float) -> bool:
@@ -396,5 +414,5 @@ __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPEN
            "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
            "confidence", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
            "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_evidence",
-           "prefer_identified",
+           "prefer_fewer_slow", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

@@ -14,7 +14,10 @@ constant the record does not identify yields to a tied one-parameter mechanism:
 `decide.prefer_identified`); a slow body and an unmeasured drift are ordered by whether the
 drift follows the input-driven temperature, tested on the estimation record's fitted drift and
 on the drift re-estimated on the validation record, combined over the records long enough to
-test (`decide.combined_dependence`: a long designed validation record can settle the pair);
+test (`decide.combined_dependence`: a long designed validation record can settle the pair), and
+failing that by parsimony (a drift that does not out-predict the body beyond the knots it
+re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`; the body is
+also fitted from the drift restricted to its form, `slowbody.py`);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
@@ -51,6 +54,7 @@ from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones
 from .joint import JointFits, common_drift_fit, forward_select, grid_start, joint_active, joint_start
 from .localise import detect_periodic, event_matrix, localise
+from .slowbody import order_by_parsimony, refit_body_from_drift
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
 MAX_DELAY = 12
@@ -67,6 +71,8 @@ N_ITER = 25
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
+#: iterations of the body's fit from the drift's start, in `n_iter` (a long valley: `slowbody.py`)
+BODY_ITER_FACTOR = 2
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
 
@@ -225,9 +231,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                          "baseline_cost": float(np.mean(R_e ** 2))}
     tick({"stage": "localisation"})
 
-    def fit_sets(sets, starts, n_act=None):
+    def fit_sets(sets, starts, n_act=None, iters=None):
         """Fit one augmented model per mechanism set on the estimation record: (θ, residuals);
-        `n_act` (static) the most free parameters of one problem (default: the sets' own)."""
+        `n_act` (static) the most free parameters of one problem (default: the sets' own),
+        `iters` the Levenberg–Marquardt iterations (default `n_iter`)."""
         S = len(sets)
         masks = np.concatenate([np.tile(np.minimum(base_mask + sum(lay.mask(M.MECH_PARAMS[m]) for m in st),
                                                    1.0), (n, 1)) for st in sets])
@@ -237,7 +244,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         if n_act is None:
             n_act = 4 * math.ceil(masks.sum(axis=1).max() / 4)      # fewer distinct compilations
         th, _, _ = fit_zones(jnp.asarray(starts.reshape(S * n, -1)), jnp.asarray(masks), ons, per_s,
-                             sh_e, lay, n_iter, n_act)
+                             sh_e, lay, n_iter if iters is None else iters, n_act)
         ys = np.asarray(sim_zones(th, ons, per_s, sh_e, lay)).reshape(S, n, T).transpose(0, 2, 1)
         return np.asarray(th).reshape(S, n, -1), y[None] - ys
 
@@ -256,6 +263,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                           np.stack([neutral] * K + extra_b))
     if extra_b:
         thc, res_c = M.best_of_starts(thc, res_c, cands.index("heat_accumulation"), range(K, K + len(extra_b)))
+    # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`)
+    thc, res_c = refit_body_from_drift(thc, res_c, cands, fit_sets, rec_e, level, ts_free, ts, lay,
+                                       BODY_ITER_FACTOR * n_iter)
     thc_own = thc
     if "ambient_variation" in cands and amb is None and n > 1:
         # unmeasured surroundings: one drift for every zone (`joint.common_drift_fit`); the zones'
@@ -379,6 +389,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
             [z_e, z_v], [D.dependence_testable(T, kstep),
                          D.dependence_testable(Tv, kstep) and not measured_var])
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
+        # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
+        sig = order_by_parsimony(sig, e_c, cands, k_val, loc)
     if sig:
         # a body slower than the record, tied with an identified one-parameter mechanism: the latter
         k0 = sig[0]["k"]
@@ -498,6 +510,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     }
     # arrays for the report (not JSON): dropped by `to_json`
     result["_arrays"] = {"yhat_baseline": yhat_v[0], "yhat_augmented": aug_yhat, "resid_est": R_e,
+                         "resid_est_candidates": {m: res_c[k] for k, m in enumerate(cands)},
                          "resid_val": {"baseline": e_base, **{m: e_c[k] for k, m in enumerate(cands)}},
                          "k_val": {m: k_val((m,)) for m in cands}}
     # the fitted single-mechanism models and what simulating them needs (`experiment.py`)
