@@ -52,7 +52,14 @@ from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones
-from .joint import JointFits, common_drift_fit, forward_select, grid_start, joint_active, joint_start
+from .joint import (
+    JointFits,
+    common_drift_fit,
+    forward_select,
+    grid_start,
+    joint_active,
+    joint_start,
+)
 from .localise import detect_periodic, event_matrix, localise
 from .slowbody import order_by_parsimony, refit_body_from_drift
 
