@@ -28,7 +28,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np
 
 import jthermo
 from jthermo.data import atomic_write_text
