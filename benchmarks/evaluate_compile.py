@@ -16,12 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
+
+from simulate_common import cold_child
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -97,12 +95,7 @@ def main() -> None:
     runs = []
     for _ in range(args.repeats):
         for mode in ("before", "now"):
-            with tempfile.TemporaryDirectory() as cache:
-                env = {**os.environ, "JTHERMO_CACHE_DIR": cache}
-                load = Path("/proc/loadavg").read_text().split()[0]
-                p = subprocess.run([sys.executable, __file__, "--child", mode], env=env,
-                                   capture_output=True, text=True, check=True)
-                runs.append((mode, load, json.loads(p.stdout.strip().splitlines()[-1])))
+            runs.append((mode, *cold_child(__file__, mode)))
     by = {m: [r for mm, _, r in runs if mm == m][0] for m in ("before", "now")}
     worst = max(abs(a - b) / max(abs(a), 1e-300)
                 for name, kinds in by["before"]["figures"].items()

@@ -12,12 +12,11 @@ same process (run alone); the fitted costs and validation fits of every mode are
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
+
+from simulate_common import cold_child
 
 ROOT = Path(__file__).resolve().parent.parent
 MODES = ("default", "quick", "simulate")
@@ -64,12 +63,7 @@ def main() -> None:
     repeats = int(sys.argv[sys.argv.index("--repeats") + 1]) if "--repeats" in sys.argv else 1
     runs = []
     for mode in [m for _ in range(repeats) for m in modes]:
-        with tempfile.TemporaryDirectory() as cache:
-            env = {**os.environ, "JTHERMO_CACHE_DIR": cache}
-            load = Path("/proc/loadavg").read_text().split()[0]
-            p = subprocess.run([sys.executable, __file__, "--child", mode], env=env,
-                               capture_output=True, text=True, check=True)
-            runs.append((mode, load, json.loads(p.stdout.strip().splitlines()[-1])))
+        runs.append((mode, *cold_child(__file__, mode)))
     lines = ["# PEM solve: compile options (issue 13)", "",
              f"`python benchmarks/fit_compile_options.py {' '.join(sys.argv[1:])}`: `jthermo demo`'s fits, each mode in a fresh "
              "process with an empty compilation cache; first = compile + run, again = the same fit "
