@@ -78,6 +78,10 @@ N_ITER = 25
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
+#: most iterations of the common surroundings drift's fit (`joint.common_drift_fit`; it stops
+#: once converged, `fitting.RTOL`): the tests of agreement compare it with the zones' own drifts,
+#: so an unconverged common fit reads as zones that contradict one drift
+COMMON_DRIFT_ITER = 200
 #: iterations of the body's fit from the drift's start, in `n_iter` (a long valley: `slowbody.py`)
 BODY_ITER_FACTOR = 2
 #: relative difference of the two records' sample times accepted as the same sample time
@@ -283,7 +287,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         ka = cands.index("ambient_variation")
         thc, res_c = np.array(thc), np.array(res_c)
         res_own = res_c[ka].copy()
-        thc[ka], res_c[ka] = common_drift_fit(thc[ka], y, sh_e, level, ts_free, lay, JOINT_ITER)
+        thc[ka], res_c[ka] = common_drift_fit(thc[ka], y, sh_e, level, ts_free, lay, COMMON_DRIFT_ITER)
         loc["drift_own_vs_common_lr"] = [D.likelihood_ratio(res_c[ka][:, i:i + 1], res_own[:, i:i + 1])
                                          for i in range(n)]
     tick({"stage": "candidates"})
