@@ -10,6 +10,7 @@ Runs against whatever `jthermo` is importable, so an A/B of two trees is two run
 `PYTHONPATH` set to each (the `--label` names the row):
 
     python benchmarks/simulate_run_profile.py --label HEAD
+    python benchmarks/simulate_run_profile.py --label O0 --option xla_backend_optimization_level=0 --append
     PYTHONPATH=/tmp/base python benchmarks/simulate_run_profile.py --label base --append
 
 writes (or appends a section to) `benchmarks/results/simulate_run_profile.md`.
@@ -41,6 +42,8 @@ def main() -> None:
     ap.add_argument("--label", default="this checkout")
     ap.add_argument("--out", default=str(HERE / "results" / "simulate_run_profile.md"))
     ap.add_argument("--append", action="store_true", help="add a section to --out")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="an XLA compiler option over runtime.simulate_compile()'s (repeatable)")
     args = ap.parse_args()
 
     from jthermo import runtime
@@ -63,7 +66,9 @@ def main() -> None:
     ctrl = design(args.controller, control._printer_model(plant))
     key = jax.random.key(0)
     call = (args.kind, plant, ctrl, args.duration, key, args.rollouts)
-    fn = eqx.filter_jit(engine._scenario_metrics_fn, compiler_options=runtime.simulate_compile())
+    options = dict(runtime.simulate_compile())
+    options.update(kv.split("=", 1) for kv in args.option)
+    fn = eqx.filter_jit(engine._scenario_metrics_fn, compiler_options=options)
     c0, t0 = time.process_time(), time.perf_counter()
     compiled = fn.lower(*call).compile()
     compile_wall, compile_cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -99,7 +104,7 @@ def main() -> None:
     except (OSError, subprocess.CalledProcessError):
         rev = "no git"
     w = sorted(runs)
-    lines = [f"## {args.label} ({src}, {rev})", "",
+    lines = [f"## {args.label} ({src}, {rev})", "", f"Compiler options {options}.", "",
              (f"{args.kind} / {args.controller}, N = {args.zones}, B = {args.rollouts}, "
               f"T = {T}: compile {compile_wall:.2f} s wall / {compile_cpu:.2f} CPU s; execution "
               f"over {args.repeats} runs: min {w[0][0]:.3f} s wall, min "
