@@ -5,6 +5,7 @@ one-call test of a controller (one compiled program, no `(B, T, n)` array)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Mapping
@@ -89,6 +90,13 @@ class _LinearPlant(eqx.Module):
 RECOAT_FREE_KINDS = ("tracking", "preheat")
 
 
+#: the signals of each printer scenario that are constant over the run by construction
+#: (`scenarios._printer_scenario`: every kind holds its set points; tracking, powder and
+#: preheat have no laser): `run` does not scan them (`_closed_loop`'s `held`)
+HELD_SIGNALS = {"tracking": ("r", "laser"), "powder": ("r", "laser"), "preheat": ("r", "laser"),
+                "print": ("r",), "ensemble": ("r",)}
+
+
 def _prepare(plant, recoat: bool = True):
     if isinstance(plant, Printer):
         return _PrinterPlant(plant.discretise(recoat=recoat))
@@ -131,19 +139,29 @@ def initial_state(plant, scenario: Scenario):
 
 
 def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, observe, acc0,
-                 unroll: int = 1, recoat: bool = True, noise: NoiseStream | None = None):
+                 unroll: int = 1, recoat: bool = True, noise: NoiseStream | None = None,
+                 held: tuple[str, ...] = ()):
     """The scanned loop shared by `simulate`, `simulate_cost` and `simulate_metrics`: at each
     sample k, `acc, out = observe(acc, k, y, u, temps, r)` sees the measured output, the
     saturated input, the true temperatures and the set point. Returns `(acc, outs)`.
 
     `noise` (a printer's `NoiseStream`): the measurement noise is drawn inside the scan, one
-    sample at a time, instead of read from `scenario.v` (which is then not read at all)."""
+    sample at a time, instead of read from `scenario.v` (which is then not read at all).
+
+    `held` (`HELD_SIGNALS`): signals the caller knows to be constant over the run (`"r"`, the
+    set points; `"laser"`, a printer's laser power): their sample 0 is used at every sample
+    instead of the `(T, n)` array being scanned, which XLA would otherwise form in memory
+    (`run`'s printer scenarios: two `(T, B, n)` arrays, 118 MB each at T = 3600, B = 256,
+    n = 16). The same values."""
     if scenario.r.ndim != 2:
         raise ConfigError("simulate: a batched scenario needs `rollouts`, not `simulate`")
     check_loop("simulate", plant, controller, scenario, x0)
     p = _prepare(plant, recoat)
     x0 = initial_state(plant, scenario) if x0 is None else x0
     d0 = jax.tree.map(lambda a: a[0], scenario.d)
+    r_held = scenario.r[0] if "r" in held else None
+    laser_held = d0.laser if "laser" in held else None
+    d_seq = scenario.d if laser_held is None else dataclasses.replace(scenario.d, laser=None)
     if noise is None:
         v0, n0 = scenario.v[0], ()
         vs = scenario.v
@@ -156,6 +174,10 @@ def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, 
     def body(carry, inp):
         x, c, acc, nc = carry
         k, r, d, v, s = inp
+        if r_held is not None:
+            r = r_held
+        if laser_held is not None:
+            d = dataclasses.replace(d, laser=laser_held)
         if noise is not None:
             v, nc = noise.at(k, nc)
         y_clean, temps = p.measure(x, d)
@@ -167,7 +189,8 @@ def _closed_loop(plant, controller: AbstractController, scenario: Scenario, x0, 
 
     ks = jnp.arange(scenario.r.shape[0])
     (_, _, acc, _), outs = jax.lax.scan(body, (x0, c0, acc0, n0),
-                                        (ks, scenario.r, scenario.d, vs, scenario.s),
+                                        (ks, None if r_held is not None else scenario.r,
+                                         d_seq, vs, scenario.s),
                                         unroll=unroll)
     return acc, outs
 
@@ -186,7 +209,8 @@ def simulate(plant, controller: AbstractController, scenario: Scenario, x0=None)
 def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
                      weights: Mapping[str, float] | None = None, x0=None, *,
                      smoothing: float = 0.1, recoat: bool = True,
-                     noise: NoiseStream | None = None) -> dict[str, Array]:
+                     noise: NoiseStream | None = None,
+                     held: tuple[str, ...] = ()) -> dict[str, Array]:
     """`metrics(simulate(...))` of one run (per-rollout values) and its `cost` (key `"cost"`),
     accumulated inside the scan (`RunningMetrics`): no `(T, n)` trajectory is stored, memory
     independent of the horizon. Equal to the dense figures to rounding.
@@ -196,18 +220,20 @@ def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
     of the full integration (benchmarks/results/simulate_substeps.md).
 
     `noise` (`Printer.noise_stream`): the measurement noise drawn inside the scan instead of
-    read from `scenario.v` (`run` does this: the distribution of `scenario.v`, other draws)."""
+    read from `scenario.v` (`run` does this: the distribution of `scenario.v`, other draws).
+    `held`: signals constant over the run, not scanned (`_closed_loop`)."""
     scorer = RunningMetrics.of(scenario, smoothing=smoothing)
     acc, _ = _closed_loop(plant, controller, scenario, x0,
                           lambda acc, k, y, u, temps, r: (scorer.update(acc, k, y, u, temps, r), None),
-                          scorer.init(_n_inputs(plant)), recoat=recoat, noise=noise)
+                          scorer.init(_n_inputs(plant)), recoat=recoat, noise=noise, held=held)
     return scorer.finish(acc, weights)
 
 
 def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
                     weights: Mapping[str, float] | None = None, x0s=None, *,
                     plant_axis: int | None = None, smoothing: float = 0.1,
-                    recoat: bool = True, noise: NoiseStream | None = None) -> dict[str, Array]:
+                    recoat: bool = True, noise: NoiseStream | None = None,
+                    held: tuple[str, ...] = ()) -> dict[str, Array]:
     """`simulate_metrics` over a batch of scenarios: each figure `(B,)` (the lean counterpart of
     `metrics(rollouts(...), per_rollout=True)` plus the per-rollout `cost`); `noise`: one
     `NoiseStream` per rollout (a leading rollout axis), drawn inside the scan."""
@@ -217,7 +243,7 @@ def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
 
     def one(pl, sc, x0=None, nz=None):
         return simulate_metrics(pl, controller, sc, weights, x0, smoothing=smoothing,
-                                recoat=recoat, noise=nz)
+                                recoat=recoat, noise=nz, held=held)
 
     return jax.vmap(one, in_axes=(plant_axis, 0, None if x0s is None else 0,
                                   None if noise is None else 0))(plant, scenarios, x0s, noise)
@@ -363,10 +389,10 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
 
 
 @eqx.filter_jit
-def _run_metrics(plant, controller, scenarios, recoat=True, noise=None):
+def _run_metrics(plant, controller, scenarios, recoat=True, noise=None, held=()):
     """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost), the
     first set point and the run length: one compiled call, no `(B, T, n)` output."""
-    vals = rollout_metrics(plant, controller, scenarios, recoat=recoat, noise=noise)
+    vals = rollout_metrics(plant, controller, scenarios, recoat=recoat, noise=noise, held=held)
     return {k: jnp.mean(v) for k, v in vals.items()}, scenarios.r[0, 0], scenarios.n_samples
 
 
@@ -405,7 +431,8 @@ def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
     `jthermo simulate`'s run program before and after in benchmarks/results/simulate_stages*.md."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
-    return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise)
+    return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,
+                        HELD_SIGNALS.get(kind, ()))
 
 
 _scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
