@@ -31,7 +31,7 @@ def _summary(mech, zones, params):
         return f"The heater inputs act after a dead time of {params.get('delay_s', 0):.2g} s on {where}."
     if mech == "input_nonlinearity":
         return f"Heater power is not proportional to the command: it follows u^{params.get('exponent', float('nan')):.2f} ({where})."
-    if mech == "recoat_cooling" and params.get("events"):
+    if mech == "recoat_cooling" and params.get("events") and params.get("spacing_cv", 1.0) >= 0.1:
         return (f"Cooling drops of about {params.get('drop_C', float('nan')):.2f} °C at {params['events']} "
                 f"events about {params.get('mean_interval_s', float('nan')):.0f} s apart, not periodic "
                 f"(recoat of cold powder, layer by layer) hit {where}.")

@@ -473,9 +473,13 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
         out = {"period_s": float(extra.get("period_s", float("nan"))), "drop_C": med(drops),
                "drop_per_zone_C": [float(v) for v in drops]}
         times = extra.get("recoat_times_s")
-        if times:                   # drops at irregular times (`events.detect_drops`)
-            out.update(events=len(times), mean_interval_s=float(np.mean(np.diff(times))) if len(times) > 1
-                       else float("nan"), event_times_s=[round(float(t), 3) for t in times])
+        if times:                   # drops at irregular times (`events.detect_drops`): the period
+            # is the events' median spacing (theirs where they are periodic), `spacing_cv` says how
+            # far from periodic they are
+            gaps = np.diff(times) if len(times) > 1 else np.array([np.nan])
+            out.update(period_s=float(np.median(gaps)), events=len(times), mean_interval_s=float(np.mean(gaps)),
+                       spacing_cv=float(np.std(gaps) / np.mean(gaps)),
+                       event_times_s=[round(float(t), 3) for t in times])
         return out
     if mech == "ambient_variation":
         if extra.get("measured_ambient", False):
