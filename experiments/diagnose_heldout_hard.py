@@ -76,7 +76,8 @@ COUNTED = {"null": (), "convection_hT": ("radiative_loss",), "distributed_heater
            "sensor_lag": ("heater_lag",), "frac_delay": ("input_delay",),
            "delay_lag": ("input_delay", "heater_lag"), "slow_body": ("heat_accumulation",),
            "ambient_drift": ("ambient_variation",), "lamp_saturation": ("input_nonlinearity",),
-           "conduction": ("lateral_conduction",), "recoat_sweep": ("recoat_cooling",)}
+           "conduction": ("lateral_conduction",), "recoat_sweep": ("recoat_cooling",),
+           "recoat_irregular": ("recoat_cooling",)}
 SLOW = ("slow_body", "ambient_drift")
 #: the records before 2026-11-25 (sets 0-3 as scored) read the sensor at the *end* of each
 #: sample, after u_k acted: y_k = x(t_{k+1}), one sample ahead of the models' y_k = x(t_k), so a
@@ -90,9 +91,11 @@ def case_seed(i: int, seed_set: int = 0) -> np.random.SeedSequence:
     return np.random.SeedSequence([i, 2026, 1414] + ([seed_set] if seed_set else []))
 
 
-def draw_case(i: int, kind: str | None = None, max_zones: int = 9, seed_set: int = 0) -> dict:
-    """Everything about case i, from its own seed."""
-    rng = np.random.default_rng(case_seed(i, seed_set))
+def draw_case(i: int, kind: str | None = None, max_zones: int = 9, seed_set: int = 0,
+              seq: np.random.SeedSequence | None = None) -> dict:
+    """Everything about case i, from its own seed (`seq`: another seed, for studies of their own;
+    the kind `recoat_irregular`, in no set's cycle, is drawn only so)."""
+    rng = np.random.default_rng(case_seed(i, seed_set) if seq is None else seq)
     kind = kind or KINDS[i % len(KINDS)]
     n = int(rng.integers(1, max_zones + 1))
     if kind == "conduction":
@@ -149,6 +152,22 @@ def draw_case(i: int, kind: str | None = None, max_zones: int = 9, seed_set: int
         c["drops_C"] = rng.uniform(0.4, 1.5, n)
         c["sweep_s"] = float(rng.uniform(2.0, 10.0))
         c["truth"]["period_s"] = c["period_s"]
+    elif kind == "recoat_irregular":
+        # a recoat per layer, spaced by each layer's scan time: 30-300 s, either drawn anew for
+        # every layer or wandering slowly (the part's cross-section changing), at any fraction
+        # of a sample; each zone its own drop (0.3-2 °C), every layer 0.7-1.3 times it
+        T_s = (n_est + n_est // 2) * ts
+        gaps, g = [], float(rng.uniform(30.0, 300.0))
+        smooth = bool(rng.random() < 0.5)
+        while sum(gaps) < T_s:
+            g = (float(np.clip(g * np.exp(rng.normal(0.0, 0.25)), 30.0, 300.0)) if smooth
+                 else float(rng.uniform(30.0, 300.0)))
+            gaps.append(g)
+        c["recoat_times_s"] = float(rng.uniform(5.0, 30.0)) + np.cumsum([0.0] + gaps[:-1])
+        c["drops_C"] = rng.uniform(0.3, 2.0, n)
+        c["drop_scale"] = rng.uniform(0.7, 1.3, c["recoat_times_s"].size)
+        c["sweep_s"] = float(rng.uniform(0.0, 10.0))
+        c["spacing"] = "wandering" if smooth else "independent"
     return c
 
 
@@ -212,6 +231,11 @@ def simulate(c, u) -> np.ndarray:
         for i in range(n):
             t_ev = np.arange(c["period_s"] * 0.5 + i * c["sweep_s"] / n, T * ts, c["period_s"])
             ev[np.minimum((t_ev / dt).astype(int), T * sub - 1), i] = c["drops_C"][i]
+    if "recoat_times_s" in c:
+        for i in range(n):
+            t_ev = c["recoat_times_s"] + i * c["sweep_s"] / n
+            keep = t_ev < T * ts
+            np.add.at(ev[:, i], (t_ev[keep] / dt).astype(int), c["drops_C"][i] * c["drop_scale"][keep])
 
     def rate(x, h1, h2, w, qk, tk):
         d = x - tk
@@ -287,6 +311,10 @@ def describe(c):
          for k in keys if k in c}
     if "delay_s" in c:
         d["delay_samples"] = round(c["delay_s"] / c["ts"], 2)
+    if "recoat_times_s" in c:
+        g = np.diff(c["recoat_times_s"])
+        d.update(events=int(c["recoat_times_s"].size), gap_s=[round(float(g.min()), 1), round(float(g.max()), 1)],
+                 spacing=c["spacing"], drops_C=np.round(c["drops_C"], 2).tolist(), sweep_s=round(c["sweep_s"], 2))
     return d
 
 

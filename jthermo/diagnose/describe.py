@@ -31,6 +31,10 @@ def _summary(mech, zones, params):
         return f"The heater inputs act after a dead time of {params.get('delay_s', 0):.2g} s on {where}."
     if mech == "input_nonlinearity":
         return f"Heater power is not proportional to the command: it follows u^{params.get('exponent', float('nan')):.2f} ({where})."
+    if mech == "recoat_cooling" and params.get("events") and params.get("spacing_cv", 1.0) >= 0.1:
+        return (f"Cooling drops of about {params.get('drop_C', float('nan')):.2f} °C at {params['events']} "
+                f"events about {params.get('mean_interval_s', float('nan')):.0f} s apart, not periodic "
+                f"(recoat of cold powder, layer by layer) hit {where}.")
     if mech == "recoat_cooling":
         return (f"Periodic cooling drops of about {params.get('drop_C', float('nan')):.2f} °C every "
                 f"{params.get('period_s', float('nan')):.0f} s (recoat of cold powder) hit {where}.")
@@ -39,7 +43,10 @@ def _summary(mech, zones, params):
     return mech
 
 
-def mechanism_evidence(mech, loc, per_ev):
+def mechanism_evidence(mech, loc, per_ev, drops=None):
+    if mech == "recoat_cooling" and drops is not None:
+        return {"drop_statistic": round(drops["statistic"], 2), "drop_level": round(drops["level"], 2),
+                "events": len(drops["times_s"])}
     if mech == "recoat_cooling":
         return {"periodic_drop_statistic": round(per_ev["statistic"], 2),
                 "period_s": per_ev["period_s"]}

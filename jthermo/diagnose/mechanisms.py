@@ -15,7 +15,7 @@ Each mechanism adds states, terms or input transformations with physically const
 | `heater_lag` | lamps $\\tau_h \\dot p_j = u_j - p_j$ drive the zones instead of $u$ |
 | `input_delay` | $u(t - d)$, $d$ in seconds, any fraction of a sample: the held input is interpolated between the two samples around $t - d$; $d$ moves within one sample of the delay scan's best (by gradient) |
 | `input_nonlinearity` | $u_j^{\\,e}$, $e > 0$ |
-| `recoat_cooling` | a drop $\\delta_i \\ge 0$ of each zone at the detected recoat events (period, phase) |
+| `recoat_cooling` | a drop $\\delta_i \\ge 0$ of each zone at the detected recoat events (period and phase, or drops at any times: `events.py`) |
 | `ambient_variation` | $T_s(t) = \\bar T_s + $ the measured variation, or a piecewise-linear drift |
 
 All mechanisms live in one simulator: a candidate is a vector of 0/1 switches `on` (one per
@@ -470,8 +470,17 @@ def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -
         return {"exponent": med(np.exp(g("log_e")[:, 0]))}
     if mech == "recoat_cooling":
         drops = np.exp(g("log_drop")[:, 0])
-        return {"period_s": float(extra.get("period_s", float("nan"))), "drop_C": med(drops),
-                "drop_per_zone_C": [float(v) for v in drops]}
+        out = {"period_s": float(extra.get("period_s", float("nan"))), "drop_C": med(drops),
+               "drop_per_zone_C": [float(v) for v in drops]}
+        times = extra.get("recoat_times_s")
+        if times:                   # drops at irregular times (`events.detect_drops`): the period
+            # is the events' median spacing (theirs where they are periodic), `spacing_cv` says how
+            # far from periodic they are
+            gaps = np.diff(times) if len(times) > 1 else np.array([np.nan])
+            out.update(period_s=float(np.median(gaps)), events=len(times), mean_interval_s=float(np.mean(gaps)),
+                       spacing_cv=float(np.std(gaps) / np.mean(gaps)),
+                       event_times_s=[round(float(t), 3) for t in times])
+        return out
     if mech == "ambient_variation":
         if extra.get("measured_ambient", False):
             return {"source": "measured surroundings signal", "range_C": float(extra.get("w_range", 0.0))}
