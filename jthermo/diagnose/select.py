@@ -51,7 +51,6 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .events import detect_drops, flag_matrix, step_gain
 from .fitting import fit_records, fit_zones, sim_zones
 from .joint import (
     JointFits,
@@ -61,7 +60,8 @@ from .joint import (
     joint_active,
     joint_start,
 )
-from .localise import detect_periodic, event_matrix, localise
+from .localise import localise
+from .recoat import estimation_events, validation_events
 from .slowbody import order_by_parsimony, refit_body_from_drift
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
@@ -230,25 +230,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
 
     # ---- 2. localisation, periodic events, dead time ----------------------------------------
     loc = localise(R_e, y, u, ts)
-    per_ev = detect_periodic(R_e, ts)
-    loc["periodic"] = {k: per_ev[k] for k in ("period_s", "statistic", "significant")}
-    ev_e = np.zeros((T, n))
-    P = 0
-    if per_ev["significant"]:
-        P = per_ev["period_s"] / ts          # samples, any fraction
-        ev_e = event_matrix(T, P, per_ev["zone_phase"])
-    # drops at any times (`events.py`): they replace the periodic events where they explain
-    # more of the residuals (steps recovering at the baseline's loss rates)
-    drops = detect_drops(R_e, ts)
-    loc["drops"] = {k: drops[k] for k in ("significant", "statistic", "level", "rise")}
-    loc["drops"]["events"] = len(drops["times_s"])
-    irregular = False
-    if drops["significant"]:
-        ev_d = flag_matrix(T, drops["flags"])
-        a_b = np.exp(thb[:, lay.sl("log_a")][:, 0])
-        if not P or step_gain(R_e, ev_d, a_b, ts) > step_gain(R_e, ev_e, a_b, ts):
-            ev_e, P, irregular = ev_d, 0, True
-    loc["drops"]["used"] = irregular
+    # recoat drops, periodic or at any times (`recoat.py`)
+    rc = estimation_events(R_e, np.exp(thb[:, lay.sl("log_a")][:, 0]), ts, loc)
+    ev_e, P, irregular, per_ev, drops = rc["events"], rc["period"], rc["irregular"], rc["periodic"], rc["drops"]
     # dead time: simulate the baseline with each delay on a grid of fractions of a sample
     max_d = min(M.PAD - 3.0, max(float(MAX_DELAY), math.ceil(MAX_DELAY_S / ts)))
     dgrid = np.arange(DELAY_STEP, max_d + 1e-9, DELAY_STEP)
@@ -316,23 +300,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     Phi_v = M.drift_basis(Tv, ts, kv)
     sh_v = _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": Phi_v, "u_pad": rec_v["u_pad"]},
                    level, ts_free, ts, t_ref)
-    # recoat events on the validation record: same period, phase from its own residuals
-    # (drops at any times: detected on the validation record's own residuals, their flags
-    # charged as parameters re-estimated on it)
-    ev_v = np.zeros((Tv, n))
-    flags_v = 0
+    # recoat events on the validation record, found again on its own residuals (`recoat.py`)
+    ev_v, flags_v = np.zeros((Tv, n)), 0
     if P or irregular:
         thb_v = thb.copy()
         thb_v[:, lay.sl("x0")] = yv[0][:, None]
         ybv = baseline.simulate(thb_v, rec_v["u"], rec_v["u_pad"], ts, level, ts_free, lay)
-    if P:
-        dv = detect_periodic(yv - ybv, ts, period_range=(P * ts, P * ts))
-        ev_v = event_matrix(Tv, P, dv["zone_phase"])
-    elif irregular:
-        dv = detect_drops(yv - ybv, ts, min_events=1)
-        if dv["significant"]:
-            ev_v, flags_v = flag_matrix(Tv, dv["flags"]), dv["n_flags"]
-        loc["drops"]["validation_events"] = len(dv["times_s"])
+        ev_v, flags_v = validation_events(yv - ybv, rc, ts, loc)
 
     def validate(models, with_rec=False):
         """Coupled simulations `(M, Tv, n)` of models on the validation record: (θ, mechanism set)
