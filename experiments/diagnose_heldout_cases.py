@@ -58,15 +58,16 @@ def main(argv=None):
     for spec in args.cases:
         case, seed_set = (int(v) for v in spec.split(":"))
         rows.append(one(case, seed_set, args.max_zones))
+        jax.clear_caches()          # compiled code's memory maps would pile up (heldout_hard)
         print(rows[-1], flush=True)
     fmt = lambda v: "-" if v in (None, []) else (", ".join(v) if isinstance(v, list) and v and isinstance(v[0], str)
                                                  else str(v))
     lines = [f"# Held-out cases, one line each — {args.tag}", "",
-             f"Made by `python experiments/diagnose_heldout_cases.py {' '.join(args.cases)} --max-zones "
+             (f"Made by `python experiments/diagnose_heldout_cases.py {' '.join(args.cases)} --max-zones "
              f"{args.max_zones} --tag {args.tag}`: {sum(r['right'] for r in rows)}/{len(rows)} right; "
-             f"wall {time.perf_counter() - t0:.0f} s, 1-min load {os.getloadavg()[0]:.1f} at the end.", "",
-             "| case:set | kind | N | named | right | rivals | flagged | augmented | own vs common drift LR "
-             "| drift agreement z | CPU s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"wall {time.perf_counter() - t0:.0f} s, 1-min load {os.getloadavg()[0]:.1f} at the end."), "",
+             ("| case:set | kind | N | named | right | rivals | flagged | augmented | own vs common drift LR "
+             "| drift agreement z | CPU s |"), "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = "-" if r["agreement_z"] is None else f"{r['agreement_z']:.2f}"
         lines.append(f"| {r['case']} | {r['kind']} | {r['zones']} | {fmt(r['top'])} | {'yes' if r['right'] else 'no'} | "
