@@ -82,7 +82,7 @@ def run(args):
 def write(rows, args, path):
     ok = sum(r["correct"] for r in rows)
     meta = {"args": f"--cases {args.cases} --first {args.first} --max-zones {args.max_zones} --tag {args.tag}",
-            "jthermo": str(Path(jthermo.__file__).parent), "load": " ".join(f"{v:.2f}" for v in os.getloadavg()),
+            "jthermo": os.path.relpath(Path(jthermo.__file__).parent), "load": " ".join(f"{v:.2f}" for v in os.getloadavg()),
             "cpu_s": sum(r["cpu_s"] for r in rows)}
     atomic_write_text(path.with_suffix(".json"), json.dumps({"meta": meta, "top1": [ok, len(rows)], "records": rows},
                                                             indent=1, default=float))
