@@ -29,6 +29,7 @@ parameters re-estimated on that record (`n_flags`).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -60,9 +61,11 @@ def _stat(z: np.ndarray, h: int, lowest: bool = True) -> np.ndarray:
     return (f(z, 2 * h + 1, axis=0, mode="nearest") if h else z).sum(axis=1)
 
 
+@functools.lru_cache(maxsize=64)
 def gaussian_level(T: int, n: int, h: int, alpha: float = ALPHA_EVENT, n_null: int = N_NULL) -> float:
     """The (negative) level of $G$ that iid N(0,1) records of `T` samples and `n` zones go below
-    with probability `alpha`: a Gumbel (minimum) fit by moments to `n_null` simulated minima."""
+    with probability `alpha`: a Gumbel (minimum) fit by moments to `n_null` simulated minima
+    (fixed seed: kept per shape, so a record the same size as an earlier one reuses it)."""
     rng = np.random.default_rng(20261127)
     mins = np.array([_stat(rng.standard_normal((T, n)), h).min() for _ in range(n_null)])
     beta = mins.std() * math.sqrt(6.0) / math.pi
