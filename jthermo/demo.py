@@ -4,7 +4,8 @@ Stages: PRBS experiment → fit every model family → validate → design contr
 gradient → the three test scenarios (tracking, powder, print) → diagnose a concealed effect →
 `runs/<name>/report.md` with figures, `summary.json`, the data, the models and the tuned
 controller. Each stage is guarded: a stage that fails (or whose library piece is missing) is
-reported in the report with its one-line reason, and the later stages go on without it.
+reported in the report with its one-line reason, and the later stages go on without it. The
+diagnosis needs nothing from the other stages and runs in a second thread beside them.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +131,37 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
     ev = st.run("PRBS experiment on the virtual printer", experiment)
     est, val = ev if ev is not None else (None, None)
+
+    # 6 -------------------------------------------------------------- diagnosis (started early)
+    # independent of every other stage: it runs in a second thread from here on, so that its
+    # compilations and fits overlap theirs (a second core, or the time one stage waits on its
+    # compiler); its stage waits for it below
+    def diagnosis():
+        from .diagnose import diagnose
+        from .printer import generate, make_printer
+
+        eff_name, eff_params = CONCEALED
+        p = make_printer(cfg["zones"], {eff_name: eff_params}, seed=seed + 5)
+        d_est = generate(p, "prbs", cfg["diag_est_s"], seed=seed + 7)
+        d_val = generate(p, "prbs", cfg["diag_val_s"], seed=seed + 8)
+        bar = _progress("diagnose", True)
+        try:
+            res = diagnose(d_est, d_val, seed=seed, progress=bar)
+        finally:
+            bar.close()
+        try:
+            from .diagnose import write_report
+
+            write_report(res, root / "diagnosis", d_est, d_val)
+            S["diagnosis_report"] = "diagnosis/report.md"
+        except ImportError:
+            pass
+        S["diagnosis"] = {k: v for k, v in res.items() if not str(k).startswith("_")
+                          and k in ("verdict", "baseline", "findings", "augmented", "seconds")}
+        S["diagnosis"]["concealed"] = {"mechanism": eff_name, **eff_params}
+
+    background = ThreadPoolExecutor(max_workers=1)
+    diagnosing = background.submit(diagnosis)
 
     # 2 -------------------------------------------------------------- identification + validation
     models: dict[str, Any] = {}
@@ -317,32 +350,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         st.records.append({"stage": "the three test scenarios against the virtual printer",
                            "status": "skipped", "message": "no controller"})
 
-    # 6 -------------------------------------------------------------- diagnosis
-    def diagnosis():
-        from .diagnose import diagnose
-        from .printer import generate, make_printer
-
-        eff_name, eff_params = CONCEALED
-        p = make_printer(cfg["zones"], {eff_name: eff_params}, seed=seed + 5)
-        d_est = generate(p, "prbs", cfg["diag_est_s"], seed=seed + 7)
-        d_val = generate(p, "prbs", cfg["diag_val_s"], seed=seed + 8)
-        bar = _progress("diagnose", quiet)
-        try:
-            res = diagnose(d_est, d_val, seed=seed, progress=bar)
-        finally:
-            bar.close()
-        try:
-            from .diagnose import write_report
-
-            write_report(res, root / "diagnosis", d_est, d_val)
-            S["diagnosis_report"] = "diagnosis/report.md"
-        except ImportError:
-            pass
-        S["diagnosis"] = {k: v for k, v in res.items() if not str(k).startswith("_")
-                          and k in ("verdict", "baseline", "findings", "augmented", "seconds")}
-        S["diagnosis"]["concealed"] = {"mechanism": eff_name, **eff_params}
-
-    st.run("diagnose a concealed effect", diagnosis)
+    st.run("diagnose a concealed effect (run beside stages 2-6)", diagnosing.result)
+    background.shutdown()
 
     # 7 -------------------------------------------------------------- report
     S["stages"] = st.records
