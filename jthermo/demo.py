@@ -5,17 +5,18 @@ gradient → the three test scenarios (tracking, powder, print) → diagnose a c
 `runs/<name>/report.md` with figures, `summary.json`, the data, the models and the tuned
 controller. Each stage is guarded: a stage that fails (or whose library piece is missing) is
 reported in the report with its one-line reason, and the later stages go on without it. The
-diagnosis needs nothing from the other stages and runs in a second thread beside them.
+diagnosis and the tuning (on the virtual printer's own design model) need nothing from the
+stages before them and run in two more threads beside them.
 """
 
 from __future__ import annotations
 
 import functools
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +75,29 @@ class _Stages:
         self.say(f"[{k}/{self.total}] {name}: {rec['status']} ({rec['seconds']:.1f} s)"
                  + (f" — {rec['message']}" if "message" in rec else ""))
         return out
+
+
+def _in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
+    """Start `fn()` in a daemon thread (an interrupted demo does not wait for it); returns the
+    function that waits for it and returns its result or raises its exception."""
+    box: dict[str, Any] = {}
+
+    def target():
+        try:
+            box["out"] = fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the waiting stage's guard
+            box["exc"] = exc
+
+    thread = threading.Thread(target=target, name=f"demo-{fn.__name__}", daemon=True)
+    thread.start()
+
+    def result():
+        thread.join()
+        if "exc" in box:
+            raise box["exc"]
+        return box.get("out")
+
+    return result
 
 
 @functools.cache
@@ -160,8 +184,37 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
                           and k in ("verdict", "baseline", "findings", "augmented", "seconds")}
         S["diagnosis"]["concealed"] = {"mechanism": eff_name, **eff_params}
 
-    background = ThreadPoolExecutor(max_workers=1)
-    diagnosing = background.submit(diagnosis)
+    # 4 -------------------------------------------------------------- tuning (started early)
+    # on the virtual printer's own design model: independent of the fits, so it runs beside
+    # them in a third thread; the tuned PI joins the designed controllers when it is done
+    tuned_box: dict[str, Any] = {}
+
+    def tune_stage():
+        from .tune import tune_report
+
+        bar = _progress("tune pi_lambda", True, cfg["tune_steps"])
+        try:
+            rep = tune_report("pi_lambda", plant="printer", rollouts=cfg["tune_rollouts"],
+                              steps=cfg["tune_steps"], lr=cfg["tune_lr"], seed=seed,
+                              duration=cfg["scenario_s"], eval_rollouts=cfg["eval_rollouts"],
+                              changed_powder=None, progress=bar)
+        finally:
+            bar.close()
+        tuned = rep.pop("tuned")
+        tuned_box["pi_lambda (tuned)"] = tuned
+        io.save(tuned, root / "models" / "pi_lambda_tuned.jtm", meta={"family": "pi_lambda", "seed": seed})
+        S["tuning"] = {k: v for k, v in rep.items() if k != "history"}
+        S["tuning_history"] = rep["history"]
+        try:
+            from . import plots
+
+            plots.plot_tuning_curve(rep["history"], path=figs / "tuning.png")
+            fig("tuning", figs / "tuning.png", "Mean closed-loop cost over the tuning iterations")
+        except ModuleNotFoundError:
+            pass
+
+    diagnosing = _in_background(diagnosis)
+    tuning = _in_background(tune_stage)
 
     # 2 -------------------------------------------------------------- identification + validation
     models: dict[str, Any] = {}
@@ -264,32 +317,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
     st.run("design controllers from the fitted model", design_stage)
 
-    # 4 -------------------------------------------------------------- tuning
-    def tuning():
-        from .tune import tune_report
-
-        bar = _progress("tune pi_lambda", quiet, cfg["tune_steps"])
-        try:
-            rep = tune_report("pi_lambda", plant="printer", rollouts=cfg["tune_rollouts"],
-                              steps=cfg["tune_steps"], lr=cfg["tune_lr"], seed=seed,
-                              duration=cfg["scenario_s"], eval_rollouts=cfg["eval_rollouts"],
-                              changed_powder=None, progress=bar)
-        finally:
-            bar.close()
-        tuned = rep.pop("tuned")
-        controllers["pi_lambda (tuned)"] = tuned
-        io.save(tuned, root / "models" / "pi_lambda_tuned.jtm", meta={"family": "pi_lambda", "seed": seed})
-        S["tuning"] = {k: v for k, v in rep.items() if k != "history"}
-        S["tuning_history"] = rep["history"]
-        try:
-            from . import plots
-
-            plots.plot_tuning_curve(rep["history"], path=figs / "tuning.png")
-            fig("tuning", figs / "tuning.png", "Mean closed-loop cost over the tuning iterations")
-        except ModuleNotFoundError:
-            pass
-
-    st.run("tune lambda-PI by gradient over vmapped rollouts", tuning)
+    st.run("tune lambda-PI by gradient over vmapped rollouts (run beside stages 2-4)", tuning)
+    controllers.update(tuned_box)
 
     # 5 -------------------------------------------------------------- scenarios
     def scenarios():
@@ -350,8 +379,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         st.records.append({"stage": "the three test scenarios against the virtual printer",
                            "status": "skipped", "message": "no controller"})
 
-    st.run("diagnose a concealed effect (run beside stages 2-6)", diagnosing.result)
-    background.shutdown()
+    st.run("diagnose a concealed effect (run beside stages 2-6)", diagnosing)
 
     # 7 -------------------------------------------------------------- report
     S["stages"] = st.records
@@ -393,7 +421,7 @@ def _write_report(root: Path, S: dict, figures: dict) -> Path:
                  f"{exp['validation_samples']} validation samples at Ts = 1 s, in `data/`.")
     rep.heading("2. Identification and validation")
     if S.get("identification"):
-        rows = [{"family": r["model"], "orders": r.get("orders") or ("—" if "error" not in r else r["error"]),
+        rows = [{"family": r["model"], "orders": r.get("orders") or r.get("error", "—"),
                  "validation fit % (per zone)": [round(x, 1) for x in r.get("fit_percent", [])],
                  "mean fit %": r.get("mean_fit_percent"), "converged": r.get("converged"),
                  "seconds": r.get("seconds")} for r in S["identification"]]
@@ -441,8 +469,8 @@ def _write_report(root: Path, S: dict, figures: dict) -> Path:
         base, aug = d.get("baseline", {}), d.get("augmented") or {}
         rep.bullets([f"verdict: **{d.get('verdict')}**",
                      f"baseline grey-box fit: {base.get('mean_fit_percent', float('nan')):.2f} %",
-                     f"augmented ({', '.join(aug.get('mechanisms', [])) or '—'}) fit: "
-                     f"{aug.get('mean_fit_percent', float('nan')):.2f} %"])
+                     (f"augmented ({', '.join(aug.get('mechanisms', [])) or '—'}) fit: "
+                      f"{aug.get('mean_fit_percent', float('nan')):.2f} %")])
         if d.get("findings"):
             rep.table([{"mechanism": f.get("mechanism"), "confidence": f.get("confidence"),
                         "zones": f.get("zones"), "parameters": f.get("parameters"),
