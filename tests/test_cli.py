@@ -255,6 +255,32 @@ def test_report_markdown(tmp_path):
     assert "# T" in text and "![cap](../figs/a.png)" in text and "| k |" in text
 
 
+def test_demo_background_stage_result_and_error():
+    """A stage run in a background thread hands its result, or its exception, to the stage that
+    waits for it: the guard reports the failure with its one-line reason, as for any stage."""
+    import threading
+
+    from jthermo import demo
+    from jthermo.errors import FitError
+
+    started = threading.Event()
+
+    def slow():
+        started.wait(5.0)
+        return threading.current_thread().name
+
+    def failing():
+        raise FitError("no start point converged")
+
+    waiting_ok, waiting_bad = demo._in_background(slow), demo._in_background(failing)
+    started.set()
+    st = demo._Stages(2, quiet=True)
+    assert st.run("ok", waiting_ok) == "demo-slow"
+    assert st.run("bad", waiting_bad) is None
+    assert [r["status"] for r in st.records] == ["ok", "failed"]
+    assert st.records[1]["message"] == "no start point converged"
+
+
 def test_demo_stage_guard_and_report(tmp_path):
     from jthermo import demo
     from jthermo.errors import FitError
