@@ -120,12 +120,16 @@ def _instrument(clock: _Clock, state: dict):
     joint.JointFits.fit = joint_fit
 
 
-def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:
-    """Diagnose the record in this process; the per-stage table as a dict."""
+def run_once(est_path: str, val_path: str, cprofile_out: str | None, one_thread: bool = False) -> dict:
+    """Diagnose the record in this process; the per-stage table as a dict. `one_thread`: JAX's
+    CPU backend with one intra-op thread (`runtime.one_thread_backend`)."""
     import jax
     import jax.monitoring
 
     from jthermo import runtime
+
+    if one_thread:
+        runtime.one_thread_backend()
 
     runtime.enable_cache()
     runtime.unroll_threefry()
@@ -178,13 +182,16 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None) -> dict:
                              for c in js["combinations"]]}
 
 
-def _subprocess(phase: str, est: Path, val: Path, cache: Path, out: Path, cprofile: Path | None) -> dict:
+def _subprocess(phase: str, est: Path, val: Path, cache: Path, out: Path, cprofile: Path | None,
+                one_thread: bool = False) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     env.pop("JTHERMO_NO_CACHE", None)
     env["JTHERMO_CACHE_DIR"] = str(cache)
     cmd = [sys.executable, __file__, "--child", str(est), str(val), str(out)]
     if cprofile is not None:
         cmd += ["--child-cprofile", str(cprofile)]
+    if one_thread:
+        cmd += ["--one-thread"]
     load0 = _load()
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, env=env)
@@ -235,12 +242,14 @@ def main() -> None:
     ap.add_argument("--tag", default="", help="suffix of the results files")
     ap.add_argument("--cprofile", action="store_true", help="cProfile the cold run's diagnose()")
     ap.add_argument("--phases", default="cold,warm")
+    ap.add_argument("--one-thread", action="store_true",
+                    help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend)")
     ap.add_argument("--child", nargs=3, metavar=("EST", "VAL", "OUT"), help=argparse.SUPPRESS)
     ap.add_argument("--child-cprofile", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         est, val, out = args.child
-        Path(out).write_text(json.dumps(run_once(est, val, args.child_cprofile), default=float))
+        Path(out).write_text(json.dumps(run_once(est, val, args.child_cprofile, args.one_thread), default=float))
         return
     with tempfile.TemporaryDirectory(prefix="jthermo-diagprof-") as d:
         tmp = Path(d)
@@ -252,9 +261,9 @@ def main() -> None:
         for phase in args.phases.split(","):
             cp = RESULTS / f"diagnose_profile{args.tag}.cprofile.txt" if args.cprofile and phase == "cold" else None
             runs.append(_subprocess(phase, tmp / "est.csv", tmp / "val.csv", tmp / "cache",
-                                    tmp / f"{phase}.json", cp))
+                                    tmp / f"{phase}.json", cp, args.one_thread))
     cmd = "python benchmarks/diagnose_profile.py" + (f" --tag {args.tag}" if args.tag else "") + \
-        (" --cprofile" if args.cprofile else "")
+        (" --cprofile" if args.cprofile else "") + (" --one-thread" if args.one_thread else "")
     print(write(runs, args.tag, cmd).read_text())
 
 

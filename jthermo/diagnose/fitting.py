@@ -18,6 +18,20 @@ finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s2
 `_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
 (`benchmarks/diagnose_latency_s26.py`).
 
+Where the time goes now (the latency record, 4 zones, T = 3600; `python
+benchmarks/diagnose_anatomy.py --tag _s31`, `benchmarks/results/diagnose_anatomy_s31.md`): the
+40 per-zone problems stop after 4 to 60 iterations (those that reach `N_ITER` = 60 are still
+falling); the forward-selection rounds fit 7 and 6 distinct joint models (m = 14,400 residuals,
+37 to 57 free parameters under a static `n_active` of 68), 4 iterations for the refitted smaller
+model, 9 to 25 (mostly the cap, `JOINT_ITER` = 25) for the additions, at 70 to 85 ms an iteration
+(one residual, a simulation, under the CPU clock's 10 ms; the rest is the forward-mode Jacobian:
+reverse mode would need one pass per residual, 14,400 against 68
+tangents). Cut to the call's own largest free-parameter count, the joint calls run 8.49 -> 7.29
+and 9.77 -> 7.70 CPU s, but each distinct width is one more compiled program (16 CPU s each at
+load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 -> 4.91 CPU s,
+the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
+benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
+
 The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables).
 

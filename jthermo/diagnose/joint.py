@@ -17,6 +17,11 @@ two in five additions ended above the smaller model's cost. On held-out set 8
 (`python experiments/diagnose_heldout_hard.py --seed-set 8 --max-zones 3`, tags `fresh8` /
 `s29_extend8`): additions with a negative likelihood ratio 45 / 125 -> 69 / 111, additions
 that passed both tests 32 -> 11, top findings unchanged.
+
+Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
+development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
+tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
+its 14 records with a joint stage (`python experiments/diagnose_joint_pool_evidence.py`).
 """
 
 from __future__ import annotations
