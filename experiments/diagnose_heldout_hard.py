@@ -534,8 +534,16 @@ def main(argv=None):
                     help="only pool the studies' JSON in --out: false alarms and confidence calibration")
     ap.add_argument("--sample-at-end", action="store_true",
                     help="the records as before 2026-11-25: y_k read after u_k acted (one sample early)")
+    ap.add_argument("--one-thread", action="store_true",
+                    help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
+                         "`jthermo diagnose` makes it on a busy machine")
     args = ap.parse_args(argv)
     global SAMPLE_AT_END
+    if args.one_thread:
+        from jthermo import runtime
+
+        if not runtime.one_thread_backend():
+            raise SystemExit("--one-thread: the CPU backend exists already or cannot be made with one thread")
     SAMPLE_AT_END = args.sample_at_end
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -168,8 +168,16 @@ def main(argv=None):
     ap.add_argument("--tag", default="", help="suffix of the output files (parallel runs)")
     ap.add_argument("--merge", default=None,
                     help="comma-separated tags whose JSON results are merged into the report")
+    ap.add_argument("--one-thread", action="store_true",
+                    help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
+                         "`jthermo diagnose` makes it on a busy machine")
     a = ap.parse_args(argv)
     cases = CASES[:8] if a.quick else CASES
+    if a.one_thread:
+        from jthermo import runtime
+
+        if not runtime.one_thread_backend():
+            raise SystemExit("--one-thread: the CPU backend exists already or cannot be made with one thread")
     if a.cases:
         cases = CASES[: a.cases]
     if a.only:
