@@ -536,7 +536,8 @@ def main(argv=None):
                     help="the records as before 2026-11-25: y_k read after u_k acted (one sample early)")
     ap.add_argument("--one-thread", action="store_true",
                     help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
-                         "`jthermo diagnose` makes it on a busy machine")
+                         "`jthermo simulate` makes it on a busy machine (`jthermo diagnose` does not: "
+                         "its fitted values would then depend on the load)")
     args = ap.parse_args(argv)
     global SAMPLE_AT_END
     if args.one_thread:

@@ -170,7 +170,8 @@ def main(argv=None):
                     help="comma-separated tags whose JSON results are merged into the report")
     ap.add_argument("--one-thread", action="store_true",
                     help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
-                         "`jthermo diagnose` makes it on a busy machine")
+                         "`jthermo simulate` makes it on a busy machine (`jthermo diagnose` does not: "
+                         "its fitted values would then depend on the load)")
     a = ap.parse_args(argv)
     cases = CASES[:8] if a.quick else CASES
     if a.one_thread:
