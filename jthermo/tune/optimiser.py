@@ -27,6 +27,15 @@ import numpy as np
 
 from ..control._base import AbstractController
 from ..errors import ControlError
+from ..runtime import QUICK_COMPILE, accepted
+
+#: XLA compile options of Adam's training-step program (`runtime.accepted`; empty: XLA's
+#: defaults): `runtime.QUICK_COMPILE` (XLA's older CPU fusion emitters) compiles the default
+#: `jthermo tune` step in 8.1-8.4 instead of 13.5-14.9 CPU s for lqg and 4.7-5.8 instead of
+#: 6.9-7.7 for pi, at the same CPU s per step (lqg 0.43 against 0.44-0.49, pi 0.30 against
+#: 0.31; `python benchmarks/tune_program_options.py --program step --controller lqg|pi`,
+#: benchmarks/results/tune_step_options_*_s31_a.md)
+STEP_COMPILE: dict = dict(QUICK_COMPILE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,12 +181,13 @@ def _adam_iterates(objective, z, batches, steps: int, lr: float):
     opt = optax.adam(lr)
     opt_state = opt.init(eqx.filter(z, eqx.is_inexact_array))
 
-    @eqx.filter_jit
     def make_step(z, opt_state, batch):
         val, grads = eqx.filter_value_and_grad(objective)(z, batch)
         grads = jax.tree_util.tree_map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grads)
         updates, opt_state = opt.update(grads, opt_state, z)
         return eqx.apply_updates(z, updates), opt_state, val
+
+    make_step = eqx.filter_jit(make_step, compiler_options=accepted(STEP_COMPILE) or None)
 
     for i in range(steps):
         z_new, opt_state, val = make_step(z, opt_state, batches[i % len(batches)])
