@@ -85,7 +85,8 @@ def child(args) -> int:
                 return fn(*a, **k)
             finally:
                 spans.append({"name": name, "thread": threading.current_thread().name,
-                              "start": t0, "end": time.perf_counter() - t_start})
+                              "start": t0, "end": time.perf_counter() - t_start,
+                              "thread_cpu": time.thread_time()})
         setattr(mod, name, wrapper)
 
     for mod, name in ((training, "minimise"), (training, "_guard"), (report, "tune"),
@@ -95,9 +96,10 @@ def child(args) -> int:
     argv = ["tune", "--controller", args.controller, "--json", args.json, "--quiet",
             *args.cli.split()]
     rc = cli.main(argv)
+    main_cpu = time.thread_time()
     Path(args.json).with_suffix(".compiles.json").write_text(
         json.dumps({"rc": rc, "total": time.perf_counter() - t_start, "records": recs,
-                    "spans": spans}))
+                    "spans": spans, "main_thread_cpu": main_cpu}))
     return rc
 
 
@@ -141,7 +143,9 @@ def run(controller: str, cache: str, js: str, cli: str, patch=()) -> dict:
     rep = json.loads(Path(js).read_text())
     return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "load": load,
             "rows": programs(data["records"]), "report": rep, "spans": data["spans"],
-            "total": data["total"]}
+            "total": data["total"], "main_thread_cpu": data["main_thread_cpu"],
+            "second_thread_cpu": max([x["thread_cpu"] for x in data["spans"]
+                                      if x["thread"] != "MainThread"], default=0.0)}
 
 
 def table(name: str, r: dict) -> list[str]:
@@ -151,6 +155,9 @@ def table(name: str, r: dict) -> list[str]:
     lo = sum(x["lower"] for x in rows)
     out = [f"## {name}: {r['wall']:.1f} s wall, {r['cpu']:.1f} CPU s, load {r['load']:.2f} at "
            "start", "",
+           f"CPU s of the main thread {r['main_thread_cpu']:.1f} (its own work: on idle cores the "
+           f"wall time's floor, waits for the second thread aside), of the second thread up to "
+           f"its last phase {r['second_thread_cpu']:.1f}", "",
            f"`--json`: seconds {rep.get('seconds', float('nan')):.1f} (compile_s "
            f"{rep.get('compile_s', float('nan')):.1f} / run_s {rep.get('run_s', float('nan')):.1f}); "
            f"held-out improvement vs lambda PI {rep['improvement_percent']:.6f} %, vs best "

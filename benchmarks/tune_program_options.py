@@ -45,6 +45,7 @@ def child(options: dict, out: str, repeats: int) -> int:
     from jthermo.tune import report, terms, training
 
     runtime.disable_cache("benchmark: every compile paid")
+    runtime.unroll_threefry()           # as the `jthermo` command does at start-up
     events: list[float] = []
     monitoring.register_event_duration_secs_listener(
         lambda ev, dur, **_: events.append(dur) if "backend_compile" in ev else None)
@@ -93,6 +94,7 @@ def child_step(options: dict, out: str, controller: str) -> int:
     from jthermo.tune import optimiser, report, training
 
     runtime.disable_cache("benchmark: every compile paid")
+    runtime.unroll_threefry()           # as the `jthermo` command does at start-up
     fam = {"pi": "pi_lambda"}.get(controller, controller)
     pl = report._plant_from("printer", zones=4, powder="PA12", plant_seed=0)
     ens = training.plant_ensemble(pl, 2, seed=0)
@@ -124,17 +126,84 @@ def child_step(options: dict, out: str, controller: str) -> int:
     return 0
 
 
+def child_scenario(options: dict, out: str) -> int:
+    """The scenario builder (`closedloop.scenarios._build_scenario`) under `options`, on the
+    default report's workload: the training and validation sets (3 plants x 3 kinds each) and
+    the held-out study (4 plants x 3 kinds), 16 rollouts x 600 s."""
+    import equinox as eqx
+    import jax
+    import numpy as np
+
+    from jthermo import runtime
+    from jthermo.closedloop import scenarios
+    from jthermo.tune import report, training
+
+    runtime.disable_cache("benchmark: every compile paid")
+    runtime.unroll_threefry()           # as the `jthermo` command does at start-up
+    scenarios._build_scenario = eqx.filter_jit(scenarios._build_scenario.__wrapped__,  # noqa
+                                               compiler_options=runtime.accepted(options) or None)
+    pl = report._plant_from("printer", zones=4, powder="PA12", plant_seed=0)
+    ens = training.plant_ensemble(pl, 2, seed=0)
+    plants = {"plant": pl,
+              "changed": report._plant_from("printer", zones=4, powder="PA11", plant_seed=0)}
+    plants.update(report._gain_plants(pl, 0.2))
+    w0, c0 = time.perf_counter(), time.process_time()
+    first = training.make_batches(ens[:1], ("tracking",), rollouts=16, duration=600.0, seed=0)
+    jax.block_until_ready(first[0][0][2].r)
+    w1, c1 = time.perf_counter(), time.process_time()
+    train, val = report._training_sets(ens, 16, 600.0, 0)
+    _, study = report.held_out_study(plants, (training.HELD_OUT,), rollouts=16, duration=600.0,
+                                     chunk=9)
+    leaves = jax.tree_util.tree_leaves((train, val, study))
+    jax.block_until_ready(leaves)
+    w2, c2 = time.perf_counter(), time.process_time()
+    flat = [np.asarray(x, np.float64).ravel() for x in leaves
+            if eqx.is_array(x) and not jax.dtypes.issubdtype(x.dtype, jax.dtypes.extended)]
+    Path(out).write_text(json.dumps({"first_wall": w1 - w0, "first_cpu": c1 - c0,
+                                     "rest_wall": w2 - w1, "rest_cpu": c2 - c1,
+                                     "values": np.concatenate(flat).tolist()}))
+    return 0
+
+
+def scenario_table(args, sets, res, base) -> int:
+    import numpy as np
+
+    lines = ["# The scenario builder of `jthermo tune` under XLA options", "",
+             "`python benchmarks/tune_program_options.py --program scenario " + " ".join(
+                 f"--options {lab}='{o}'" for lab, o in sets)
+             + "`: one fresh process per option set, no compilation cache. first = the first "
+             "scenario (trace + compile + run), rest = the default report's 30 other "
+             "scenario batches (training, validation, held-out; 16 rollouts x 600 s); "
+             f"largest difference of every scenario array from `{base}`'s.", "",
+             "| options | process wall s, CPU s, load | first wall s | first CPU s | rest wall s "
+             "| rest CPU s | max abs diff | max rel diff |", "|---|---|---|---|---|---|---|---|"]
+    for label, r in res.items():
+        a, b = np.asarray(r["values"]), np.asarray(res[base]["values"])
+        d = np.abs(a - b)
+        lines.append(f"| `{label}` {r['options']} | {r['wall']:.1f}, {r['cpu']:.1f}, "
+                     f"{r['load']:.2f} | {r['first_wall']:.2f} | {r['first_cpu']:.2f} | "
+                     f"{r['rest_wall']:.2f} | {r['rest_cpu']:.2f} | {float(np.max(d)):.3g} | "
+                     f"{float(np.max(d / np.maximum(np.abs(b), 1e-300))):.3g} |")
+    tag = f"_{args.tag}" if args.tag else ""
+    path = RESULTS / f"tune_scenario_options{tag}.md"
+    path.write_text("\n".join(lines) + "\n")
+    print(path.read_text())
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--options", action="append", default=[], metavar="LABEL=JSON")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tag", default="")
-    ap.add_argument("--program", choices=("terms", "step"), default="terms",
+    ap.add_argument("--program", choices=("terms", "step", "scenario"), default="terms",
                     help="the evaluation program per structure, or Adam's training step")
     ap.add_argument("--controller", default="lqg", help="with --program step: pi or lqg")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.child is not None and args.program == "scenario":
+        return child_scenario(json.loads(args.child), args.out)
     if args.child is not None and args.program == "step":
         return child_step(json.loads(args.child), args.out, args.controller)
     if args.child is not None:
@@ -161,6 +230,8 @@ def main(argv=None) -> int:
     base = sets[0][0]
     if args.program == "step":
         return step_table(args, sets, res, base)
+    if args.program == "scenario":
+        return scenario_table(args, sets, res, base)
     lines = ["# `tune.terms._group_terms_fn` per controller structure under XLA options", "",
              "`python benchmarks/tune_program_options.py " + " ".join(
                  f"--options {lab}='{o}'" for lab, o in sets) + "`: one fresh process per "
