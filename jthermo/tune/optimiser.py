@@ -27,6 +27,15 @@ import numpy as np
 
 from ..control._base import AbstractController
 from ..errors import ControlError
+from ..runtime import QUICK_COMPILE, accepted
+
+#: XLA compile options of Adam's training-step program (`runtime.accepted`; empty: XLA's
+#: defaults): `runtime.QUICK_COMPILE` (XLA's older CPU fusion emitters) compiles the default
+#: `jthermo tune` step in 8.1-8.4 instead of 13.5-14.9 CPU s for lqg and 4.7-5.8 instead of
+#: 6.9-7.7 for pi, at the same CPU s per step (lqg 0.43 against 0.44-0.49, pi 0.30 against
+#: 0.31; `python benchmarks/tune_program_options.py --program step --controller lqg|pi`,
+#: benchmarks/results/tune_step_options_*_s31_a.md)
+STEP_COMPILE: dict = dict(QUICK_COMPILE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +76,8 @@ def _from_z(z, mask):
 
 
 def _finite_tree(tree) -> bool:
-    return all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(tree))
+    """Every leaf finite, checked in NumPy (eager `jnp` compiled two programs per leaf shape)."""
+    return all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree_util.tree_leaves(tree))
 
 
 #: minimise's methods
@@ -163,22 +173,27 @@ def _lbfgs_iterates(objective, z, batch, steps: int, lr: float, memory: int = 10
             return
 
 
-def _adam_iterates(objective, z, batches, steps: int, lr: float):
+def _adam_iterates(objective, z, batches: Callable[[], list], steps: int, lr: float,
+                   template=None):
     """Yield `(z, cost of z on its batch, evaluations so far)` for each Adam iterate (the
-    batches cycled), then the last finite iterate with its cost on `batches[0]` (evaluations
-    None)."""
+    batches, which `batches()` returns, cycled), then the last finite iterate with its cost on
+    the first batch (evaluations None). With a `template` batch, the step is compiled (and run
+    once, its result unused) on it before `batches()` is called."""
     import optax  # here, not at import: `jthermo simulate` imports tune for its design model
 
     opt = optax.adam(lr)
     opt_state = opt.init(eqx.filter(z, eqx.is_inexact_array))
 
-    @eqx.filter_jit
     def make_step(z, opt_state, batch):
         val, grads = eqx.filter_value_and_grad(objective)(z, batch)
         grads = jax.tree_util.tree_map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grads)
         updates, opt_state = opt.update(grads, opt_state, z)
         return eqx.apply_updates(z, updates), opt_state, val
 
+    make_step = eqx.filter_jit(make_step, compiler_options=accepted(STEP_COMPILE) or None)
+    if template is not None:
+        jax.block_until_ready(make_step(z, opt_state, template))
+    batches = batches()
     for i in range(steps):
         z_new, opt_state, val = make_step(z, opt_state, batches[i % len(batches)])
         yield z, float(val), i + 1
@@ -193,14 +208,18 @@ def _adam_iterates(objective, z, batches, steps: int, lr: float):
 def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequence[Any], *,
              steps: int = 100, lr: float = 0.05, progress: Callable[[int, float], None] | None
              = None, filter_spec=eqx.is_inexact_array, snapshots: int = 0,
-             method: str = "adam") -> TuneResult:
+             method: str = "adam", template=None) -> TuneResult:
     """Minimise `loss(controller, batch)` over the controller's array leaves with Adam or
     L-BFGS (module docstring).
 
     **Arguments:**
     - `loss`: scalar, differentiable; `batch` is any pytree (scenarios, plants) that it reads.
     - `batches`: training batches, all of the same shapes so that the step compiles once;
-      Adam cycles through them (one per iteration), L-BFGS minimises their mean.
+      Adam cycles through them (one per iteration), L-BFGS minimises their mean. Or a callable
+      returning them, called once Adam's step is compiled on `template` (a batch of their
+      shapes and dtypes, e.g. placeholder values; the step is run on it once and the result
+      dropped), so that they can be computed elsewhere (another thread) meanwhile; L-BFGS
+      calls it first.
     - `steps`: iterations (L-BFGS: at most; it stops at convergence). `lr`: Adam's learning
       rate, L-BFGS's largest first move (both relative for log-space leaves).
     - `progress`: called as `progress(i, cost)` after each iteration (outside jit).
@@ -212,7 +231,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
     """
     if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ControlError(f"tune: steps must be >= 0, got {steps}")
-    if not batches:
+    if not callable(batches) and not batches:
         raise ControlError("tune: no training batch")
     if method not in METHODS:
         raise ControlError(f"tune: unknown optimiser {method!r} (known: {', '.join(METHODS)})")
@@ -224,12 +243,23 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
     def objective(z, batch):
         return loss(eqx.combine(_from_z(z, mask), static), batch)
 
+    got: list = []
+
+    def resolved() -> list:
+        if not got:
+            b = list(batches() if callable(batches) else batches)
+            if not b:
+                raise ControlError("tune: no training batch")
+            got.append(b)
+        return got[0]
+
     if method == "lbfgs":
-        many = len(batches) > 1
-        obj = (lambda z, bs: sum(objective(z, b) for b in bs) / len(bs)) if many else objective
-        its = _lbfgs_iterates(obj, z0, tuple(batches) if many else batches[0], steps, lr)
+        bs = resolved()
+        many = len(bs) > 1
+        obj = (lambda z, bb: sum(objective(z, b) for b in bb) / len(bb)) if many else objective
+        its = _lbfgs_iterates(obj, z0, tuple(bs) if many else bs[0], steps, lr)
     else:
-        its = _adam_iterates(objective, z0, batches, steps, lr)
+        its = _adam_iterates(objective, z0, resolved, steps, lr, template=template)
     iterates, evals = [], 0           # (z_k, f_k), k = 0..K; f_K of Adam on batches[0]
     for z, val, n in its:
         if not iterates and not np.isfinite(val):
@@ -239,7 +269,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         iterates.append((z, val))
         evals = n or evals
     return _result(iterates, evals, method, snapshots,
-                   comparable=method == "lbfgs" or len(batches) == 1,
+                   comparable=method == "lbfgs" or len(resolved()) == 1,
                    rebuild=lambda zz: eqx.combine(_from_z(zz, mask), static), t0=t0)
 
 

@@ -38,6 +38,7 @@ from .training import (
     SCENARIOS,
     VALIDATION,
     as_kinds,
+    best_reference_terms,
     loop_ms,
     make_batches,
     plant_ensemble,
@@ -349,9 +350,11 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     held-out figure stay in the plant's precision.
 
     Two threads: while this one linearises the printer, designs and tunes, a second one draws
-    the training and validation scenarios, then designs the classical controllers and
-    simulates every controller tuning does not change on the held-out seeds, so that on two
-    cores their compiles and runs overlap the tuning loop; the results are those of one thread.
+    the training and validation scenarios, simulates the start and the references on the
+    training set (while this one compiles the training step), then designs the classical
+    controllers and simulates every controller tuning does not change on the held-out seeds,
+    so that on two cores their compiles and runs overlap the tuning loop; the results are
+    those of one thread.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -398,10 +401,14 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         # duration)
         chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
         kw = {"rollouts": er, "duration": duration, "weights": weights, "chunk": chunk}
+        # the references on the training set, while this thread compiles the training step
+        best = pool.submit(lambda: best_reference_terms([start, *refs], drawn.result()[0],
+                                                        weights))
         fixed = pool.submit(_fixed_held_out, model, start, lam_pi, refs, plants, seeds, kw)
         train, val = drawn.result()
         res = tune(start, pl, plants=ens, scenarios=train, validation=val, lr=lr, steps=steps,
                    weights=weights, references=refs, progress=progress,
+                   reference_terms=best.result,
                    ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
                    params=tuned_fields(start) if params == "auto" else params,
                    train_dtype=train_dtype)

@@ -22,7 +22,7 @@ from ..control._base import AbstractController
 from ..errors import ControlError
 from ..models._base import AbstractModel
 from ..printer import Printer
-from ..runtime import quick_compile, top_level
+from ..runtime import QUICK_COMPILE, accepted, top_level
 
 #: the cost terms of the lean path, in the order `simulate_parts` returns them: the
 #: `closedloop.cost` terms plus `overshoot` (tuning only, default weight 0)
@@ -171,6 +171,17 @@ def _same_structure(a, b) -> bool:
     return bool(eqx.tree_equal(sa, sb))
 
 
+def _stack(*xs):
+    """The leaves `xs` of the items stacked on a new leading axis; concrete arrays in NumPy (the
+    same values: eager, `jnp.stack` compiled a program per leaf shape)."""
+    if not eqx.is_array(xs[0]):
+        return xs[0]
+    if any(isinstance(x, jax.core.Tracer) or getattr(x, "weak_type", False) for x in xs) \
+            or jax.dtypes.issubdtype(xs[0].dtype, jax.dtypes.extended):
+        return jnp.stack(xs)
+    return jax.device_put(np.stack([np.asarray(x) for x in xs]))
+
+
 def group_batch(batch) -> tuple[_Group, ...]:
     """Stack the items `(plant, kind, scenarios)` of a batch that can share one vmapped
     simulation: same plant and scenario structure up to their labels (`unlabelled`), e.g. a
@@ -191,9 +202,8 @@ def group_batch(batch) -> tuple[_Group, ...]:
         if len(g) == 1:
             out.append(_Group(batch[g[0]][0], batch[g[0]][2], (g[0],), False))
             continue
-        stack = lambda *xs: jnp.stack(xs) if eqx.is_array(xs[0]) else xs[0]
-        out.append(_Group(jax.tree.map(stack, *[batch[i][0] for i in g]),
-                          jax.tree.map(stack, *[batch[i][2] for i in g]), tuple(g), True))
+        out.append(_Group(jax.tree.map(_stack, *[batch[i][0] for i in g]),
+                          jax.tree.map(_stack, *[batch[i][2] for i in g]), tuple(g), True))
     return tuple(out)
 
 
@@ -208,9 +218,13 @@ def _group_terms(controller, groups, weights, parts: bool = False):
     return fn(controller, groups, weights, parts)
 
 
+#: XLA compile options of the evaluation program (`runtime.accepted`)
+TERMS_COMPILE: dict = dict(QUICK_COMPILE)
+
+
 @functools.cache
 def _quick_group_terms():
-    return eqx.filter_jit(_group_terms_fn, compiler_options=quick_compile())
+    return eqx.filter_jit(_group_terms_fn, compiler_options=accepted(TERMS_COMPILE))
 
 
 def _group_terms_fn(controller, groups, weights, parts: bool = False):

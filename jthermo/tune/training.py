@@ -4,6 +4,7 @@ objective relative to reference designs, plant ensembles, the validation guard a
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable, Mapping, Sequence
 
@@ -19,6 +20,7 @@ from ..control._base import AbstractController
 from ..control.margins import peak_sensitivity
 from ..errors import ControlError
 from ..printer import Printer
+from ..runtime import one_shot
 from .optimiser import TuneResult, minimise
 from .sensitivity import model_response, ms_penalty
 from .terms import batch_terms, group_batch
@@ -84,6 +86,14 @@ def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"
                                                        - jnp.log(rm.size))
 
 
+@functools.cache
+def _robust_objective_jit():
+    """`robust_objective(terms, ref, tau)` as one program (eager, the guard compiled about
+    fifteen small ones), at `runtime.one_shot()` options: the same value bit for bit as eager
+    (with XLA's default options the fused program differed in the last bit)."""
+    return jax.jit(robust_objective, static_argnums=2, compiler_options=one_shot())
+
+
 def _reference_terms(refs, batch, weights, known=None):
     """Per item, the best (smallest finite) cost and mse over the reference controllers;
     `known`: `{id(controller): terms}` already simulated on `batch` (not simulated again)."""
@@ -92,6 +102,15 @@ def _reference_terms(refs, batch, weights, known=None):
                      for c in refs])
     vals = np.where(np.isfinite(vals) & (vals > 0), vals, np.inf)
     return vals, np.min(vals, axis=0)
+
+
+def best_reference_terms(refs, batches, weights=None) -> list[np.ndarray]:
+    """Per training batch (a list of `(plant, kind, scenarios)`, as `make_batches` returns
+    them), the best (smallest finite) cost and mse per item over the controllers `refs`: what
+    `tune` normalises by, for its `reference_terms` (`refs`: its start, then its
+    `references`)."""
+    return [_reference_terms(refs, group_batch([tuple(it[:3]) for it in b]), weights)[1]
+            for b in batches]
 
 
 def plant_ensemble(printer, n: int = 3, *, spread: float = 0.15, shift_c: float = 15.0,
@@ -167,7 +186,7 @@ def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms
     for i, (it, _, c) in enumerate(candidates):
         v = np.asarray(batch_terms(c, batch, weights))
         ok = bool(np.all(np.isfinite(v)))
-        obj = float(robust_objective(jnp.asarray(v), jnp.asarray(best), tau)) if ok else np.inf
+        obj = float(_robust_objective_jit()(v, best, tau)) if ok else np.inf
         # items where the candidate's mse is the start's exactly are ones the tuned parameters
         # do not act on (a schedule feed-forward in a scenario without events): not judged
         moved = v[:, 1] != start_vals[:, 1]
@@ -222,7 +241,12 @@ def _caster(dtype: str | None) -> Callable:
         raise ControlError(f"tune: train_dtype must be None or 'float32', got {dtype!r}")
 
     def cast(x):
-        return x.astype(jnp.float32) if eqx.is_inexact_array(x) else x
+        if not eqx.is_inexact_array(x):
+            return x
+        if isinstance(x, jax.core.Tracer):
+            return x.astype(jnp.float32)
+        # a concrete array in NumPy (the same rounding): eager, each leaf shape compiled a program
+        return jax.device_put(np.asarray(x).astype(np.float32))
 
     return lambda t: jax.tree.map(cast, t)
 
@@ -252,6 +276,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
          ms_max: float | None = None, ms_model=None,
          params: Sequence[str] | None = None, scenario_kw: Mapping | None = None,
          optimiser: str = "adam", ms_weight: float = 0.0, train_dtype: str | None = None,
+         reference_terms=None,
          progress: Callable[[int, float], None] | None = None) -> TuneResult:
     """Tune a controller end to end on simulated closed-loop cost.
 
@@ -294,6 +319,10 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
       objective, the parameters and the optimiser stay in their own precision, and the
       reference designs, the guard's validation and any evaluation stay as they are; None
       (default): as given.
+    - `reference_terms`: with `normalise`, a callable returning `best_reference_terms([controller,
+      *references], scenarios, weights)`, e.g. the result of a future: Adam's step is then
+      compiled on placeholders of their shape while they are simulated elsewhere (another
+      thread); None: simulated here first.
     - `progress`: called as `progress(i, cost)` after each iteration.
 
     **Returns:** `TuneResult` (training costs relative to the references when normalised).
@@ -315,14 +344,26 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
     low = _caster(train_dtype)
     if normalise:
         # the references' best cost and mse per (plant, scenario), fixed (no gradient)
-        pairs = [(b, jnp.asarray(_reference_terms(refs, b, weights)[1])) for b in batches]
-        if not all(bool(jnp.all(jnp.isfinite(r))) for _, r in pairs):
-            raise ControlError("tune: the reference designs give no finite cost on the training set")
+        lows = [low(b) for b in batches]
+
+        def pairs():
+            best = [np.asarray(r) for r in reference_terms()] if reference_terms is not None \
+                else [_reference_terms(refs, b, weights)[1] for b in batches]
+            if not all(np.all(np.isfinite(r)) for r in best):
+                raise ControlError("tune: the reference designs give no finite cost on the "
+                                   "training set")
+            return [(lb, low(jax.device_put(r))) for lb, r in zip(lows, best)]
+
+        template = None
+        if reference_terms is not None:     # the step compiles on placeholders meanwhile
+            items = sum(len(g.index) for g in batches[0])
+            dtype = jax.tree.leaves(batches[0][0].scenarios)[0].dtype
+            template = (lows[0], low(jax.device_put(np.ones((items, 2), dtype))))
         res = minimise(lambda c, br: robust_objective(batch_terms(low(c), br[0], weights), br[1],
                                                       tau) + pen(c),
-                       controller, [low(p) for p in pairs], steps=steps, lr=lr,
-                       progress=progress, snapshots=snapshots if guard else 0, filter_spec=spec,
-                       method=optimiser)
+                       controller, pairs if template is not None else pairs(), steps=steps,
+                       lr=lr, progress=progress, snapshots=snapshots if guard else 0,
+                       filter_spec=spec, method=optimiser, template=template)
     else:
         res = minimise(lambda c, b: jnp.mean(batch_terms(low(c), b, weights)[:, 0]) + pen(c),
                        controller,
