@@ -33,25 +33,13 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax.numpy as jnp
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_profile import RECORD  # noqa: E402
-
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
-
-
-def _load() -> float:
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError):
-        return float("nan")
+from diagnose_profile import RECORD, _cpu, _load
 
 
 def iterations(hist, c) -> int:
@@ -205,7 +193,7 @@ def main() -> None:
         if name == "fit_joint":
             src = fitting._first_copies(*a[:4], a[6])
             todo = sorted(set(src.tolist()))
-            row = {"call": ci, "name": name, "slots": int(len(src)), "distinct": len(todo),
+            row = {"call": ci, "name": name, "slots": len(src), "distinct": len(todo),
                    "n_iter": n_iter, "n_active": n_active, "models": []}
         else:
             B = a[0].shape[0]

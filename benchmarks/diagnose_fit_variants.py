@@ -31,24 +31,12 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_profile import RECORD  # noqa: E402
-
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
-
-
-def _load() -> float:
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError):
-        return float("nan")
+from diagnose_profile import RECORD, _cpu, _load
 
 
 def timed(fn, args, reps):
