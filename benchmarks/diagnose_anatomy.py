@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -39,7 +37,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_profile import RECORD, _cpu, _load
+from diagnose_profile import _cpu, _load, write_record
 
 
 def iterations(hist, c) -> int:
@@ -160,11 +158,7 @@ def main() -> None:
     load0 = _load()
     with tempfile.TemporaryDirectory(prefix="jthermo-anatomy-") as d:
         tmp = Path(d)
-        env = dict(os.environ, JTHERMO_NO_CACHE="1")
-        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
-                            "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
-        est, val = load(tmp / "est.csv"), load(tmp / "val.csv")
+        est, val = (load(f) for f in write_record(tmp))
     calls = []
 
     def keep(name, fn):

@@ -38,6 +38,15 @@ RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
           "lateral_conduction,radiative_loss,heater_lag"]
 
 
+def write_record(tmp: Path) -> tuple[Path, Path]:
+    """The latency record (`RECORD`: 1 h estimation, seed 1; 30 min validation, seed 2) written
+    by `jthermo generate` to `tmp/est.csv`, `tmp/val.csv`; returns the two paths."""
+    env = dict(os.environ, JTHERMO_NO_CACHE="1")
+    for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
+        subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
+                        "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
+    return tmp / "est.csv", tmp / "val.csv"
+
 def _load() -> float:
     try:
         return float(Path("/proc/loadavg").read_text().split()[0])
@@ -140,8 +149,8 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None, one_thread:
     state = {"stage": "baseline", "round": 0}
     t0, c0 = time.perf_counter(), _cpu()
     s0 = clock.snap()
-    from jthermo.data import load
     import jthermo.diagnose as diag
+    from jthermo.data import load
 
     est, val = load(est_path), load(val_path)
     clock.add("reading (import + load)", s0)
@@ -253,10 +262,7 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory(prefix="jthermo-diagprof-") as d:
         tmp = Path(d)
-        env = dict(os.environ, JTHERMO_NO_CACHE="1")
-        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
-                            "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
+        write_record(tmp)
         runs = []
         for phase in args.phases.split(","):
             cp = RESULTS / f"diagnose_profile{args.tag}.cprofile.txt" if args.cprofile and phase == "cold" else None

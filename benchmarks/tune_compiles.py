@@ -21,7 +21,6 @@ import json
 import logging
 import os
 import re
-import subprocess
 import sys
 import tempfile
 import threading
@@ -132,16 +131,12 @@ def run(controller: str, cache: str, js: str, cli: str, patch=()) -> dict:
     env.pop("JTHERMO_NO_CACHE", None)
     cmd = [sys.executable, __file__, "--child", "--controller", controller, "--json", js,
            f"--cli={cli}", *(f"--patch={p}" for p in patch)]
-    load = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, env=env, cwd=ROOT)
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"child failed: {' '.join(cmd)}")
+    from tuning_profile_default import run_child
+
+    t = run_child(cmd, env)
     data = json.loads(Path(js).with_suffix(".compiles.json").read_text())
     rep = json.loads(Path(js).read_text())
-    return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "load": load,
+    return {"wall": t["wall"], "cpu": t["cpu"], "load": t["load"],
             "rows": programs(data["records"]), "report": rep, "spans": data["spans"],
             "total": data["total"], "main_thread_cpu": data["main_thread_cpu"],
             "second_thread_cpu": max([x["thread_cpu"] for x in data["spans"]

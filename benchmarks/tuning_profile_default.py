@@ -78,6 +78,16 @@ def run(controller: str, cache: str, js: str, cprofile: bool, cli: str = "") -> 
            f"--cli={cli}"]
     if cprofile:
         cmd.append("--cprofile")
+    t = run_child(cmd, env)
+    ph = json.loads(Path(js).with_suffix(".phases.json").read_text())
+    rep = json.loads(Path(js).read_text())
+    return {"wall": t["wall"], "cpu": t["cpu"], "load": t["load"], "phases": ph,
+            "report": rep, "rss_mb": t["rss_mb"]}
+
+
+def run_child(cmd: list, env: dict) -> dict:
+    """Run `cmd` in the repository root with `env`: its wall s, CPU s (user + sys), peak RSS
+    (MB) and the 1-min load when it started; a failed child stops the benchmark."""
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, cwd=ROOT)
@@ -85,10 +95,7 @@ def run(controller: str, cache: str, js: str, cprofile: bool, cli: str = "") -> 
     wall = time.perf_counter() - t0
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"child failed: {' '.join(cmd)}")
-    ph = json.loads(Path(js).with_suffix(".phases.json").read_text())
-    rep = json.loads(Path(js).read_text())
-    return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "load": load, "phases": ph,
-            "report": rep, "rss_mb": ru.ru_maxrss / 1024}
+    return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "load": load, "rss_mb": ru.ru_maxrss / 1024}
 
 
 def table(controller: str, runs: dict, cli: str = "") -> str:
