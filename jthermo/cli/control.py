@@ -23,6 +23,7 @@ from .common import (
     positive_int,
     progress_bar,
     require,
+    seed,
     summary_line,
     write_report,
 )
@@ -70,6 +71,10 @@ def add_parsers(sub) -> None:
     sp.add_argument("--duration", type=duration, required=True, metavar="SECONDS")
     sp.add_argument("--effects", default=None, help="comma-separated physical effects to switch on")
     sp.add_argument("--powder", default=None, help="powder preset (e.g. PA12, PA11)")
+    sp.add_argument("--printer-seed", type=seed, default=0,
+                    help="the printer itself: its zone-to-zone variation (capacity, loss, heater "
+                         "power) and sensor offsets (default 0). Records of one printer share it; "
+                         "--seed draws the record (input sequence, noise)")
     sp.add_argument("--out", required=True, metavar="DATA.csv")
     add_common(sp, plot=False)
 
@@ -307,7 +312,9 @@ def cmd_generate(args: argparse.Namespace) -> dict:
     printer = require("jthermo.printer", "the virtual printer")
     from ..data import save_csv
 
-    kwargs = {"powder": args.powder, "seed": args.seed}
+    # the printer from --printer-seed, the record's draws from --seed: an estimation and a
+    # validation record of one printer differ in --seed only
+    kwargs = {"powder": args.powder, "seed": args.printer_seed}
     if args.powder is None:
         kwargs.pop("powder")
     p = printer.make_printer(args.zones, effects, **_accepted(printer.make_printer, kwargs))
@@ -316,6 +323,7 @@ def cmd_generate(args: argparse.Namespace) -> dict:
     report = {"experiment": args.experiment, "zones": args.zones, "duration": args.duration,
               "effects": list(effects), "powder": args.powder, "out": str(out),
               "n_samples": data.n_samples, "ts": data.ts, "seed": args.seed,
+              "printer_seed": args.printer_seed,
               "columns": ["t"] + [f"u_{n}" for n in data.input_names] + [f"y_{n}" for n in data.output_names]
               + [f"w_{n}" for n in data.signal_names]}
     report = write_report(args, js, report)
