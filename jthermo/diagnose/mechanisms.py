@@ -417,9 +417,9 @@ def body_starts(theta: np.ndarray, lay: Layout, taus=BODY_START_TAUS) -> list:
     return out
 
 
-#: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the
-#: neutral start's 0.5 a steep loss (ρ > 1, convection) is reached slowly along a curved valley,
-#: and a fit stopped at `N_ITER` there misjudges the mechanism
+#: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the neutral
+#: 0.5 a steep loss (ρ > 1, convection) is reached slowly, and a fit stopped at the iteration cap
+#: misjudges the mechanism (held-out set 11 case 02: ρ 1.18 at the cap, 1.75 from these starts)
 RAD_SHARE_STARTS = (1.5, 3.0)
 
 
