@@ -122,6 +122,27 @@ def write(rows, tag, cmd):
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1, default=float))
 
 
+def timing(plan, max_zones, tag) -> int:
+    """What the extra starts cost: each case diagnosed once per variant to compile, then
+    before, after, after, before (interleaved), warm CPU seconds (user + sys) and the load."""
+    lines = [f"# Cost of radiation's extra starts ({tag})", "",
+             f"Made by `python experiments/diagnose_rad_starts.py {' '.join(f'{i}:{s}' for i, s in plan)} --timing "
+             f"--tag {tag}` (warm: after one compiling run per variant).", "",
+             "| case:set | N | warm CPU s before | warm CPU s after | 1-min load |", "|---|---|---|---|---|"]
+    for i, s in plan:
+        if s >= SCORING_SET:
+            raise SystemExit(f"seed sets >= {SCORING_SET} are kept for scoring")
+        c = H.draw_case(i, None, max_zones, s)
+        cpu = {v: [] for v in VARIANTS}
+        for v in ("before", "after", "before", "after", "after", "before"):
+            cpu[v].append(one(c, VARIANTS[v])["cpu_s"])
+        lines.append(f"| {i:02d}:{s} | {c['zones']} | {cpu['before'][1:]} | {cpu['after'][1:]} | {os.getloadavg()[0]:.1f} |")
+        print(lines[-1], flush=True)
+        atomic_write_text(ROOT / "experiments" / "results" / f"diagnose_rad_starts_{tag}.md", "\n".join(lines) + "\n")
+    M.RAD_SHARE_STARTS = VARIANTS["after"]
+    return 0
+
+
 def iters_probe(plan, max_zones, tag, iters=(N_ITER, 300)) -> int:
     """Is the radiative fit converged at `N_ITER`? The diagnosis restricted to `radiative_loss` and
     `input_nonlinearity` (extra starts on) at each iteration cap in `iters`: validation MSEs,
@@ -165,7 +186,11 @@ def main(argv=None):
                     help="run `diagnose_study.py ARGS` with RAD_SHARE_STARTS = () (the code before)")
     ap.add_argument("--iters-probe", action="store_true",
                     help="the cases' radiative and lamp-exponent fits alone at N_ITER and at 300 iterations")
+    ap.add_argument("--timing", action="store_true",
+                    help="warm CPU s of each variant: one warm-up each, then before/after/after/before")
     args = ap.parse_args(argv)
+    if args.timing:
+        return timing([tuple(int(v) for v in s.split(":")) for s in args.cases], args.max_zones, args.tag)
     if args.iters_probe:
         return iters_probe([tuple(int(v) for v in s.split(":")) for s in args.cases], args.max_zones, args.tag)
     if args.study_without_starts is not None:

@@ -26,20 +26,20 @@ def test_rad_starts_set_the_share_and_nothing_else():
 
 def test_diagnosis_keeps_each_zones_best_radiative_start(monkeypatch):
     """The radiative candidate is fitted from the neutral start and from `rad_starts`, and each
-    zone keeps the fit of smallest estimation cost: never above the neutral start's alone."""
+    zone keeps the fit of smallest estimation cost. On this record (a share near 0.3 fits), after
+    one iteration a start at 0.3 is far better than the neutral 0.5 in zone 1, no worse in zone 2."""
     est, val = record(None, 0)
     calls = []
     real = M.rad_starts
     monkeypatch.setattr(M, "rad_starts", lambda th, lay, shares=None: calls.append(th.shape) or real(th, lay, shares))
-    run = lambda: diagnose(est, val, mechanisms=("radiative_loss", "heater_lag"), n_iter=6)
+    run = lambda: diagnose(est, val, mechanisms=("radiative_loss", "heater_lag"), n_iter=1)
     sse = lambda r: np.sum(r["_arrays"]["resid_est_candidates"]["radiative_loss"] ** 2, axis=0)
-    share = lambda r: M.RAD_SHARE_MAX / (1 + np.exp(-r["_models"]["theta"]["radiative_loss"][
-        :, r["_models"]["layout"].sl("rad_share")]))
+    monkeypatch.setattr(M, "RAD_SHARE_STARTS", (0.3,))
     got = run()
     assert calls == [(2, got["_models"]["layout"].size)]
     monkeypatch.setattr(M, "RAD_SHARE_STARTS", ())
     neutral = run()
     assert np.all(sse(got) <= sse(neutral) * (1 + 1e-9))
+    assert np.any(sse(got) < 0.9 * sse(neutral))            # the extra start's fit is the one kept
     # the lag's fit is not touched by radiation's extra starts
     np.testing.assert_array_equal(got["_models"]["theta"]["heater_lag"], neutral["_models"]["theta"]["heater_lag"])
-    assert np.all(np.isfinite(share(got)))
