@@ -417,6 +417,20 @@ def body_starts(theta: np.ndarray, lay: Layout, taus=BODY_START_TAUS) -> list:
     return out
 
 
+#: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the neutral
+#: 0.5 a steep loss (ρ > 1, convection) is reached slowly, and a fit stopped at the iteration cap
+#: misjudges the mechanism (held-out set 11 case 02: ρ 1.18 at the cap, 1.75 from these starts)
+RAD_SHARE_STARTS = (1.5, 3.0)
+
+
+def rad_starts(theta: np.ndarray, lay: Layout, shares=None) -> list:
+    """Copies of the starts `theta (..., P)` with the radiative share at each of `shares`
+    (default `RAD_SHARE_STARTS`; every share in (0, `RAD_SHARE_MAX`))."""
+    at = lambda s: -math.log(RAD_SHARE_MAX / s - 1.0)
+    shares = RAD_SHARE_STARTS if shares is None else shares
+    return [np.where(lay.mask(("rad_share",)) > 0, at(s), np.asarray(theta, float)) for s in shares]
+
+
 def best_of_starts(theta: np.ndarray, resid: np.ndarray, k: int, extra) -> tuple:
     """Candidate fits `theta (S, n, P)` and estimation residuals `resid (S, T, n)` with each
     zone's fit of candidate `k` replaced by the one of the fits `extra` (indices of other

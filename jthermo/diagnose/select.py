@@ -269,12 +269,14 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                         ts0=thb[i, lay.sl("ts0")][0],
                                         xw0=(y[0].mean() - level - thb[i, lay.sl("ts0")][0]) / 2.0)
                         for i in range(n)])
-    # a stored-heat body also from slow starts (`mechanisms.body_starts`), each zone its best
-    extra_b = M.body_starts(neutral, lay) if "heat_accumulation" in cands else []
-    thc, res_c = fit_sets([(m,) for m in cands] + [("heat_accumulation",)] * len(extra_b),
-                          np.stack([neutral] * K + extra_b))
-    if extra_b:
-        thc, res_c = M.best_of_starts(thc, res_c, cands.index("heat_accumulation"), range(K, K + len(extra_b)))
+    # a stored-heat body also from slow starts (`mechanisms.body_starts`), radiation from steeper
+    # shares (`mechanisms.rad_starts`), each zone its best (its smallest estimation cost)
+    extra = {m: f(neutral, lay) for m, f in (("heat_accumulation", M.body_starts),
+                                             ("radiative_loss", M.rad_starts)) if m in cands}
+    thc, res_c = fit_sets([(m,) for m in cands] + [(m,) for m, st in extra.items() for _ in st],
+                          np.stack([neutral] * K + [t for st in extra.values() for t in st]))
+    for m, st in extra.items():         # each call drops its extra fits: the next group's are at K
+        thc, res_c = M.best_of_starts(thc, res_c, cands.index(m), range(K, K + len(st)))
     # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`)
     thc, res_c = refit_body_from_drift(thc, res_c, cands, fit_sets, rec_e, level, ts_free, ts, lay,
                                        BODY_ITER_FACTOR * n_iter)
