@@ -18,6 +18,16 @@ two in five additions ended above the smaller model's cost. On held-out set 8
 `s29_extend8`): additions with a negative likelihood ratio 45 / 125 -> 69 / 111, additions
 that passed both tests 32 -> 11, top findings unchanged.
 
+A large joint model (more than `RESTRICT_ABOVE` free parameters: six zones and more on a
+one-hour record) fits each addition *restricted*: the smaller model's zone parameters held but
+for the losses, the added mechanism's free, a narrower Jacobian (`restricted_active`); the
+smaller model is not refitted beside them (held, its unfinished convergence cannot count as an
+addition's evidence), and the addition chosen is refitted in full and must pass both tests again.
+Refitted in full, the additions at N = 9 mostly ended above the smaller model's cost within
+`JOINT_ITER` iterations (7 of 11 on the tour's kind of record, which then named 1 of its 3
+concealed effects in 330 s; restricted: 2 of 11, 2 of 3 named, 156 s; `python
+experiments/diagnose_zone_scaling.py`).
+
 Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
 development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
 tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
