@@ -18,6 +18,16 @@ two in five additions ended above the smaller model's cost. On held-out set 8
 `s29_extend8`): additions with a negative likelihood ratio 45 / 125 -> 69 / 111, additions
 that passed both tests 32 -> 11, top findings unchanged.
 
+A large joint model (more than `RESTRICT_ABOVE` free parameters: six zones and more on a
+one-hour record) fits each addition *restricted*: the smaller model's zone parameters held but
+for the losses, the added mechanism's free, a narrower Jacobian (`restricted_active`); the
+smaller model is not refitted beside them (held, its unfinished convergence cannot count as an
+addition's evidence), and the addition chosen is refitted in full and must pass both tests again.
+Refitted in full, the additions at N = 9 mostly ended above the smaller model's cost within
+`JOINT_ITER` iterations (7 of 11 on the tour's kind of record, which then named 1 of its 3
+concealed effects in 330 s; restricted: 2 of 11, 2 of 3 named, 156 s; `python
+experiments/diagnose_zone_scaling.py`).
+
 Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
 development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
 tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
@@ -119,6 +129,9 @@ class JointFits:
     slots: int
     val_slots: int
     n_active: int
+    #: Jacobian width of an addition fitted with the smaller model's parameters held
+    #: (`restricted_active`); 0: every addition is refitted in full
+    n_active_add: int = 0
 
     def setup(self, free: bool, validation: bool = False) -> dict:
         """How a record enters a joint model: surroundings level `ts_level` (°C) and whether an
@@ -162,11 +175,17 @@ class JointFits:
         """`cur` fitted on and each of `pool` added to it, all from where `cur` ended (one call):
         (`cur` refitted, additions). Every addition is judged against `cur` with as many
         iterations behind it: against `cur` as it was, an addition would count `cur`'s own
-        unfinished convergence as its evidence."""
+        unfinished convergence as its evidence.
+
+        Large models (`n_active_add`): each addition is fitted with the smaller model's zone
+        parameters held but for the losses (`fit(..., restricted=True)`), so `cur`'s own
+        convergence cannot count as the addition's evidence and `cur` is not refitted."""
+        if self.n_active_add:
+            return cur, self.fit([self.nested(cur, m) for m in pool], validate, restricted=True)
         out = self.fit([self.nested(cur)] + [self.nested(cur, m) for m in pool], validate)
         return out[0], out[1:]
 
-    def fit(self, models, validate) -> list[dict]:
+    def fit(self, models, validate, restricted: bool = False) -> list[dict]:
         """Fit `(θ start, mechanism set, free level[, record start])` models jointly on the
         estimation record (padded to `slots`: one compiled shape for every round), then validate
         them (padded to `val_slots`, the candidates' validation shape: no compile of its own).
@@ -187,7 +206,8 @@ class JointFits:
             rec0[j, n:2 * n] = su["ts_level"] + (rec0[j, :n].mean() - su["ts_level"]) / (1.0 + gam)
             if len(model) > 3:
                 rec0[j] = np.where(np.isnan(model[3]), rec0[j], model[3])
-            mask[j, :size] = np.tile(lay.mask(joint_groups(st)), n)
+            groups = ("log_a",) + joint_groups(st[-1:])[len(JOINT_BASE):] if restricted else joint_groups(st)
+            mask[j, :size] = np.tile(lay.mask(groups), n)
             mask[j, size:size + n] = 1.0
             mask[j, size + n:size + 2 * n] = float("heat_accumulation" in st)
             mask[j, size + 2 * n:size + 2 * n + nd] = float("ambient_variation" in st and not self.measured_var)
@@ -199,7 +219,8 @@ class JointFits:
         th, rec, yh, _ = fit_joint(jnp.asarray(np.stack([m[0] for m in models])),
                                    jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
                                    jnp.asarray(rec0), jnp.asarray(mask), jnp.asarray(self.y),
-                                   jnp.ones(T), fper, self.sh, lay, self.n_iter, self.n_active)
+                                   jnp.ones(T), fper, self.sh, lay, self.n_iter,
+                                   self.n_active_add if restricted else self.n_active)
         th, rec, yh = np.array(th), np.asarray(rec), np.asarray(yh)
         # the record parameters, written where the per-zone models keep them (for the report)
         th[:, :, lay.sl("x0")] = rec[:, :n, None]
@@ -224,6 +245,21 @@ def joint_active(n, lay, first, pool) -> int:
     size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((m,))[len(JOINT_BASE):])
     adds = sorted((size(m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
     per_zone = 1 + lay.nu + size(first) + sum(adds)
+    return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
+
+
+#: joint models wider than this many Jacobian columns fit their additions restricted
+#: (`JointFits.extend`): refitted in full, at N = 9 seven of eleven additions ended above the
+#: smaller model's cost after `JOINT_ITER` iterations and the diagnosis took 330 s
+#: (`python experiments/diagnose_zone_scaling.py`, `diagnose_zone_scaling_s32.md`)
+RESTRICT_ABOVE = 100
+
+
+def restricted_active(n, lay, pool) -> int:
+    """Static bound on the free parameters of an addition fitted restricted: the zones' losses,
+    the largest pool mechanism's groups and the record parameters."""
+    size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((m,))[len(JOINT_BASE):])
+    per_zone = 1 + max((size(m) for m in pool), default=0)
     return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
 
 
@@ -271,6 +307,18 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
                 best = (tried[-1], a, m, ev)
         if best is None:
             break
+        if js.n_active_add:
+            # the restricted addition chosen, refitted in full from where it ended, and judged
+            # again: accepted only if the full model passes both tests too
+            full = js.fit([js.nested(best[1])], validate)[0]
+            t = judge(cur, full, len(pool), M.n_added_per_zone(best[2], lay) * n,
+                      k_val(full["set"]) - k_val(chosen))
+            best[0].update({**t, "refitted_in_full": True,
+                            "mean_fit_percent": float(np.mean(fit_of(full["e"])))})
+            if not (t["passed"] and D.not_worse(js.yv, full["e"], cur["e"])):
+                best[0]["passed"] = False
+                break
+            best = (best[0], full, best[2], best[3])
         best[0]["accepted"] = True
         cur, chosen = best[1], best[1]["set"]
         pool.remove(best[2])

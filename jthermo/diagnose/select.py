@@ -53,12 +53,14 @@ from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones
 from .joint import (
+    RESTRICT_ABOVE,
     JointFits,
     common_drift_fit,
     forward_select,
     grid_start,
     joint_active,
     joint_start,
+    restricted_active,
 )
 from .localise import localise
 from .recoat import estimation_events, validation_events
@@ -466,6 +468,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         u_pad_v=rec_v["u_pad"], uv=rec_v["u"],
                         n_iter=JOINT_ITER, slots=1 + (amb is None) + len(pool), val_slots=K + 1,
                         n_active=joint_active(n, lay, chosen[0], pool))
+        if js.n_active > RESTRICT_ABOVE:
+            js.n_active_add = restricted_active(n, lay, pool)
         aug, added, chosen = forward_select(js, validate, k_val, chosen[0], pool, fit_of)
         if not D.not_worse(yv, aug["e"], e_c[kt]):
             # the joint structure predicts the validation record worse than the top mechanism's
