@@ -273,6 +273,17 @@ def judge(cur, cand, n_tests, dof, k_extra) -> dict:
             "estimation_lr_critical": lc, "passed": ok}
 
 
+def rival_additions(best, others, k_val) -> dict:
+    """The additions of a round that also passed both tests and that the chosen one `best`
+    does not beat on the validation record at `decide.RIVAL_LEVEL` (Diebold–Mariano, charged for
+    the parameters each re-estimates there), and the $z$ over the closest of them: of several
+    additions that explain the same residual (a lamp exponent, radiation, a slow body) the
+    strongest likelihood ratio is named, but not as a confident finding."""
+    z = {m: D.predictive_z(a["e"], best["e"], k_val(best["set"]) - k_val(a["set"])) for m, a in others}
+    return {"rivals": [m for m, v in z.items() if D.is_rival(v)],
+            "z_over_runner": min(z.values()) if z else None}
+
+
 def forward_select(js, validate, k_val, top, pool, fit_of):
     """Forward selection in the joint structure: fit the top mechanism jointly (surroundings at
     the rest level; a fitted level only if both tests demand it), then add, one round at a time,
@@ -293,7 +304,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
     tried = []
     pool = list(pool)
     while adds:
-        best = None
+        best, passing = None, []
         for m, a in zip(pool, adds):
             t = judge(cur, a, len(pool), M.n_added_per_zone(m, lay) * n, k_val(a["set"]) - k_val(chosen))
             tried.append({"mechanisms": list(a["set"]), **t, "accepted": False,
@@ -303,8 +314,10 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
             # parameters are re-estimated on the validation record itself (a drift)
             ev = chi2.logsf(t["estimation_lr"], max(M.n_added_per_zone(m, lay) * n, 1))
             # an addition that predicts the validation record worse is never the augmented model
-            if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]) and (best is None or ev < best[3]):
-                best = (tried[-1], a, m, ev)
+            if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]):
+                passing.append((m, a))
+                if best is None or ev < best[3]:
+                    best = (tried[-1], a, m, ev)
         if best is None:
             break
         if js.n_active_add:
@@ -319,6 +332,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
                 best[0]["passed"] = False
                 break
             best = (best[0], full, best[2], best[3])
+        best[0].update(rival_additions(best[1], [(m, a) for m, a in passing if m != best[2]], k_val))
         best[0]["accepted"] = True
         cur, chosen = best[1], best[1]["set"]
         pool.remove(best[2])

@@ -489,10 +489,12 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         zones = [i + 1 for i in range(n) if dz[i] >= 0.5 * dz.max()] if dz.max() > 0 else list(range(1, n + 1))
         params = M.physical_parameters(aug_theta, mech, lay, ts, extra)
         if rank == 0:
-            conf = conf_top
+            conf, mech_rivals = conf_top, rivals
         else:
+            # an addition tied with others of its round is named with them as its rivals
             acc = next(a for a in added if a["accepted"] and a["mechanisms"][-1] == mech)
-            conf = 1.0 - D.p_value(acc["validation_z"])
+            conf = D.confidence(acc["validation_z"], acc.get("z_over_runner"))
+            mech_rivals = acc.get("rivals", [])
         evidence = {"validation_z": round(row["validation_z"], 3),
                     "validation_z_critical": round(row["validation_z_critical"], 3),
                     "estimation_likelihood_ratio": round(row["estimation_lr"], 2),
@@ -504,10 +506,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                     "zone_mse_reduction": [round(float(v), 5) for v in dz]}
         evidence.update(mechanism_evidence(mech, loc, per_ev, drops if irregular else None))
         findings.append({"mechanism": mech, "confidence": float(conf), "zones": zones,
-                         "summary": summary(mech, zones, params, rank == 0 and D.uncertain(conf), rivals),
+                         "summary": summary(mech, zones, params, D.uncertain(conf), mech_rivals),
                          "evidence": evidence,
-                         "parameters": params, "rivals": rivals if rank == 0 else [],
-                         "uncertain": bool(rank == 0 and D.uncertain(conf))})
+                         "parameters": params, "rivals": mech_rivals,
+                         "uncertain": bool(D.uncertain(conf))})
     sae = lambda e: float(np.sum(np.abs(e))) if np.all(np.isfinite(e)) else float("nan")
     result = {
         "verdict": "mismatch" if findings else "no_significant_mismatch",

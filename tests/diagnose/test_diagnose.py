@@ -58,10 +58,11 @@ def test_json_contract(results):
     f = js["findings"][0]
     assert set(f) >= {"mechanism", "confidence", "zones", "summary", "evidence", "parameters"}
     assert f["mechanism"] in MECHANISMS and 0 < f["confidence"] <= 1
-    # the top finding is uncertain exactly when its confidence is below 1 - RIVAL_LEVEL; later ones never
-    assert f["uncertain"] is (f["confidence"] < 0.95)
-    assert not any(g["uncertain"] for g in js["findings"][1:])
-    assert f["summary"].startswith("Uncertain") is f["uncertain"]
+    # a finding is uncertain exactly when its confidence is below 1 - RIVAL_LEVEL (an addition too:
+    # tied with another addition of its round, `joint.rival_additions`)
+    for g in js["findings"]:
+        assert g["uncertain"] is (g["confidence"] < 0.95)
+        assert g["summary"].startswith("Uncertain") is g["uncertain"]
     assert set(js["augmented"]) >= {"mechanisms", "mean_fit_percent", "fit_percent", "parameters"}
     assert len(js["baseline"]["fit_percent"]) == 2
 
