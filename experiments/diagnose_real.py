@@ -152,6 +152,8 @@ def main(argv=None):
             row.update({"status": "ok", "verdict": res["verdict"],
                         "named": [f["mechanism"] for f in res["findings"]],
                         "rivals": res["findings"][0]["rivals"] if res["findings"] else [],
+                        "findings": [{k: f[k] for k in ("mechanism", "confidence", "uncertain", "rivals")}
+                                     for f in res["findings"]],
                         "flagged": [f["mechanism"] for f in res["flagged"]],
                         "parameters": res["augmented"]["parameters"],
                         "baseline_fit": res["baseline"]["fit_percent"],

@@ -280,8 +280,16 @@ def rival_additions(best, others, k_val) -> dict:
     additions that explain the same residual (a lamp exponent, radiation, a slow body) the
     strongest likelihood ratio is named, but not as a confident finding."""
     z = {m: D.predictive_z(a["e"], best["e"], k_val(best["set"]) - k_val(a["set"])) for m, a in others}
+    return rivals_among(z, ())
+
+
+def rivals_among(z_over: dict, chosen) -> dict:
+    """Rivals and the $z$ over the closest of the additions `z_over` ({mechanism: z of the
+    chosen one over it}) that did not join the augmented model later (`chosen`): one that
+    joined is not an alternative to it."""
+    z = {m: v for m, v in z_over.items() if m not in chosen}
     return {"rivals": [m for m, v in z.items() if D.is_rival(v)],
-            "z_over_runner": min(z.values()) if z else None}
+            "z_over_runner": min(z.values()) if z else None, "z_over": z_over}
 
 
 def forward_select(js, validate, k_val, top, pool, fit_of):

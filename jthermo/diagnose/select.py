@@ -61,6 +61,7 @@ from .joint import (
     joint_active,
     joint_start,
     restricted_active,
+    rivals_among,
 )
 from .localise import localise
 from .recoat import estimation_events, validation_events
@@ -493,8 +494,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         else:
             # an addition tied with others of its round is named with them as its rivals
             acc = next(a for a in added if a["accepted"] and a["mechanisms"][-1] == mech)
-            conf = D.confidence(acc["validation_z"], acc.get("z_over_runner"))
-            mech_rivals = acc.get("rivals", [])
+            tie = rivals_among(acc.get("z_over", {}), chosen)
+            conf = D.confidence(acc["validation_z"], tie["z_over_runner"])
+            mech_rivals = tie["rivals"]
         evidence = {"validation_z": round(row["validation_z"], 3),
                     "validation_z_critical": round(row["validation_z_critical"], 3),
                     "estimation_likelihood_ratio": round(row["estimation_lr"], 2),

@@ -3,7 +3,7 @@
 import numpy as np
 
 from jthermo.diagnose import decide as D
-from jthermo.diagnose.joint import rival_additions
+from jthermo.diagnose.joint import rival_additions, rivals_among
 
 
 def _model(e, mechs):
@@ -26,4 +26,8 @@ def test_a_tied_addition_is_a_rival_a_beaten_one_is_not():
     alone = rival_additions(_model(e_best, ("input_nonlinearity",)),
                             [("heat_accumulation", _model(beaten, ("heat_accumulation",)))], k_val)
     assert alone["rivals"] == [] and not D.uncertain(D.confidence(8.0, alone["z_over_runner"]))
-    assert rival_additions(_model(e_best, ()), [], k_val) == {"rivals": [], "z_over_runner": None}
+    none = rival_additions(_model(e_best, ()), [], k_val)
+    assert none["rivals"] == [] and none["z_over_runner"] is None
+    # a tied addition that joined the augmented model in a later round is no alternative to it
+    later = rivals_among(out["z_over"], ("heater_lag", "input_nonlinearity", "radiative_loss"))
+    assert later["rivals"] == [] and later["z_over_runner"] == out["z_over"]["heat_accumulation"]
