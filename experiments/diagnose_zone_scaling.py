@@ -66,7 +66,9 @@ def one(n: int, tmp: Path, env: dict, timeout: float, cold: bool) -> dict:
         aug = rep.get("augmented") or {}
         named = [f["mechanism"] for f in rep.get("findings", [])]
         truth = TRUTH - ({"lateral_conduction"} if n == 1 else set())   # one zone: no neighbour
-        row.update(n_concealed=len(truth), compile_s=rep.get("compile_s"), run_s=rep.get("run_s"), named=named,
+        row.update(n_concealed=len(truth),
+                   confidence=[round(f["confidence"], 3) for f in rep.get("findings", [])],
+                   rivals=[f.get("rivals", []) for f in rep.get("findings", [])], compile_s=rep.get("compile_s"), run_s=rep.get("run_s"), named=named,
                    right=sorted(truth & set(named)), wrong=sorted(set(named) - truth),
                    baseline_fit=round(rep["baseline"]["mean_fit_percent"], 2),
                    augmented_fit=round(aug.get("mean_fit_percent", float("nan")), 2),
@@ -75,6 +77,16 @@ def one(n: int, tmp: Path, env: dict, timeout: float, cold: bool) -> dict:
                    additions=len(rep.get("combinations", [])))
     print(row, flush=True)
     return row
+
+
+def _named(r) -> str:
+    """`mechanism confidence [rivals]`, one per finding (rows made before they were recorded:
+    the names alone)."""
+    conf, riv = r.get("confidence"), r.get("rivals")
+    if conf is None:
+        return ", ".join(r["named"])
+    return ", ".join(f"{m} {c:.3f}" + (f" [rivals: {' '.join(v)}]" if v else "")
+                     for m, c, v in zip(r["named"], conf, riv))
 
 
 def write(rows, args, path: Path) -> None:
@@ -95,7 +107,7 @@ def write(rows, args, path: Path) -> None:
                          f"{r['error']} | | | | | | {r['load']} |")
             continue
         lines.append(f"| {r['zones']} | {r['wall_s']} | {r['cpu_s']} | {r['compile_s']} / {r['run_s']} | "
-                     f"{r['peak_rss_mb_so_far']} | {', '.join(r['named']) or '-'} | "
+                     f"{r['peak_rss_mb_so_far']} | {_named(r) or '-'} | "
                      f"{len(r['right'])}/{r.get('n_concealed', 3 - (r['zones'] == 1))} | {', '.join(r['wrong']) or '-'} | {r['baseline_fit']} → "
                      f"{r['augmented_fit']} | {r['fit_kind']} | {r['negative_lr_additions']}/{r['additions']} | "
                      f"{r['load']} |")

@@ -328,6 +328,9 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
                     best = (tried[-1], a, m, ev)
         if best is None:
             break
+        # ties judged among the round's fits as they were (a restricted one against restricted
+        # ones: its full refit below would beat them by the parameters it alone moved)
+        best[0].update(rival_additions(best[1], [(m, a) for m, a in passing if m != best[2]], k_val))
         if js.n_active_add:
             # the restricted addition chosen, refitted in full from where it ended, and judged
             # again: accepted only if the full model passes both tests too
@@ -340,7 +343,6 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
                 best[0]["passed"] = False
                 break
             best = (best[0], full, best[2], best[3])
-        best[0].update(rival_additions(best[1], [(m, a) for m, a in passing if m != best[2]], k_val))
         best[0]["accepted"] = True
         cur, chosen = best[1], best[1]["set"]
         pool.remove(best[2])
