@@ -240,11 +240,15 @@ def joint_start(y, u, ts, level, lay) -> np.ndarray:
                      for i in range(y.shape[1])])
 
 
+def _added_size(lay, mech) -> int:
+    """Zone parameters a mechanism adds to a joint model (beyond `JOINT_BASE`)."""
+    return sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((mech,))[len(JOINT_BASE):])
+
+
 def joint_active(n, lay, first, pool) -> int:
     """Static bound on the free parameters of a joint fit of `first` plus two of `pool`."""
-    size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((m,))[len(JOINT_BASE):])
-    adds = sorted((size(m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
-    per_zone = 1 + lay.nu + size(first) + sum(adds)
+    adds = sorted((_added_size(lay, m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
+    per_zone = 1 + lay.nu + _added_size(lay, first) + sum(adds)
     return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
 
 
@@ -258,8 +262,7 @@ RESTRICT_ABOVE = 100
 def restricted_active(n, lay, pool) -> int:
     """Static bound on the free parameters of an addition fitted restricted: the zones' losses,
     the largest pool mechanism's groups and the record parameters."""
-    size = lambda m: sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((m,))[len(JOINT_BASE):])
-    per_zone = 1 + max((size(m) for m in pool), default=0)
+    per_zone = 1 + max((_added_size(lay, m) for m in pool), default=0)
     return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
 
 

@@ -208,8 +208,13 @@ def _inputs(theta, on, u, u_pad, delay, lay):
 #: curvature of a natural-convection loss $c\\Delta^{4/3}$ ($\\kappa = 1/(3\\Delta)$) at rises down to
 #: about 9 K, where a share of 1 (radiation alone) reaches it only down to about 35 K
 RAD_SHARE_MAX = 4.0
+def share_parameter(share: float) -> float:
+    """The unconstrained parameter of a radiative share in (0, `RAD_SHARE_MAX`) (`loss_split`)."""
+    return -math.log(RAD_SHARE_MAX / share - 1.0)
+
+
 #: the unconstrained parameter that starts the share at 0.5 (radiation half of the tangent loss)
-RAD_SHARE_START = -math.log(RAD_SHARE_MAX / 0.5 - 1.0)
+RAD_SHARE_START = share_parameter(0.5)
 
 
 def loss_split(log_a, rad_share, on_rad, t_ref):
@@ -426,9 +431,9 @@ RAD_SHARE_STARTS = (1.5, 3.0)
 def rad_starts(theta: np.ndarray, lay: Layout, shares=None) -> list:
     """Copies of the starts `theta (..., P)` with the radiative share at each of `shares`
     (default `RAD_SHARE_STARTS`; every share in (0, `RAD_SHARE_MAX`))."""
-    at = lambda s: -math.log(RAD_SHARE_MAX / s - 1.0)
     shares = RAD_SHARE_STARTS if shares is None else shares
-    return [np.where(lay.mask(("rad_share",)) > 0, at(s), np.asarray(theta, float)) for s in shares]
+    return [np.where(lay.mask(("rad_share",)) > 0, share_parameter(s), np.asarray(theta, float))
+            for s in shares]
 
 
 def best_of_starts(theta: np.ndarray, resid: np.ndarray, k: int, extra) -> tuple:

@@ -274,11 +274,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         for i in range(n)])
     # a stored-heat body also from slow starts (`mechanisms.body_starts`), radiation from steeper
     # shares (`mechanisms.rad_starts`), each zone its best (its smallest estimation cost)
-    extra = {m: f(neutral, lay) for m, f in (("heat_accumulation", M.body_starts),
-                                             ("radiative_loss", M.rad_starts)) if m in cands}
-    thc, res_c = fit_sets([(m,) for m in cands] + [(m,) for m, st in extra.items() for _ in st],
-                          np.stack([neutral] * K + [t for st in extra.values() for t in st]))
-    for m, st in extra.items():         # each call drops its extra fits: the next group's are at K
+    extra_starts = {m: f(neutral, lay) for m, f in (("heat_accumulation", M.body_starts),
+                                                    ("radiative_loss", M.rad_starts)) if m in cands}
+    thc, res_c = fit_sets([(m,) for m in cands] + [(m,) for m, st in extra_starts.items() for _ in st],
+                          np.stack([neutral] * K + [t for st in extra_starts.values() for t in st]))
+    for m, st in extra_starts.items():   # each call drops its extra fits: the next group's are at K
         thc, res_c = M.best_of_starts(thc, res_c, cands.index(m), range(K, K + len(st)))
     # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`)
     thc, res_c = refit_body_from_drift(thc, res_c, cands, fit_sets, rec_e, level, ts_free, ts, lay,
