@@ -175,6 +175,24 @@ def test_generate_records_of_one_printer(tmp_path, capsys):
     assert rc == 0 and json.loads(js.read_text())["printer_seed"] == 4
 
 
+def test_simulate_runs_the_printer_that_tune_and_generate_use(tmp_path, capsys):
+    """`--seed` draws the scenarios only; the printer is `--printer-seed`'s (default 0, the
+    printer `tune` tunes on and `generate` records): `--seed 5` used to simulate printer 5."""
+    def run(*opts):
+        js = tmp_path / f"s{len(list(tmp_path.iterdir()))}.json"
+        rc, _, err = _run(["simulate", "--scenario", "tracking", "--controller", "pi_lambda",
+                           "--zones", "2", "--rollouts", "2", "--duration", "120", "--json", js,
+                           "--quiet", *opts], capsys)
+        assert rc == 0, err
+        rep = json.loads(js.read_text())
+        return rep["printer_seed"], rep["cost"]
+
+    default, same, other = run("--seed", "5"), run("--seed", "5", "--printer-seed", "0"), \
+        run("--seed", "5", "--printer-seed", "5")
+    assert default == same and default[0] == 0
+    assert other[0] == 5 and other[1] != default[1]
+
+
 def test_simulate_option_errors(tmp_path, capsys):
     rc, _, err = _run(["simulate", "--scenario", "tracking"], capsys)
     assert rc == 2 and "exactly one of --controller" in _one_line_error(err)

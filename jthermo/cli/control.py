@@ -63,6 +63,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4)
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=8)
     sp.add_argument("--duration", type=duration, default=None, metavar="SECONDS")
+    _add_printer_seed(sp, "the scenarios' disturbances and noise")
     add_common(sp)
 
     sp = sub.add_parser("generate", help="open-loop data from the virtual printer")
@@ -71,10 +72,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("--duration", type=duration, required=True, metavar="SECONDS")
     sp.add_argument("--effects", default=None, help="comma-separated physical effects to switch on")
     sp.add_argument("--powder", default=None, help="powder preset (e.g. PA12, PA11)")
-    sp.add_argument("--printer-seed", type=seed, default=0,
-                    help="the printer itself: its zone-to-zone variation (capacity, loss, heater "
-                         "power) and sensor offsets (default 0). Records of one printer share it; "
-                         "--seed draws the record (input sequence, noise)")
+    _add_printer_seed(sp, "the record (input sequence, noise)")
     sp.add_argument("--out", required=True, metavar="DATA.csv")
     add_common(sp, plot=False)
 
@@ -100,7 +98,16 @@ def add_parsers(sub) -> None:
                     help="judge the tuned and classical designs on this model as well "
                          "(e.g. fitted to another record); never tuned on")
     sp.add_argument("--out", metavar="CTRL", help="save the tuned controller here")
+    _add_printer_seed(sp, "the training and held-out rollouts")
     add_common(sp)
+
+
+def _add_printer_seed(sp, seed_draws: str) -> None:
+    """`--printer-seed`: which virtual printer (the same one for every command by default)."""
+    sp.add_argument("--printer-seed", type=seed, default=0,
+                    help="the virtual printer itself: its zone-to-zone variation (capacity, loss, "
+                         "heater power) and sensor offsets (default 0, the printer every command "
+                         f"uses); --seed draws {seed_draws}")
 
 
 # ---------------------------------------------------------------- helpers
@@ -256,7 +263,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
         from ..printer import make_printer
 
         plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
-                             powder=args.powder or "PA12", seed=args.seed)
+                             powder=args.powder or "PA12", seed=args.printer_seed)
     from ..models import AbstractModel
 
     own = isinstance(plant, AbstractModel)
@@ -289,6 +296,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
               "zones": out.get("zones", args.zones), "rollouts": args.rollouts,
               **{k: v for k, v in out.items() if k not in ("scenario", "controller")},
               "seed": args.seed}
+    if plant_desc == "printer":
+        report["printer_seed"] = args.printer_seed
     report.setdefault("seconds", seconds)
     if plot is not None and traj is not None:
         from .. import plots
@@ -375,6 +384,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             rep = tune.tune_report(args.controller, plant=plant, model=model,
                                    rollouts=args.rollouts, steps=args.steps, seed=args.seed,
                                    zones=args.zones, powder=args.powder, progress=bar,
+                                   plant_seed=args.printer_seed,
                                    train_dtype=TRAIN_DTYPE.get(args.controller),
                                    **({} if lr is None else {"lr": lr}))
     finally:
@@ -385,6 +395,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         rep.pop(k)
     costs = rep.get("costs") or rep.get("history")
     report = {"controller": args.controller, **rep, "seed": args.seed}
+    if not own:
+        report["printer_seed"] = args.printer_seed
     report.setdefault("seconds", time.perf_counter() - t0)
     if plot is not None and costs is not None:
         from .. import plots
