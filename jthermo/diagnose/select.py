@@ -81,8 +81,13 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
 #: most Levenberg–Marquardt iterations of a per-zone candidate fit (each stops once converged,
 #: `fitting.RTOL`). At 25 many stopped short, and an unconverged fit misjudges its mechanism's
 #: evidence: held-out set 8 11 -> 12/16 at 60 (its lamp case: `input_nonlinearity` LR 284 -> 549,
-#: ahead of a body), nulls 12/12 quiet (`diagnose_heldout_hard_s30_niter60_*`)
-N_ITER = 60
+#: ahead of a body), nulls 12/12 quiet (`diagnose_heldout_hard_s30_niter60_*`). At 60 a zone with
+#: many heater gains (N = 4-9) or a slow body's long valley still stopped short: held-out set 12
+#: at 1-9 zones 10 -> 12/16 at 200 (both slow bodies named, no longer `ambient_variation`; a
+#: 5-zone lamp case's LRs 5431 / 5510 -> 11428 / 11759), nulls 3/3
+#: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for +26 % CPU on the latency record
+#: (`benchmarks/results/diagnose_iteration_cap_s33.md`)
+N_ITER = 200
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
