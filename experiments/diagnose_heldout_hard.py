@@ -538,6 +538,8 @@ def main(argv=None):
                     help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
                          "`jthermo simulate` makes it on a busy machine (`jthermo diagnose` does not: "
                          "its fitted values would then depend on the load)")
+    ap.add_argument("--n-iter", type=int, default=None,
+                    help="per-zone iteration cap of the diagnosis (default: its N_ITER)")
     args = ap.parse_args(argv)
     global SAMPLE_AT_END
     if args.one_thread:
@@ -578,7 +580,7 @@ def main(argv=None):
         c = draw_case(i, kind, args.max_zones, args.seed_set)
         est, val = make_record(c)
         t1, c1 = time.perf_counter(), cpu_s()
-        res = to_json(diagnose(est, val))
+        res = to_json(diagnose(est, val, **({} if args.n_iter is None else {"n_iter": args.n_iter})))
         # each case compiles programs of its own shapes; their code's memory maps would pile up
         # to Linux's per-process limit (65530) by about case 18 (LLVM "Cannot allocate memory")
         jax.clear_caches()
