@@ -21,7 +21,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+import jax
 import numpy as np
+
+jax.config.update("jax_enable_x64", True)
 
 from jthermo.cli.common import load_data
 from jthermo.diagnose import joint as J
