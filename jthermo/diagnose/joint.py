@@ -28,6 +28,18 @@ Refitted in full, the additions at N = 9 mostly ended above the smaller model's 
 concealed effects in 330 s; restricted: 2 of 11, 2 of 3 named, 156 s; `python
 experiments/diagnose_zone_scaling.py`).
 
+Such a model is also *pruned* (`pruned_start`): every zone has a gain from every heater and, with
+`lateral_conduction`, an exchange with every other zone, N² couplings; each zone fits only its
+strongest ones (`kept_couplings`, chosen from the grid's gains and the per-zone
+`lateral_conduction` fits' exchanges, before the joint stage), the others held (`JointFits.keep`:
+one mask per zone, the same for a smaller model and its additions, and the tests' degrees of
+freedom count what is free, `JointFits.n_added`). On the tour's kind of record (`python
+experiments/diagnose_zone_scaling.py --zones 6,9,16 --cold --tag _s33_prune` against `_s32_final2`
+/ `_s32_restricted16`): CPU 101.8 -> 86.5, 232.0 -> 167.2 and 572.8 -> 499.3 s at N = 6, 9, 16,
+peak memory 6.3 -> 3.2 GB at N = 16; N = 6 and 9 name lag and conduction (and no more
+`input_nonlinearity`), N = 16 keeps its joint fit (82.5 % per zone -> 87.3 %) and names lag,
+conduction and `input_nonlinearity`.
+
 Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
 development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
 tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
@@ -287,9 +299,15 @@ def restricted_active(n, lay, pool, keep=None) -> int:
 
 
 #: a coupling (a heater's gain, a neighbour's exchange) whose weight is below this share of its
-#: zone's largest is held in a pruned joint model (`kept_couplings`)
+#: zone's largest is held in a pruned joint model (`kept_couplings`) ...
 KEEP_SHARE = 0.1
-#: ... and at most this many of a zone's strongest of each (None: no cap)
+#: ... and so is any beyond the zone's this many strongest of each. On the tour's kind of record
+#: (the printer's exchanges between zones that share a grid side, its heater footprint own 1,
+#: side 0.36, diagonal 0.13) at N = 6, 9, 16 this keeps 26/36, 43/81, 79/256 gains (the held
+#: ones carry 5, 11, 20 % of the gains' weight, held at the grid's estimate, not at zero) and
+#: 16/30, 24/72, 52/240 exchanges: 14 of 14, 24 of 24, 44 of 48 grid sides, 2, 0, 8 others;
+#: at most 3 held 39 % of the gain weight at N = 16, a share of 0.2 lost 8 grid sides more
+#: (`python experiments/diagnose_coupling_weights.py --zones 6,9,16 --tag _s33`)
 KEEP_MOST = 5
 
 
