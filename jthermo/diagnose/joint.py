@@ -28,6 +28,18 @@ Refitted in full, the additions at N = 9 mostly ended above the smaller model's 
 concealed effects in 330 s; restricted: 2 of 11, 2 of 3 named, 156 s; `python
 experiments/diagnose_zone_scaling.py`).
 
+Such a model is also *pruned* (`pruned_start`): every zone has a gain from every heater and, with
+`lateral_conduction`, an exchange with every other zone, N² couplings; each zone fits only its
+strongest ones (`kept_couplings`, chosen from the grid's gains and the per-zone
+`lateral_conduction` fits' exchanges, before the joint stage), the others held (`JointFits.keep`:
+one mask per zone, the same for a smaller model and its additions, and the tests' degrees of
+freedom count what is free, `JointFits.n_added`). On the tour's kind of record (`python
+experiments/diagnose_zone_scaling.py --zones 6,9,16 --cold --tag _s33_prune` against `_s32_final2`
+/ `_s32_restricted16`): CPU 101.8 -> 86.5, 232.0 -> 167.2 and 572.8 -> 499.3 s at N = 6, 9, 16,
+peak memory 6.3 -> 3.2 GB at N = 16; N = 6 and 9 name lag and conduction (and no more
+`input_nonlinearity`), N = 16 keeps its joint fit (82.5 % per zone -> 87.3 %) and names lag,
+conduction and `input_nonlinearity`.
+
 Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
 development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
 tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
@@ -132,6 +144,19 @@ class JointFits:
     #: Jacobian width of an addition fitted with the smaller model's parameters held
     #: (`restricted_active`); 0: every addition is refitted in full
     n_active_add: int = 0
+    #: `(n, P)` 1 where a zone parameter may be free (`pruned_start`); None: all of them
+    keep: np.ndarray | None = None
+
+    def zone_mask(self, groups) -> np.ndarray:
+        """The zone parameters of `groups` that are free, every zone's, flat `(n P,)`."""
+        m = np.tile(self.lay.mask(groups), self.n)
+        return m if self.keep is None else m * self.keep.ravel()
+
+    def n_added(self, mech) -> int:
+        """Free parameters `mech` adds to a joint model, all zones (the tests' degrees of freedom)."""
+        if self.keep is None:
+            return M.n_added_per_zone(mech, self.lay) * self.n
+        return int(sum(self.keep[:, self.lay.sl(g)].sum() for g in M.MECH_PARAMS.get(mech, ())))
 
     def setup(self, free: bool, validation: bool = False) -> dict:
         """How a record enters a joint model: surroundings level `ts_level` (°C) and whether an
@@ -207,7 +232,7 @@ class JointFits:
             if len(model) > 3:
                 rec0[j] = np.where(np.isnan(model[3]), rec0[j], model[3])
             groups = ("log_a",) + joint_groups(st[-1:])[len(JOINT_BASE):] if restricted else joint_groups(st)
-            mask[j, :size] = np.tile(lay.mask(groups), n)
+            mask[j, :size] = self.zone_mask(groups)
             mask[j, size:size + n] = 1.0
             mask[j, size + n:size + 2 * n] = float("heat_accumulation" in st)
             mask[j, size + 2 * n:size + 2 * n + nd] = float("ambient_variation" in st and not self.measured_var)
@@ -240,30 +265,100 @@ def joint_start(y, u, ts, level, lay) -> np.ndarray:
                      for i in range(y.shape[1])])
 
 
-def _added_size(lay, mech) -> int:
-    """Zone parameters a mechanism adds to a joint model (beyond `JOINT_BASE`)."""
-    return sum(lay.sl(g).stop - lay.sl(g).start for g in joint_groups((mech,))[len(JOINT_BASE):])
+def _added_size(lay, mech, keep=None) -> int:
+    """Free zone parameters a mechanism adds to a joint model (beyond `JOINT_BASE`), all zones
+    (`keep`: `JointFits.keep`)."""
+    keep = np.ones((lay.n, lay.size)) if keep is None else keep
+    return int(sum(keep[:, lay.sl(g)].sum() for g in joint_groups((mech,))[len(JOINT_BASE):]))
 
 
-def joint_active(n, lay, first, pool) -> int:
+def _width(n, lay, free) -> int:
+    """Static Jacobian width: `free` zone parameters and the record parameters, to a multiple of 4."""
+    return 4 * math.ceil((free + 2 * n + lay.n_drift + 1) / 4)
+
+
+def joint_active(n, lay, first, pool, keep=None) -> int:
     """Static bound on the free parameters of a joint fit of `first` plus two of `pool`."""
-    adds = sorted((_added_size(lay, m) for m in pool), reverse=True)[:MAX_COMBINED - 1]
-    per_zone = 1 + lay.nu + _added_size(lay, first) + sum(adds)
-    return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
+    adds = sorted((_added_size(lay, m, keep) for m in pool), reverse=True)[:MAX_COMBINED - 1]
+    gains = n * lay.nu if keep is None else int(keep[:, lay.sl("log_b")].sum())
+    return _width(n, lay, n + gains + _added_size(lay, first, keep) + sum(adds))
 
 
 #: joint models wider than this many Jacobian columns fit their additions restricted
 #: (`JointFits.extend`): refitted in full, at N = 9 seven of eleven additions ended above the
 #: smaller model's cost after `JOINT_ITER` iterations and the diagnosis took 330 s
-#: (`python experiments/diagnose_zone_scaling.py`, `diagnose_zone_scaling_s32.md`)
+#: (`python experiments/diagnose_zone_scaling.py`, `diagnose_zone_scaling_s32.md`); and they
+#: keep only each zone's strongest couplings (`pruned_start`)
 RESTRICT_ABOVE = 100
 
 
-def restricted_active(n, lay, pool) -> int:
+def restricted_active(n, lay, pool, keep=None) -> int:
     """Static bound on the free parameters of an addition fitted restricted: the zones' losses,
     the largest pool mechanism's groups and the record parameters."""
-    per_zone = 1 + max((_added_size(lay, m) for m in pool), default=0)
-    return 4 * math.ceil((n * per_zone + 2 * n + lay.n_drift + 1) / 4)
+    return _width(n, lay, n + max((_added_size(lay, m, keep) for m in pool), default=0))
+
+
+#: a coupling (a heater's gain, a neighbour's exchange) whose weight is below this share of its
+#: zone's largest is held in a pruned joint model (`kept_couplings`) ...
+KEEP_SHARE = 0.1
+#: ... and so is any beyond the zone's this many strongest of each. On the tour's kind of record
+#: (the printer's exchanges between zones that share a grid side, its heater footprint own 1,
+#: side 0.36, diagonal 0.13) at N = 6, 9, 16 this keeps 26/36, 43/81, 79/256 gains (the held
+#: ones carry 5, 11, 20 % of the gains' weight, held at the grid's estimate, not at zero) and
+#: 16/30, 24/72, 52/240 exchanges: 14 of 14, 24 of 24, 44 of 48 grid sides, 2, 0, 8 others;
+#: at most 3 held 39 % of the gain weight at N = 16, a share of 0.2 lost 8 grid sides more
+#: (`python experiments/diagnose_coupling_weights.py --zones 6,9,16 --tag _s33`)
+KEEP_MOST = 5
+
+
+def kept_couplings(gain, u, exch, y, share: float = KEEP_SHARE, most: int | None = KEEP_MOST) -> tuple:
+    """Which heater gains and exchanges of each zone a pruned joint model fits: `gain (n, nu)`
+    heater gains (°C/s per input unit), `u (T, nu)` the inputs, `exch (n, n-1)` exchange rates
+    (1/s; row i: the other zones in order) or None, `y (T, n)` the zone temperatures. A gain
+    weighs `gain[i, h] · rms(u_h)` (the heat rate it carries), an exchange between zones i and j
+    the mean of `exch[i, j] · rms(y_j - y_i)` and `exch[j, i] · rms(y_i - y_j)` (the heat rate the
+    temperature difference drives; a conduction is one for both zones, and a zone's own fit may
+    leave its exchanges where they started); each zone keeps those of at least `share` of its
+    largest, at most its `most` strongest of each. Returns boolean `(n, nu)`, `(n, n-1)` (all
+    True where `exch` is None)."""
+    rms = lambda v: np.sqrt(np.mean(np.square(v), axis=0))
+
+    def keep(w):
+        rank = np.argsort(np.argsort(-w, axis=1, kind="stable"), axis=1)
+        return (w >= share * w.max(axis=1, keepdims=True)) & (rank < (most or w.shape[1]))
+
+    n = y.shape[1]
+    keep_b = keep(np.asarray(gain) * rms(u)[None, :])
+    if exch is None or n < 2:
+        return keep_b, np.ones((n, max(n - 1, 0)), bool)
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)])
+    rows = np.repeat(np.arange(n), n - 1)
+    w = np.zeros((n, n))
+    w[rows, others.ravel()] = (np.asarray(exch)[:, :n - 1] * rms(y[:, others] - y[:, :, None])).ravel()
+    w = (w + w.T) / 2.0
+    return keep_b, keep(w[rows, others.ravel()].reshape(n, n - 1))
+
+
+def pruned_start(neutral, lay, u, y, theta_k) -> tuple:
+    """A wide joint model's couplings limited to those that matter (`kept_couplings`): the heater
+    gains of the joint start `neutral (n, P)` (the separable grid's, `joint_start`) and the
+    exchanges of the per-zone `lateral_conduction` fits `theta_k (n, P)` (None: no exchange is
+    pruned). The others are held: a gain at the grid's (small: at least 0.02 of the zone's
+    largest), an exchange at its per-zone fit's. Returns (`JointFits.keep`, the start with the
+    held exchanges written)."""
+    n = lay.n
+    keep_b, keep_k = kept_couplings(np.exp(neutral[:, lay.sl("log_b")]), u,
+                                    None if theta_k is None else np.exp(theta_k[:, lay.sl("log_k")]), y)
+    keep = np.ones((n, lay.size))
+    keep[:, lay.sl("log_b")] = keep_b
+    kk = keep[:, lay.sl("log_k")]
+    kk[:, :n - 1] = keep_k
+    keep[:, lay.sl("log_k")] = kk
+    start = np.array(neutral, float)
+    if theta_k is not None:
+        k0 = start[:, lay.sl("log_k")]
+        start[:, lay.sl("log_k")] = np.where(kk > 0, k0, theta_k[:, lay.sl("log_k")])
+    return keep, start
 
 
 def judge(cur, cand, n_tests, dof, k_extra) -> dict:
@@ -300,7 +395,6 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
     the rest level; a fitted level only if both tests demand it), then add, one round at a time,
     of the pool's mechanisms that pass both tests given the chosen ones the one with the smallest
     χ² tail probability of its likelihood ratio, up to `MAX_COMBINED`. Returns (augmented model, tried combinations, chosen)."""
-    n, lay = js.n, js.lay
     th0 = js.start(js.neutral, top)
     chosen = (top,)
     out = js.fit([(th0, chosen, False)] + ([] if js.measured else [(th0, chosen, True)]), validate)
@@ -317,13 +411,13 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
     while adds:
         best, passing = None, []
         for m, a in zip(pool, adds):
-            t = judge(cur, a, len(pool), M.n_added_per_zone(m, lay) * n, k_val(a["set"]) - k_val(chosen))
+            t = judge(cur, a, len(pool), js.n_added(m), k_val(a["set"]) - k_val(chosen))
             tried.append({"mechanisms": list(a["set"]), **t, "accepted": False,
                           "mean_fit_percent": float(np.mean(fit_of(a["e"])))})
             # among those that pass both tests, the strongest evidence on the estimation record
             # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
             # parameters are re-estimated on the validation record itself (a drift)
-            ev = chi2.logsf(t["estimation_lr"], max(M.n_added_per_zone(m, lay) * n, 1))
+            ev = chi2.logsf(t["estimation_lr"], max(js.n_added(m), 1))
             # an addition that predicts the validation record worse is never the augmented model
             if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]):
                 passing.append((m, a))
@@ -338,7 +432,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
             # the restricted addition chosen, refitted in full from where it ended, and judged
             # again: accepted only if the full model passes both tests too
             full = js.fit([js.nested(best[1])], validate)[0]
-            t = judge(cur, full, len(pool), M.n_added_per_zone(best[2], lay) * n,
+            t = judge(cur, full, len(pool), js.n_added(best[2]),
                       k_val(full["set"]) - k_val(chosen))
             best[0].update({**t, "refitted_in_full": True,
                             "mean_fit_percent": float(np.mean(fit_of(full["e"])))})

@@ -60,6 +60,7 @@ from .joint import (
     grid_start,
     joint_active,
     joint_start,
+    pruned_start,
     restricted_active,
     rivals_among,
 )
@@ -475,7 +476,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                         n_iter=JOINT_ITER, slots=1 + (amb is None) + len(pool), val_slots=K + 1,
                         n_active=joint_active(n, lay, chosen[0], pool))
         if js.n_active > RESTRICT_ABOVE:
-            js.n_active_add = restricted_active(n, lay, pool)
+            # a wide model: each zone's strongest couplings only, additions restricted
+            js.keep, js.neutral = pruned_start(js.neutral, lay, u, y, thc[cands.index("lateral_conduction")]
+                                               if "lateral_conduction" in cands else None)
+            js.n_active = joint_active(n, lay, chosen[0], pool, js.keep)
+            js.n_active_add = restricted_active(n, lay, pool, js.keep)
         aug, added, chosen = forward_select(js, validate, k_val, chosen[0], pool, fit_of)
         if not D.not_worse(yv, aug["e"], e_c[kt]):
             # the joint structure predicts the validation record worse than the top mechanism's
