@@ -208,6 +208,11 @@ def test_simulate_option_errors(tmp_path, capsys):
     m = io.save(StateSpace(np.eye(1) * 0.5, np.ones((1, 1)), np.ones((1, 1))), tmp_path / "m.jtm")
     rc, _, err = _run(["simulate", "--scenario", "tracking", "--controller-file", m], capsys)
     assert rc == 2 and "holds a model" in _one_line_error(err)
+    # --printer-seed picks a virtual printer: with a fitted plant it is refused, not ignored
+    for cmd in (["simulate", "--scenario", "tracking", "--controller", "pi_lambda"],
+                ["tune", "--controller", "pi"]):
+        rc, _, err = _run([*cmd, "--plant", m, "--printer-seed", "3"], capsys)
+        assert rc == 2 and "--printer-seed is for the virtual printer" in _one_line_error(err)
 
 
 def test_interrupt_and_internal_error(monkeypatch, tmp_path, capsys):

@@ -113,6 +113,14 @@ def _add_printer_seed(sp, seed_draws: str) -> None:
 # ---------------------------------------------------------------- helpers
 
 
+def _printer_seed_only_for_printer(command: str, args, own: bool) -> None:
+    """A `--printer-seed` other than the default picks a virtual printer: with a fitted plant
+    (`--plant MODEL`) there is none to pick, and the option would be silently ignored."""
+    if own and args.printer_seed != 0:
+        raise ConfigError(f"{command}: --printer-seed is for the virtual printer, not a fitted "
+                          "plant (--plant MODEL)")
+
+
 def _plant(args):
     """`printer` or a saved model file -> (plant or 'printer' marker, description)."""
     if args.plant == "printer":
@@ -269,6 +277,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     own = isinstance(plant, AbstractModel)
     if not own and (args.setpoint is not None or args.model is not None):
         raise ConfigError("simulate: --setpoint and --model are for a fitted plant (--plant MODEL)")
+    _printer_seed_only_for_printer("simulate", args, own)
     scenario_kw: dict[str, Any] = {}
     if own:
         env, r = _own_plant(args, plant, args.model)
@@ -361,6 +370,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
     if not own and (args.setpoint is not None or args.validation_plant is not None):
         raise ConfigError("tune: --setpoint and --validation-plant are for a fitted plant "
                           "(--plant MODEL)")
+    _printer_seed_only_for_printer("tune", args, own)
     validation = None
     if own:
         model = plant if model is None else model
