@@ -351,9 +351,8 @@ def pruned_start(neutral, lay, u, y, theta_k) -> tuple:
                                     None if theta_k is None else np.exp(theta_k[:, lay.sl("log_k")]), y)
     keep = np.ones((n, lay.size))
     keep[:, lay.sl("log_b")] = keep_b
-    kk = keep[:, lay.sl("log_k")]
+    kk = keep[:, lay.sl("log_k")]          # a view: written through into `keep`
     kk[:, :n - 1] = keep_k
-    keep[:, lay.sl("log_k")] = kk
     start = np.array(neutral, float)
     if theta_k is not None:
         k0 = start[:, lay.sl("log_k")]

@@ -86,8 +86,9 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
 #: many heater gains (N = 4-9) or a slow body's long valley still stopped short: held-out set 12
 #: at 1-9 zones 10 -> 12/16 at 200 (both slow bodies named, no longer `ambient_variation`; a
 #: 5-zone lamp case's LRs 5431 / 5510 -> 11428 / 11759), nulls 3/3
-#: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for +26 % CPU on the latency record
-#: (`benchmarks/results/diagnose_iteration_cap_s33.md`)
+#: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for 75 % more CPU on the latency record
+#: (warm `jthermo diagnose` 34.0 -> 59.5 CPU s, the candidates' fits 9.0 -> 24.8: `python
+#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`)
 N_ITER = 200
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
