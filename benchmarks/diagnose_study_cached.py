@@ -1,7 +1,7 @@
 """`experiments/diagnose_study.py` with the compilation cache on, as the `jthermo` command runs.
 
 The study itself does not enable jthermo's cache directory, so the programs that a process
-keeps there (`runtime.exported_call`: the diagnosis's fits since session 27) would not be
+keeps there (`stored.exported_call`: the diagnosis's fits since session 27) would not be
 exercised by it. This wrapper enables the cache (`runtime.enable_cache()`: `JTHERMO_CACHE_DIR`
 or the per-user default) and the Threefry setting of the command, then runs the study with the
 given arguments:

@@ -18,7 +18,7 @@ then a second child with the cache the first one filled (warm), both as the comm
 
 `--command` times the command's own steps instead (`cli.control`'s design model and
 `closedloop.run`, with `runtime.one_thread_backend` and the programs kept by
-`runtime.exported_call`): no split of a program into trace / compile / execute there, but the
+`stored.exported_call`): no split of a program into trace / compile / execute there, but the
 path `jthermo simulate` takes, stage by stage, cold and warm.
 
 CPU seconds (user + system of the child, all threads) are less sensitive than wall seconds to

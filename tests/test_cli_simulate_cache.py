@@ -1,5 +1,5 @@
 """`jthermo simulate` with its traced programs kept in the cache directory
-(`runtime.exported_call`): the first process writes them, a second reads them and reports the
+(`stored.exported_call`): the first process writes them, a second reads them and reports the
 same figures, and corrupt files give the same figures again (and are rewritten). A cache
 switched off writes none: tests/test_runtime_export.py."""
 
@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from jthermo import runtime
+from jthermo import runtime, stored
 
 ARGV = ["simulate", "--scenario", "tracking", "--controller", "pi", "--zones", "2",
         "--rollouts", "2", "--duration", "120", "--quiet"]
@@ -31,7 +31,7 @@ def _simulate(tmp_path: Path, cache: Path) -> dict:
 
 
 def _exports(cache: Path, pattern: str = "*.jaxexport") -> dict[str, bytes]:
-    d = cache / runtime.EXPORT_SUBDIR
+    d = cache / stored.EXPORT_SUBDIR
     return {p.name: p.read_bytes() for p in d.glob(pattern)} if d.is_dir() else {}
 
 
@@ -41,7 +41,7 @@ def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
     files = _exports(cache)
     # the printer's design model and the run program
     assert len(files) == 2, sorted(files)
-    # and the design model's numbers (runtime.cached_arrays)
+    # and the design model's numbers (stored.cached_arrays)
     numbers = _exports(cache, "*.npz")
     assert len(numbers) == 1, sorted(numbers)
     compiled = set(cache.glob("*-cache"))
@@ -51,7 +51,7 @@ def test_simulate_exports_once_and_reads_back_the_same_figures(tmp_path):
     assert _exports(cache, "*.npz") == numbers, "a warm run rewrote the design model"
     assert set(cache.glob("*-cache")) == compiled, "a warm run compiled what the first had"
     for name in [*files, *numbers]:
-        (cache / runtime.EXPORT_SUBDIR / name).write_bytes(b"corrupt" * 100)
+        (cache / stored.EXPORT_SUBDIR / name).write_bytes(b"corrupt" * 100)
     third = _simulate(tmp_path, cache)
     assert third["metrics"] == first["metrics"]
     assert _exports(cache) == files, "corrupt files were not replaced by the same programs"

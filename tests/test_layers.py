@@ -31,6 +31,8 @@ LAYERS: list[tuple[str, ...]] = [
     # Utilities that everything may use: errors, type aliases, atomic writes, the family
     # names, progress bars, the JAX runtime settings (compilation cache, compile timing).
     ("errors", "_types", "_files", "families", "progress", "runtime"),
+    # Traced programs and numbers kept in the compilation cache's directory.
+    ("stored",),
     # Shape checks of the public entry points (one-line errors instead of broadcasting ones).
     ("_checks",),
     # The package root `jthermo/__init__.py`: `__version__`, the error classes and a lazy

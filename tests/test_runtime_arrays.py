@@ -1,4 +1,4 @@
-"""Numeric results kept on disk (`runtime.cached_arrays`): a miss computes and writes an
+"""Numeric results kept on disk (`stored.cached_arrays`): a miss computes and writes an
 `.npz`, a hit reads it without computing and gives the same arrays bit for bit; a corrupt or
 foreign file is recomputed and rewritten, the cache off or a trace reads and writes nothing;
 the printer's design model of `jthermo simulate` is read back equal."""
@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jthermo import runtime
+from jthermo import runtime, stored
 
 
 def poly(x, n: int) -> dict:
@@ -30,7 +30,7 @@ class Counting:
 @pytest.fixture
 def folder(monkeypatch, tmp_path):
     monkeypatch.setitem(runtime._state, "dir", tmp_path)
-    return tmp_path / runtime.EXPORT_SUBDIR
+    return tmp_path / stored.EXPORT_SUBDIR
 
 
 def _files(folder):
@@ -51,22 +51,22 @@ X = jnp.linspace(0.1, 1.3, 7)
 def test_miss_writes_and_hit_reads_without_computing(folder):
     f = Counting()
     ref = poly(X, 3)
-    _same(runtime.cached_arrays(poly, (X, 3), f), ref)
+    _same(stored.cached_arrays(poly, (X, 3), f), ref)
     assert f.calls == 1 and len(_files(folder)) == 1
     blob = _files(folder)[0].read_bytes()
-    _same(runtime.cached_arrays(poly, (X, 3), f), ref)
+    _same(stored.cached_arrays(poly, (X, 3), f), ref)
     assert f.calls == 1, "a hit computed again"
     assert _files(folder)[0].read_bytes() == blob
     # other input bytes, another static leaf: other keys, computed
-    _same(runtime.cached_arrays(poly, (X + 1e-12, 3), f), poly(X + 1e-12, 3))
-    _same(runtime.cached_arrays(poly, (X, 2), f), poly(X, 2))
+    _same(stored.cached_arrays(poly, (X + 1e-12, 3), f), poly(X + 1e-12, 3))
+    _same(stored.cached_arrays(poly, (X, 2), f), poly(X, 2))
     assert f.calls == 3 and len(_files(folder)) == 3
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "foreign", "layout"])
 def test_a_corrupt_or_foreign_file_is_recomputed_and_rewritten(folder, damage):
     f = Counting()
-    runtime.cached_arrays(poly, (X, 3), f)
+    stored.cached_arrays(poly, (X, 3), f)
     path = _files(folder)[0]
     good = path.read_bytes()
     if damage == "truncate":
@@ -74,27 +74,27 @@ def test_a_corrupt_or_foreign_file_is_recomputed_and_rewritten(folder, damage):
     elif damage == "garbage":
         path.write_bytes(b"garbage" * 50)
     elif damage == "foreign":   # another key's file copied over this one
-        runtime.cached_arrays(poly, (X, 2), f)
+        stored.cached_arrays(poly, (X, 2), f)
         other = next(p for p in _files(folder) if p != path)
         path.write_bytes(other.read_bytes())
     else:                       # a layout line that does not match the arrays
         head, _, rest = good.partition(b"\n")
         path.write_bytes(head + b"\n" + rest.replace(b"y:", b"z:", 1))
     calls = f.calls
-    _same(runtime.cached_arrays(poly, (X, 3), f), poly(X, 3))
+    _same(stored.cached_arrays(poly, (X, 3), f), poly(X, 3))
     assert f.calls == calls + 1
     assert path.read_bytes() == good, "the damaged file was not rewritten"
 
 
 def test_cache_off_or_inside_a_trace_reads_and_writes_nothing(folder, monkeypatch):
     f = Counting()
-    runtime.cached_arrays(poly, (X, 3), f)
+    stored.cached_arrays(poly, (X, 3), f)
     files = {p: p.read_bytes() for p in _files(folder)}
     monkeypatch.setitem(runtime._state, "dir", None)
-    _same(runtime.cached_arrays(poly, (X, 3), f), poly(X, 3))
+    _same(stored.cached_arrays(poly, (X, 3), f), poly(X, 3))
     assert f.calls == 2
     monkeypatch.setitem(runtime._state, "dir", folder.parent)
-    out = jax.jit(lambda x: runtime.cached_arrays(poly, (x, 3), f)["y"])(X)
+    out = jax.jit(lambda x: stored.cached_arrays(poly, (x, 3), f)["y"])(X)
     np.testing.assert_array_equal(np.asarray(out), np.asarray(poly(X, 3)["y"]))
     assert f.calls == 3
     assert {p: p.read_bytes() for p in _files(folder)} == files
@@ -105,7 +105,7 @@ def test_unwritable_folder_still_gives_the_result(folder):
     folder.write_text("a file where the folder should be")
     f = Counting()
     for _ in range(2):
-        _same(runtime.cached_arrays(poly, (X, 3), f), poly(X, 3))
+        _same(stored.cached_arrays(poly, (X, 3), f), poly(X, 3))
     assert f.calls == 2
 
 

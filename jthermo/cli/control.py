@@ -221,11 +221,11 @@ def _printer_model(printer):
     """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
     many small ones, each traced, lowered and looked up in the cache on every run. It runs
     once, so it is compiled with `runtime.one_shot()` options (-O0), and traced once per
-    cache (`runtime.exported_call`). Its numbers are a function of the printer and the
-    source: kept in the cache too (`runtime.cached_arrays`), a warm process neither loads
+    cache (`stored.exported_call`). Its numbers are a function of the printer and the
+    source: kept in the cache too (`stored.cached_arrays`), a warm process neither loads
     nor runs the program."""
     from ..models import StateSpace
-    from ..runtime import cached_arrays
+    from ..stored import cached_arrays
 
     fields = cached_arrays(_printer_model_fields, (printer,), _printer_model_program)
     return StateSpace(**fields, ts=printer.ts)
@@ -235,7 +235,8 @@ def _printer_model_program(printer) -> dict:
     """`_printer_model_fields(printer)` run as its exported, -O0 compiled program."""
     import equinox as eqx
 
-    from ..runtime import exported_call, one_shot
+    from ..runtime import one_shot
+    from ..stored import exported_call
 
     opts = one_shot()
     return exported_call(_printer_model_fields, (printer,),

@@ -21,7 +21,8 @@ from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
-from ..runtime import exported_call, simulate_compile
+from ..runtime import simulate_compile
+from ..stored import exported_call
 from .checks import check_loop
 from .compact import CompactScenario, compact_cost, model_steady_state
 from .scenarios import (

@@ -32,7 +32,7 @@ load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 
 the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
 benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
 
-The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
+The traced programs are kept in the cache directory (`stored.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
@@ -57,7 +57,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.lm import masked_lm
-from ..runtime import exported_call, quick_compile
+from ..runtime import quick_compile
+from ..stored import exported_call
 from .mechanisms import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
@@ -75,7 +76,7 @@ def _compiled(fn, static: tuple, quick: bool = True):
 
 def _run(fn, static: tuple, *args):
     """`fn(*args)` compiled with `runtime.quick_compile()` options (`static` its static argument
-    names), through `runtime.exported_call`: a process after the first loads the traced program
+    names), through `stored.exported_call`: a process after the first loads the traced program
     from the cache directory instead of tracing it (the same program, the same executable)."""
     return exported_call(fn, args, _compiled(fn, static), compiler_options=quick_compile())
 
