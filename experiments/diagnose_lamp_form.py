@@ -110,14 +110,14 @@ def main(argv=None):
            f"--max-zones {args.max_zones}{' --kind ' + args.kind if args.kind else ''} --form {args.form}")
     lines = [f"# Held-out case {args.case:02d} ({c['kind']}), seed set {args.seed_set}, input curve `{args.form}`", "",
              f"Made by `{cmd}`; {wall:.0f} s wall, {cpu:.0f} CPU s, 1-min load {os.getloadavg()[0]:.1f}.", "",
-             f"- record: N = {c['zones']}, Ts = {c['ts']:.3f} s, noise {c['noise']:.3f} °C, measured surroundings "
-             f"{c['measured_ambient']}; physics {json.dumps(H.describe(c))}",
-             f"- estimation inputs: min {u.min():.3f}, 5 % {np.quantile(u, 0.05):.3f}, median "
-             f"{np.median(u):.3f}, 95 % {np.quantile(u, 0.95):.3f}, max {u.max():.3f}",
+             (f"- record: N = {c['zones']}, Ts = {c['ts']:.3f} s, noise {c['noise']:.3f} °C, measured surroundings "
+              f"{c['measured_ambient']}; physics {json.dumps(H.describe(c))}"),
+             (f"- estimation inputs: min {u.min():.3f}, 5 % {np.quantile(u, 0.05):.3f}, median "
+              f"{np.median(u):.3f}, 95 % {np.quantile(u, 0.95):.3f}, max {u.max():.3f}"),
              f"- named {[(f['mechanism'], round(f['confidence'], 3), f['rivals']) for f in res['findings']]}",
              f"- fit {res['baseline']['mean_fit_percent']:.2f} → {res['augmented']['mean_fit_percent']:.2f} %", "",
-             "| candidate | validation z / critical | estimation LR / critical | significant | "
-             "validation MSE reduction | parameters |", "|---|---|---|---|---|---|"]
+             ("| candidate | validation z / critical | estimation LR / critical | significant | "
+              "validation MSE reduction | parameters |"), "|---|---|---|---|---|---|"]
     for r in res["candidates"]:
         lines.append(f"| {r['mechanism']} | {r['validation_z']:.3f} / {r['validation_z_critical']:.2f} | "
                      f"{r['estimation_lr']:.2f} / {r['estimation_lr_critical']:.2f} | {r['significant']} | "

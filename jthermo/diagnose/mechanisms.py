@@ -24,6 +24,9 @@ fitted by one compiled, vmapped solver. Fitting is per zone (`simulate_zone`, se
 form: a zone's neighbours and the bed's mean temperature enter as their measured values, the
 zone itself is simulated), which makes every zone and candidate a small independent problem;
 `simulate_full` then couples the fitted zone models (neighbours simulated) for validation.
+Every candidate starts from the baseline's parameters with each mechanism at its neutral value
+(`initial_theta`) and every heater gain alive (`live_gains`: a gain the linear baseline left at
+its bound has no gradient in the log parametrisation).
 The linear part (zone, wall, lamp) is discretised exactly (zero-order hold), so the lamp model
 tends to the lag-free one as τ_h → 0; radiation enters through the exponential-Euler integral
 of its rate over the sample.
