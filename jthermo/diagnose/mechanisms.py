@@ -24,9 +24,7 @@ fitted by one compiled, vmapped solver. Fitting is per zone (`simulate_zone`, se
 form: a zone's neighbours and the bed's mean temperature enter as their measured values, the
 zone itself is simulated), which makes every zone and candidate a small independent problem;
 `simulate_full` then couples the fitted zone models (neighbours simulated) for validation.
-Every candidate starts from the baseline's parameters with each mechanism at its neutral value
-(`initial_theta`) and every heater gain alive (`live_gains`: a gain the linear baseline left at
-its bound has no gradient in the log parametrisation).
+Candidates start from the baseline, every heater gain alive (`live_gains`).
 The linear part (zone, wall, lamp) is discretised exactly (zero-order hold), so the lamp model
 tends to the lag-free one as τ_h → 0; radiation enters through the exponential-Euler integral
 of its rate over the sample.
@@ -389,13 +387,10 @@ GAIN_START_SHARE = 0.02
 
 
 def live_gains(log_b) -> np.ndarray:
-    """One zone's log heater gains `(nu,)` with each at least `GAIN_START_SHARE` of the largest.
-
-    The baseline's non-negative least squares puts a gain the linear model cannot use at its
-    bound (`identify.greybox.GAIN_FLOOR`, $10^{-12}$ of the largest): in the log parametrisation
-    such a gain has no gradient, and a fit started there needs about a hundred iterations to
-    revive it (held-out set 12 case 08, a 5-zone saturating lamp: zone 2's three dead gains held
-    every candidate's fit on a plateau for 100 iterations, 60 % above the noise at `N_ITER`)."""
+    """One zone's log heater gains `(nu,)`, each at least `GAIN_START_SHARE` of the largest: a gain
+    the baseline left at its bound ($10^{-12}$ of the largest) has no gradient in the log
+    parametrisation (held-out set 12 case 08: three such gains held a zone's lamp fit on a plateau
+    for 100 iterations, unconverged at `N_ITER`: `experiments/results/diagnose_lamp_live_gains.md`)."""
     lb = np.asarray(log_b, float).ravel()
     return np.maximum(lb, np.max(lb) + math.log(GAIN_START_SHARE))
 
