@@ -98,7 +98,7 @@ def grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
         a, coef = best[i][1]
         log_a[i] = math.log(a)
         bi = coef[:nu]
-        b[i] = np.maximum(bi, 0.02 * max(np.max(bi), 1e-9))
+        b[i] = np.maximum(bi, M.GAIN_START_SHARE * max(np.max(bi), 1e-9))   # `mechanisms.live_gains`
         x0[i] = coef[nu]
         if ts_free:
             ts0[i] = coef[nu + 1] - level
