@@ -1,5 +1,6 @@
 """How far the per-zone candidate fits (`fitting.fit_zones`, `select.N_ITER`) run, and what
-stopping them earlier would change: every problem (zone x candidate x start) of a diagnosis
+stopping them earlier would change (measured at 607f8f9, before `fitting.fit_zones_by_width`; the
+spy now wraps that, the same problems): every problem (zone x candidate x start) of a diagnosis
 refitted with the same masked Levenberg–Marquardt for a fixed `--ref` iterations (no early
 stop: the iterates are those of the early-stopping loop, `identify.lm.masked_lm`), its cost
 trajectory kept; the stopping rule (fall over `lm.STALL` iterations <= rtol x cost, at most the
@@ -112,7 +113,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     est, val = load_record(args.record, args.max_zones)
     calls = []
-    orig = select.fit_zones
+    orig = select.fit_zones_by_width
 
     def spy(*a):
         t0, c0 = time.perf_counter(), _cpu()
@@ -122,28 +123,29 @@ def main(argv=None) -> int:
                       "cpu_s": _cpu() - c0})
         return out
 
-    select.fit_zones = spy
+    select.fit_zones_by_width = spy
     t0, c0 = time.perf_counter(), _cpu()
     res = select.to_json(select.diagnose(est, val))
     diag = {"wall_s": time.perf_counter() - t0, "cpu_s": _cpu() - c0,
             "findings": [(f["mechanism"], round(f["confidence"], 4)) for f in res["findings"]],
             "candidates": {r["mechanism"]: round(r["estimation_lr"], 2) for r in res["candidates"]}}
-    select.fit_zones = orig
+    select.fit_zones_by_width = orig
     n, T = est.n_outputs, est.n_samples
     cands = [m for m in M.MECHANISMS if n >= 2 or m not in select.NEEDS_NEIGHBOURS]
     problems = []
     for ci, call in enumerate(calls):
-        theta0, mask, on, per, shared, lay, n_iter, n_active = call["args"]
+        theta0, mask, on, per, shared, lay, n_iter = call["args"]
+        n_active = 4 * int(np.ceil(np.asarray(mask).sum(axis=1).max() / 4))
         ref = args.ref * n_iter // 200
-        t1, c1 = time.perf_counter(), _cpu()
-        th, c, hist = _fixed_jit(theta0, mask, on, per, shared, lay, ref, n_active)
+        c1 = _cpu()
+        _, _, hist = _fixed_jit(theta0, mask, on, per, shared, lay, ref, n_active)
         hist = np.asarray(hist)
         call["ref_cpu_s"] = _cpu() - c1
-        c0s = np.asarray(jax.vmap(lambda t, o, p: jnp.mean(fitting._zone_residual(t, o, {**shared, **p}, lay) ** 2))
-                         (theta0, on, per))
+        c0s = np.asarray(jax.vmap(lambda t, o, p, sh=shared, ly=lay:
+                                  jnp.mean(fitting._zone_residual(t, o, {**sh, **p}, ly) ** 2))(theta0, on, per))
         for b, (nm, zone) in enumerate(labels(cands, theta0.shape[0], n, ci)):
             h, cref = hist[b], hist[b, -1]
-            k, cst, stopped = stop_at(h, c0s[b], fitting.RTOL, n_iter)
+            k, _, stopped = stop_at(h, c0s[b], fitting.RTOL, n_iter)
             row = {"call": ci, "n_iter": n_iter, "label": nm, "zone": zone,
                    "free": int(np.sum(np.asarray(mask[b]) > 0)), "c_ref": float(cref),
                    "prod_cost": float(call["cost"][b]), "iters": k, "hit_cap": not stopped,
@@ -206,9 +208,9 @@ def main(argv=None) -> int:
          f"{diag['findings']}. Fit_zones calls: "
          + "; ".join(f"n_iter {c['args'][6]}, {c['args'][0].shape[0]} problems, {c['cpu_s']:.1f} CPU s"
                      for c in calls)
-         + f". Reference: each problem's cost after {args.ref} fixed iterations (x n_iter / 200); gaps relative to it.", "",
-         "| candidate@start | zone | free | iters (rtol 1e-10) | cap hit | falling at ref | gap @30 | @60 | @100 | "
-         "@cap | iters / gap at rtol 1e-8 | 1e-7 | 1e-6 |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+         + (f". Reference: each problem's cost after {args.ref} fixed iterations (x n_iter / 200); gaps relative to it."), "",
+         ("| candidate@start | zone | free | iters (rtol 1e-10) | cap hit | falling at ref | gap @30 | @60 | @100 | "
+          "@cap | iters / gap at rtol 1e-8 | 1e-7 | 1e-6 |"), "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in problems:
         g = p["gap_cut"]
         L.append(f"| {p['label']} | {p['zone']} | {p['free']} | {p['iters']} | {'**yes**' if p['hit_cap'] else ''} | "
@@ -217,10 +219,10 @@ def main(argv=None) -> int:
                  + " | ".join(f"{p['rtol'][r]['iters']} / {p['rtol'][r]['gap']:.1e}" for r in ("1e-08", "1e-07", "1e-06"))
                  + " |")
     hits = [p for p in problems if p["hit_cap"]]
-    L += ["", f"{len(hits)} of {len(problems)} problems hit the cap: "
-          + ", ".join(f"{p['label']} z{p['zone']}" for p in hits), "",
-          "Per candidate (each zone its best start): likelihood-ratio shift m log(SSE / SSE_ref), "
-          f"m = T n = {T * n}, and the iterations the variant spends in all (Jacobians at most that).", "",
+    L += ["", (f"{len(hits)} of {len(problems)} problems hit the cap: "
+               + ", ".join(f"{p['label']} z{p['zone']}" for p in hits)), "",
+          ("Per candidate (each zone its best start): likelihood-ratio shift m log(SSE / SSE_ref), "
+           f"m = T n = {T * n}, and the iterations the variant spends in all (Jacobians at most that)."), "",
           "| variant | iterations | " + " | ".join(cands) + " |", "|---|---|" + "---|" * len(cands)]
     for r in cand_rows:
         L.append(f"| {r['variant']} | {r['iterations']} | " + " | ".join(f"{r['lr_shift'][m]:.3g}" for m in cands) + " |")

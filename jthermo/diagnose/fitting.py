@@ -32,6 +32,26 @@ load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 
 the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
 benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
 
+At `select.N_ITER` = 200 the candidates' fits are most of a warm diagnosis (24.8 of 59.5 CPU s,
+`_s33_iter200`), and fewer iterations would change the answers (`python
+benchmarks/diagnose_zone_convergence.py --record latency | heldout:12:08 | heldout:12:04 |
+heldout:12:13 --tag _h34`): on the latency record 8 of 48 problems reach the cap (stored-heat
+bodies, within 9e-6 of their cost at 300 iterations), but on set 12's lamp case (N = 5) 38 of
+65 do, several still 17 to 42 times their final cost at 100; `RTOL` 1e-7 instead of 1e-10
+(27 % fewer iterations on the latency record) stops those on plateaus and moves a candidate's
+estimation statistic (m log of its sum of squares) by up to 8460 there, by 151 on the slow-body
+case 13 already at 1e-8; a cap of 100 by up to 7880 (lamp) and 136-156 (cases 04, 13); no
+extra body starts by 3450 (lamp) and 122 (case 04). What costs less without moving them is
+the width. Their
+Jacobian is formed over the call's widest problem, the surroundings drift's (19 free
+parameters, width 20 on the latency record) while the others free 7 to 10:
+`fit_zones_by_width` fits the drift's width class in a call of its own and the rest at theirs
+(12): the latency record's candidate call, warm, 19.5 -> 14.2 CPU s (split into every width
+class, 8 / 12 / 20: 12.3, but each class one more program to compile, about 8 CPU s cold),
+costs equal to 5e-11, parameters apart only along directions the record leaves flat (the
+conductances to non-neighbours, an unidentified radiative share: up to 4.7 in their log or
+logit at costs equal to 7e-12) (`python benchmarks/diagnose_zone_width.py --tag _h34`, load 3).
+
 The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables).
 
@@ -98,6 +118,25 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
     `n_active` (static) at least the largest number of free parameters of one problem."""
     return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active)
+
+
+def fit_zones_by_width(theta0, mask, on, per, shared, lay, n_iter):
+    """`fit_zones` in at most two calls, each at its own Jacobian width (`n_active` rounded up to
+    a multiple of 4: fewer distinct compilations): the problems of the widest width class (the
+    surroundings drift's knots) in one, the rest in the other, so that the rest do not form the
+    drift's unused tangents. Same iterates up to rounding (the unused tangents are zero
+    columns). Returns (theta (B, P), cost (B,)) as NumPy arrays."""
+    m = np.asarray(mask)
+    width = 4 * np.ceil(m.sum(axis=1) / 4).astype(int)
+    wide = width == width.max()
+    th, c = np.array(theta0, float), np.zeros(m.shape[0])
+    for g in (np.nonzero(~wide)[0], np.nonzero(wide)[0]):
+        if g.size:
+            out = fit_zones(jnp.asarray(np.asarray(theta0)[g]), jnp.asarray(m[g]), jnp.asarray(np.asarray(on)[g]),
+                            {k: jnp.asarray(np.asarray(v)[g]) for k, v in per.items()}, shared, lay, n_iter,
+                            int(width[g].max()))
+            th[g], c[g] = np.asarray(out[0]), np.asarray(out[1])
+    return th, c
 
 
 def _sim_zones(theta, on, per, shared, lay):
@@ -180,4 +219,4 @@ def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     return r, yh, c
 
 
-__all__ = ["fit_joint", "fit_records", "fit_zones", "sim_zones"]
+__all__ = ["fit_joint", "fit_records", "fit_zones", "fit_zones_by_width", "sim_zones"]

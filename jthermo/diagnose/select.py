@@ -51,7 +51,7 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .fitting import fit_records, fit_zones, sim_zones
+from .fitting import fit_records, fit_zones_by_width, sim_zones
 from .joint import (
     RESTRICT_ABOVE,
     JointFits,
@@ -88,7 +88,10 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
 #: 5-zone lamp case's LRs 5431 / 5510 -> 11428 / 11759), nulls 3/3
 #: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for 75 % more CPU on the latency record
 #: (warm `jthermo diagnose` 34.0 -> 59.5 CPU s, the candidates' fits 9.0 -> 24.8: `python
-#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`)
+#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`).
+#: Fewer would move the answers: a looser `fitting.RTOL`, a cap of 100 or no extra body starts
+#: shift candidates' estimation statistics by 100s to 8000s on held-out set 12 (`python
+#: benchmarks/diagnose_zone_convergence.py --tag _h34`, the `fitting` module's note)
 N_ITER = 200
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
@@ -253,22 +256,20 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                          "baseline_cost": float(np.mean(R_e ** 2))}
     tick({"stage": "localisation"})
 
-    def fit_sets(sets, starts, n_act=None, iters=None):
+    def fit_sets(sets, starts, iters=None):
         """Fit one augmented model per mechanism set on the estimation record: (θ, residuals);
-        `n_act` (static) the most free parameters of one problem (default: the sets' own),
-        `iters` the Levenberg–Marquardt iterations (default `n_iter`)."""
+        `iters` the Levenberg–Marquardt iterations (default `n_iter`); the drift's wide problems
+        apart from the others (`fitting.fit_zones_by_width`)."""
         S = len(sets)
         masks = np.concatenate([np.tile(np.minimum(base_mask + sum(lay.mask(M.MECH_PARAMS[m]) for m in st),
                                                    1.0), (n, 1)) for st in sets])
         ons = jnp.asarray(np.concatenate([np.tile(M.on_vector(st), (n, 1)) for st in sets]))
         per_s = _problems(rec_e, S, events=np.stack([ev_e] * S),
                           delays=[best_delay if "input_delay" in st else 0.0 for st in sets])
-        if n_act is None:
-            n_act = 4 * math.ceil(masks.sum(axis=1).max() / 4)      # fewer distinct compilations
-        th, _, _ = fit_zones(jnp.asarray(starts.reshape(S * n, -1)), jnp.asarray(masks), ons, per_s,
-                             sh_e, lay, n_iter if iters is None else iters, n_act)
-        ys = np.asarray(sim_zones(th, ons, per_s, sh_e, lay)).reshape(S, n, T).transpose(0, 2, 1)
-        return np.asarray(th).reshape(S, n, -1), y[None] - ys
+        th, _ = fit_zones_by_width(starts.reshape(S * n, -1), masks, ons, per_s, sh_e, lay,
+                                   n_iter if iters is None else iters)
+        ys = np.asarray(sim_zones(jnp.asarray(th), ons, per_s, sh_e, lay)).reshape(S, n, T).transpose(0, 2, 1)
+        return th.reshape(S, n, -1), y[None] - ys
 
     # ---- 3. one refit per mechanism -----------------------------------------------------------
     cands = list(mechanisms)

@@ -69,3 +69,32 @@ def test_numpy_baseline_matches_compiled_fit(ts_free):
         ref = np.asarray(sim_zones(th_lm, on_d, per_d, shared, lay)).T
         np.testing.assert_allclose(B.simulate(np.asarray(th_lm), u, u_pad, TS, level, ts_free, lay, d), ref,
                                    atol=1e-8)
+
+
+def test_fit_zones_by_width_splits_and_keeps_the_fits(monkeypatch):
+    """`fitting.fit_zones_by_width`: the drift's wide problems in a call of their own width, the
+    baseline ones at theirs (fewer unused tangents), with the costs of one call at the widest width."""
+    from jthermo.diagnose import fitting
+
+    y, u = _record()
+    lay = M.make_layout(N, N, M.n_drift_knots(T, TS))
+    th0 = np.stack([M.initial_theta(lay, log_a=np.log(0.01), log_b=np.log([0.1, 0.1]), x0=y[0, i])
+                    for i in range(N)] * 2)
+    base = lay.mask(["log_a", "log_b", "x0"])
+    masks = np.concatenate([np.tile(base, (N, 1)), np.tile(base + lay.mask(["drift"]), (N, 1))])
+    shared = {"u": jnp.asarray(u), "ts_level": jnp.asarray(25.0), "ts_free": jnp.asarray(0.0),
+              "wdev": jnp.zeros(T), "Phi": jnp.asarray(M.drift_basis(T, TS, lay.n_drift)),
+              "u_pad": jnp.asarray(u.mean(axis=0)), "ts": jnp.asarray(TS), "t_ref": jnp.asarray(float(y.mean()))}
+    per = {"y": jnp.asarray(np.tile(y.T, (2, 1))), "ynb": jnp.asarray(np.tile(y[:, ::-1].T[:, :, None], (2, 1, 1))),
+           "ybar": jnp.asarray(np.tile(y.mean(axis=1), (2 * N, 1))), "events": jnp.zeros((2 * N, T)),
+           "delay": jnp.zeros(2 * N)}
+    on = jnp.asarray(np.concatenate([np.zeros((N, 8)), np.tile(M.on_vector(("ambient_variation",)), (N, 1))]))
+    wide = 4 * int(np.ceil(masks.sum(axis=1).max() / 4))
+    _, c_one, _ = fit_zones(jnp.asarray(th0), jnp.asarray(masks), on, per, shared, lay, 30, wide)
+    widths = []
+    real = fitting.fit_zones
+    monkeypatch.setattr(fitting, "fit_zones", lambda *a: widths.append((a[0].shape[0], a[7])) or real(*a))
+    th, c = fitting.fit_zones_by_width(th0, masks, on, per, shared, lay, 30)
+    assert widths == [(N, 4), (N, wide)]
+    np.testing.assert_allclose(c, np.asarray(c_one), rtol=1e-9)
+    assert th.shape == th0.shape
