@@ -3,8 +3,11 @@ and rivals, the top confidence, the augmented fit, the candidates' estimation LR
 relative difference) and the CPU seconds.
 
     python experiments/diagnose_heldout_same.py --a s33_mz9_set12_iter200 --b h34speed_set12
+    python experiments/diagnose_heldout_same.py --real --a diagnose_real_s33 --b diagnose_real_h34speed
 
-Writes `experiments/results/diagnose_heldout_same_{a}_vs_{b}.md`.
+Writes `experiments/results/diagnose_heldout_same_{a}_vs_{b}.md`; with `--real` the two
+`diagnose_real.py` tables (JSON files `experiments/results/{a,b}.json`): names, flagged, each
+finding's confidence, fits and SAE.
 """
 
 from __future__ import annotations
@@ -21,7 +24,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--a", required=True)
     ap.add_argument("--b", required=True)
+    ap.add_argument("--real", action="store_true")
     args = ap.parse_args(argv)
+    if args.real:
+        return real(args.a, args.b)
     a, b = (json.loads((RES / f"diagnose_heldout_hard_{t}.json").read_text()) for t in (args.a, args.b))
     ra = {r["case"]: r for r in a["records"]}
     L = [f"# Same answers? {args.a} vs {args.b}", "",
@@ -44,6 +50,31 @@ def main(argv=None) -> int:
                f"{b['meta']['load']}).")]
     out = RES / f"diagnose_heldout_same_{args.a}_vs_{args.b}.md"
     out.write_text("\n".join(L) + "\n")
+    print("\n".join(L))
+    return 0
+
+
+def real(ta: str, tb: str) -> int:
+    a, b = ({r["data"]: r for r in json.loads((RES / f"{t}.json").read_text())} for t in (ta, tb))
+    L = [f"# Same answers? {ta} vs {tb}", "",
+         f"`python experiments/diagnose_heldout_same.py --real --a {ta} --b {tb}`", "",
+         "| data | status | named a / b | flagged a / b | max confidence diff | fit % a / b | SAE a / b | CPU s a -> b |",
+         "|---|---|---|---|---|---|---|---|"]
+    n_same = 0
+    for name, y in b.items():
+        x = a.get(name, {})
+        conf = lambda r: [f["confidence"] for f in r.get("findings", [])]
+        dc = max((abs(p - q) for p, q in zip(conf(x), conf(y))), default=0.0)
+        fit = lambda r: "/".join(f"{v:.2f}" for v in r.get("augmented_fit", []))
+        sae = lambda r: f"{r['augmented_sae']:.2f}" if "augmented_sae" in r else "-"
+        same = (x.get("named") == y.get("named") and x.get("flagged") == y.get("flagged")
+                and x.get("status") == y.get("status") and dc < 1e-3 and fit(x) == fit(y) and sae(x) == sae(y))
+        n_same += same
+        L.append(f"| {name} | {y['status'][:30]} | {x.get('named')} / {y.get('named')} | {x.get('flagged')} / "
+                 f"{y.get('flagged')} | {dc:.1e} | {fit(x)} / {fit(y)} | {sae(x)} / {sae(y)} | "
+                 f"{x.get('cpu_seconds', float('nan')):.0f} -> {y.get('cpu_seconds', float('nan')):.0f} |")
+    L += ["", f"{n_same}/{len(b)} records: same status, names, flagged, confidences (to 1e-3), fits and SAE (to 0.01)."]
+    (RES / f"diagnose_heldout_same_{ta}_vs_{tb}.md").write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 
