@@ -51,6 +51,15 @@ class, 8 / 12 / 20: 12.3, but each class one more program to compile, about 8 CP
 costs equal to 5e-11, parameters apart only along directions the record leaves flat (the
 conductances to non-neighbours, an unidentified radiative share: up to 4.7 in their log or
 logit at costs equal to 7e-12) (`python benchmarks/diagnose_zone_width.py --tag _h34`, load 3).
+In the whole diagnosis, same window, load 3.5 (`benchmarks/diagnose_profile.py --tag
+_h34_width` against main's `_h34_main`): the candidates' fits warm 15.2 -> 12.0 CPU s, cold
+20.1 -> 20.5 (the second program's compile, 4.4 -> 8.7 s, eats the gain), the diagnosis warm
+37.5 -> 34.2, cold 60.1 -> 60.0 CPU s. From the shell (`python benchmarks/diagnose_latency_ab.py
+--tag _h34` / `_h34b`, 4 interleaved rounds, load 2.4-4.0) no difference shows above the noise:
+cold 61.3 s wall both (main 57.0-67.4, this 56.8-64.5), warm 36.6 vs 35.3 s (35.0-39.7,
+32.5-38.6). The answers are the same: held-out set 12 (1-9 zones), the 12 nulls and the real
+recordings name the same mechanisms with the same confidences and fits
+(`experiments/diagnose_heldout_same.py`, `diagnose_heldout_same_*h34speed*.md`).
 
 The traced programs are kept in the cache directory (`runtime.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables).

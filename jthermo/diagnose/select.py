@@ -22,7 +22,7 @@ explanations within the test's resolution of the top one are reported as its `ri
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
-solved together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates
+solved by the compiled masked Levenberg–Marquardt (`fitting.fit_zones_by_width`); the validation fit then simulates
 all zones coupled. Where the surroundings are not measured, `ambient_variation` is then refitted
 with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified.
 The augmented model is then refitted *jointly* over all zones (coupled
