@@ -22,18 +22,18 @@ explanations within the test's resolution of the top one are reported as its `ri
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
-solved by the compiled masked Levenberg–Marquardt (`fitting.fit_zones_by_width`); the validation fit then simulates
-all zones coupled. Where the surroundings are not measured, `ambient_variation` is then refitted
-with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified.
-The augmented model is then refitted *jointly* over all zones (coupled
-simulation error, `fitting.fit_joint`: zones interact through their simulated temperatures and
-the fitted exchange), with the surroundings at the record's rest level (its first sample: the
-heaters were off before it) unless both tests demand a fitted level, and grown by forward
-selection (up to `MAX_COMBINED` mechanisms): every other candidate may join, significant alone
-or not (radiation shows only once the surroundings sit at their level, a coupling only behind a
-lag); an addition is kept only if it passes both tests against the smaller joint model, and of
-those that pass the one with the strongest estimation evidence (smallest χ² tail of its
-likelihood ratio) joins.
+solved by the compiled masked Levenberg–Marquardt (`fitting.fit_zones_by_width`); the validation
+fit then simulates all zones coupled. Where the surroundings are not measured,
+`ambient_variation` is then refitted with one drift for all zones (`joint.common_drift_fit`): a
+zone's own drift is not identified. The augmented model is then refitted *jointly* over all
+zones (coupled simulation error, `fitting.fit_joint`: zones interact through their simulated
+temperatures and the fitted exchange), with the surroundings at the record's rest level (its
+first sample: the heaters were off before it) unless both tests demand a fitted level, and grown
+by forward selection (up to `MAX_COMBINED` mechanisms): every other candidate may join,
+significant alone or not (radiation shows only once the surroundings sit at their level, a
+coupling only behind a lag); an addition is kept only if it passes both tests against the
+smaller joint model, and of those that pass the one with the strongest estimation evidence
+(smallest χ² tail of its likelihood ratio) joins.
 """
 
 from __future__ import annotations
