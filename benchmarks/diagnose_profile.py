@@ -100,7 +100,7 @@ def _instrument(clock: _Clock, state: dict):
     """Time every compiled fit `select` calls, and each `joint.JointFits.fit` call."""
     import jax
 
-    from jthermo.diagnose import joint, select
+    from jthermo.diagnose import fitting, joint, select
 
     def timed(name, fn):
         def wrapper(*a, **k):
@@ -110,8 +110,11 @@ def _instrument(clock: _Clock, state: dict):
             return out
         return wrapper
 
-    for name in ("fit_zones", "sim_zones", "fit_records"):
+    for name in ("sim_zones", "fit_records"):
         setattr(select, name, timed(name, getattr(select, name)))
+    # the candidates' fits: `fit_zones` itself, or as `select` names it
+    host = select if hasattr(select, "fit_zones") else fitting
+    host.fit_zones = timed("fit_zones", host.fit_zones)
     joint.fit_joint = timed("fit_joint", joint.fit_joint)
     jf = joint.JointFits.fit
 

@@ -32,6 +32,31 @@ load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 
 the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
 benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
 
+At `select.N_ITER` = 200 the candidates' fits are most of a warm diagnosis (24.8 of 59.5 CPU s,
+`_s33_iter200`), and fewer iterations would change the answers (`python
+benchmarks/diagnose_zone_convergence.py --record latency | heldout:12:08 | heldout:12:04 |
+heldout:12:13 --tag _h34`): on the latency record 8 of 48 problems reach the cap (stored-heat
+bodies, within 9e-6 of their cost at 300 iterations), but on set 12's lamp case (N = 5) 38 of
+65 do, several still 17 to 42 times their final cost at 100; `RTOL` 1e-7 instead of 1e-10
+(27 % fewer iterations on the latency record) stops those on plateaus and moves a candidate's
+estimation statistic (m log of its sum of squares) by up to 8460 there, by 151 on the slow-body
+case 13 already at 1e-8; a cap of 100 by up to 7880 (lamp) and 136-156 (cases 04, 13); no
+extra body starts by 3450 (lamp) and 122 (case 04).
+
+Narrower Jacobians were measured and not adopted. A candidate call's Jacobian is formed over
+its widest problem, the surroundings drift's (19 free parameters, width 20 on the latency
+record), while the others free 7 to 10; fitting the drift's problems in a call of their own
+(the rest at width 12) took the latency record's candidate call, warm, 19.5 -> 14.2 CPU s with
+costs equal to 5e-11 (`python benchmarks/diagnose_zone_width.py --tag _h34`, load 3) and the
+whole diagnosis warm 37.5 -> 34.2 CPU s, but the second program's compile (4.4 -> 8.7 s) ate
+the gain cold (60.1 -> 60.0 CPU s; `benchmarks/diagnose_profile.py --tag _h34_width` against
+`_h34_main`, load 3.5). From the shell no difference showed above the noise on the latency
+record (`python benchmarks/diagnose_latency_ab.py --tag _h34` / `_h34b`, 4 interleaved rounds,
+load 2.4-4.0: cold 61.3 s wall both, warm 36.6 vs 35.3 s), and a first call on a one-zone
+record was slower: 24.1 / 25.8 -> 28.8 / 28.1 s wall cold, 10.7 / 11.2 -> 10.5 s warm
+(`benchmarks/results/diagnose_split_n1_s34.md`, load 3.0-3.4). Same answers either way
+(`experiments/diagnose_heldout_same.py`, `diagnose_heldout_same_*h34speed*.md`).
+
 The traced programs are kept in the cache directory (`stored.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables).
 

@@ -22,18 +22,18 @@ explanations within the test's resolution of the top one are reported as its `ri
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
 the bed's measured temperatures, so all zones and candidates are independent small problems
-solved together by one vmapped, compiled Levenberg–Marquardt; the validation fit then simulates
-all zones coupled. Where the surroundings are not measured, `ambient_variation` is then refitted
-with one drift for all zones (`joint.common_drift_fit`): a zone's own drift is not identified.
-The augmented model is then refitted *jointly* over all zones (coupled
-simulation error, `fitting.fit_joint`: zones interact through their simulated temperatures and
-the fitted exchange), with the surroundings at the record's rest level (its first sample: the
-heaters were off before it) unless both tests demand a fitted level, and grown by forward
-selection (up to `MAX_COMBINED` mechanisms): every other candidate may join, significant alone
-or not (radiation shows only once the surroundings sit at their level, a coupling only behind a
-lag); an addition is kept only if it passes both tests against the smaller joint model, and of
-those that pass the one with the strongest estimation evidence (smallest χ² tail of its
-likelihood ratio) joins.
+solved by the compiled masked Levenberg–Marquardt (`fitting.fit_zones`); the validation
+fit then simulates all zones coupled. Where the surroundings are not measured,
+`ambient_variation` is then refitted with one drift for all zones (`joint.common_drift_fit`): a
+zone's own drift is not identified. The augmented model is then refitted *jointly* over all
+zones (coupled simulation error, `fitting.fit_joint`: zones interact through their simulated
+temperatures and the fitted exchange), with the surroundings at the record's rest level (its
+first sample: the heaters were off before it) unless both tests demand a fitted level, and grown
+by forward selection (up to `MAX_COMBINED` mechanisms): every other candidate may join,
+significant alone or not (radiation shows only once the surroundings sit at their level, a
+coupling only behind a lag); an addition is kept only if it passes both tests against the
+smaller joint model, and of those that pass the one with the strongest estimation evidence
+(smallest χ² tail of its likelihood ratio) joins.
 """
 
 from __future__ import annotations
@@ -88,7 +88,10 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
 #: 5-zone lamp case's LRs 5431 / 5510 -> 11428 / 11759), nulls 3/3
 #: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for 75 % more CPU on the latency record
 #: (warm `jthermo diagnose` 34.0 -> 59.5 CPU s, the candidates' fits 9.0 -> 24.8: `python
-#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`)
+#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`).
+#: Fewer would move the answers: a looser `fitting.RTOL`, a cap of 100 or no extra body starts
+#: shift candidates' estimation statistics by 100s to 8000s on held-out set 12 (`python
+#: benchmarks/diagnose_zone_convergence.py --tag _h34`, the `fitting` module's note)
 N_ITER = 200
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
