@@ -32,8 +32,10 @@ load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 
 the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
 benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
 
-At `select.N_ITER` = 200 the candidates' fits are most of a warm diagnosis (24.8 of 59.5 CPU s,
-`_s33_iter200`), and fewer iterations would change the answers (`python
+At `select.N_ITER` = 200 the candidates' fits are a large part of a warm diagnosis (24.8 of 59.5
+CPU s at `_s33_iter200`; 18.5 of 42.6, beside the joint stage's 19.8, since the candidates start
+with live heater gains, `mechanisms.live_gains`: `benchmarks/results/diagnose_profile_s34.md`),
+and fewer iterations would change the answers (`python
 benchmarks/diagnose_zone_convergence.py --record latency | heldout:12:08 | heldout:12:04 |
 heldout:12:13 --tag _h34`): on the latency record 8 of 48 problems reach the cap (stored-heat
 bodies, within 9e-6 of their cost at 300 iterations), but on set 12's lamp case (N = 5) 38 of

@@ -38,7 +38,9 @@ experiments/diagnose_zone_scaling.py --zones 6,9,16 --cold --tag _s33_prune` aga
 / `_s32_restricted16`): CPU 101.8 -> 86.5, 232.0 -> 167.2 and 572.8 -> 499.3 s at N = 6, 9, 16,
 peak memory 6.3 -> 3.2 GB at N = 16; N = 6 and 9 name lag and conduction (and no more
 `input_nonlinearity`), N = 16 keeps its joint fit (82.5 % per zone -> 87.3 %) and names lag,
-conduction and `input_nonlinearity`.
+conduction and `input_nonlinearity` (all at the 60-iteration per-zone fits). At 200 iterations
+(`--tag _s33_final`): 112.9, 224.5 and 687.3 CPU s, lag and conduction named at each N, and at
+N = 16 a wrong `ambient_variation` (0.999) beside them.
 
 Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
 development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone

@@ -18,7 +18,7 @@ from jthermo.models.greybox import BedModel
 CAP = np.array([36.0, 40.0])
 LOSS = np.array([0.6, 0.55])
 GAIN = np.array([[60.0, 3.0], [3.0, 55.0]])
-TS = 30.0
+AMBIENT_C = 30.0
 
 
 def lamp_record(seed: int = 2, beta: float = 2.0, T: int = 1350, n_est: int = 900):
@@ -37,8 +37,8 @@ def lamp_record(seed: int = 2, beta: float = 2.0, T: int = 1350, n_est: int = 90
     lev = rng.uniform(0.0, 0.4, (T // 150 + 1, 2))[np.arange(T) // 150]
     u = np.clip(0.15 + lev + 0.4 * u, 0.0, 1.0)
     q = (1 - np.exp(-beta * u)) / (1 - np.exp(-beta))
-    w = np.full((T, 1), TS)
-    y = np.asarray(BedModel.from_physical(CAP, LOSS, GAIN).simulate(q, w, x0=jnp.asarray(TS + GAIN @ q[0] / LOSS)))
+    w = np.full((T, 1), AMBIENT_C)
+    y = np.asarray(BedModel.from_physical(CAP, LOSS, GAIN).simulate(q, w, x0=jnp.asarray(AMBIENT_C + GAIN @ q[0] / LOSS)))
     y = y + 0.05 * np.random.default_rng(seed + 100).normal(size=y.shape)
     return split(from_arrays(u, y, 1.0, w, signal_names=["ambient"]), n_est / T)
 
