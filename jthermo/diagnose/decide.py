@@ -278,6 +278,19 @@ def slow_order_confidence(top: str, z_input: float) -> float:
     return float(norm.cdf(z if top == "heat_accumulation" else -z))
 
 
+def confidence_runner(top: str, names, measured_var: bool):
+    """Index in `names` (the other candidates that improved on the baseline, best first on the
+    validation record) of the runner-up against which `top`'s confidence is measured
+    (`confidence`), or None. A slow body or surroundings drift named first is not measured
+    against the other of the two where the surroundings are not measured: the drift's knots are
+    re-estimated on the validation record, so there it out-predicts a body it cannot be told
+    from, and a body ordered first by the drift's input dependence would read as near-certainly
+    wrong; the order of the two has its own confidence (`slow_order_confidence`)."""
+    slow = ("heat_accumulation", "ambient_variation")
+    skip = top in slow and not measured_var
+    return next((i for i, m in enumerate(names) if not (skip and m in slow)), None)
+
+
 def slow_rival(top: str, other_fits_estimation: bool, z_input: float) -> bool:
     """The other slow explanation is `top`'s rival: it improves the estimation record
     significantly (its likelihood-ratio test) and the drift's input dependence (`input_dependent`)
@@ -412,7 +425,7 @@ def is_rival(z_top_vs_other: float) -> bool:
 
 __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
            "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
-           "confidence", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
+           "confidence", "confidence_runner", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
            "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_evidence",
            "prefer_fewer_slow", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

@@ -449,16 +449,18 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                     or (tied and r["mechanism"] in slow)):
                 rivals.append(r["mechanism"])
         others = [r for r in ranked if r is not top and r["val_reduction"] > 0]
-        z_run = D.predictive_z(e_c[others[0]["k"]], e_c[kt]) if others else None
+        run = D.confidence_runner(top["mechanism"], [r["mechanism"] for r in others], measured_var)
+        z_run = D.predictive_z(e_c[others[run]["k"]], e_c[kt]) if run is not None else None
         conf_top = D.confidence(top["validation_z"], z_run)
         other_slow = next((r for r in table if r["mechanism"] in slow and r is not top
                            and r["mechanism"] not in forbidden), None)
         if other_slow is not None and not measured_var:
             # a body or a drift: only the drift's input dependence separates them (decide.py)
             z_in = loc.get("drift_input_dependence_z", 0.0)
-            if D.slow_rival(top["mechanism"], other_slow["estimation_lr"] >= other_slow["estimation_lr_critical"],
-                            z_in):
+            fits = other_slow["estimation_lr"] >= other_slow["estimation_lr_critical"]
+            if D.slow_rival(top["mechanism"], fits, z_in):
                 rivals += [other_slow["mechanism"]] if other_slow["mechanism"] not in rivals else []
+            if top["mechanism"] in slow and fits:
                 conf_top = min(conf_top, (1.0 - D.p_value(top["validation_z"]))
                                * D.slow_order_confidence(top["mechanism"], z_in))
         if D.uncertain(conf_top):

@@ -128,3 +128,16 @@ def test_a_record_too_short_to_test_adds_nothing_and_two_records_combine():
     assert D.combined_dependence([1.0, 2.0], [False, False]) == 0.0
     # p = 1 on one record (-inf alone) counts as the rank test's largest magnitude
     assert np.isclose(D.combined_dependence([-np.inf, 1.96], [True, True]), 0.0, atol=1e-2)
+
+
+def test_a_slow_top_is_not_measured_against_the_other_slow_explanation():
+    """Set 14 case 04 (a slow body, the body ordered first by the drift's input dependence) was
+    reported at confidence 5e-77: its runner-up on the validation record was the drift, which
+    re-estimates its knots there. The runner-up of a slow top skips the other slow explanation
+    (unmeasured surroundings only); any other top keeps the best other candidate."""
+    body, drift = "heat_accumulation", "ambient_variation"
+    assert D.confidence_runner(body, [drift, "heater_lag"], False) == 1
+    assert D.confidence_runner(drift, [body], False) is None
+    assert D.confidence_runner(body, [drift, "heater_lag"], True) == 0      # measured: as before
+    assert D.confidence_runner("heater_lag", [drift, body], False) == 0
+    assert D.confidence_runner(body, [], False) is None
