@@ -87,7 +87,8 @@ def main() -> None:
     for ci, (name, a) in enumerate(calls):
         if name == "fit_zones":
             fn, static = fitting._fit_zones, ("lay", "n_iter", "n_active")
-            call = a
+            budget = a[8] if len(a) > 8 else np.full(a[0].shape[0], a[6])     # each problem's iterations
+            call = tuple(a[:8]) + (jnp.asarray(budget, jnp.int32),)
             variants = {"as is": (quick, call), "default options": (None, call)}
         else:
             src = fitting._first_copies(*a[:4], a[6])

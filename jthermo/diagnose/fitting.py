@@ -92,6 +92,10 @@ from .mechanisms import simulate_full, simulate_zone
 #: `identify.lm.STALL` iterations (at most `n_iter`); such a fit has converged to about this
 #: share of its cost (see the module docstring)
 RTOL = 1e-10
+#: a zone fit whose $m \log V$ fell by more than this over its last `FALL_WINDOW` iterations
+#: has not converged at its cap (`still_falling`): the diagnosis continues it
+FALL_LR = 1.0
+FALL_WINDOW = 20
 
 
 @functools.cache
@@ -112,20 +116,38 @@ def _zone_residual(theta, on, z, lay):
     return z["y"] - simulate_zone(theta, on, z, lay)
 
 
-def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
+def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active, budget):
     def one(a):
-        t, m, o, p = a
+        t, m, o, p, b = a
         z = {**shared, **p}
-        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active, rtol=RTOL)
+        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active, rtol=RTOL,
+                         budget=b)
 
-    return jax.lax.map(one, (theta0, mask, on, per))
+    return jax.lax.map(one, (theta0, mask, on, per, budget))
 
 
-def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
+def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None, budget=None):
     """Fit B independent zone problems: `theta0, mask (B, P)`, `on (B, 8)`, `per` a dict of
     per-problem arrays (leading B axis: y, ynb, events, delay), `shared` a dict common to all;
-    `n_active` (static) at least the largest number of free parameters of one problem."""
-    return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active)
+    `n_active` (static) at least the largest number of free parameters of one problem; `budget`
+    `(B,)` each problem's iterations, at most `n_iter` (default `n_iter` each; 0 returns the
+    start: one compiled program for any budget). Returns (θ `(B, P)`, cost `(B,)`, the cost after
+    each iteration `(B, n_iter)`)."""
+    budget = np.full(theta0.shape[0], n_iter) if budget is None else np.asarray(budget)
+    return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active,
+                jnp.asarray(budget, jnp.int32))
+
+
+def still_falling(hist, m: int) -> np.ndarray:
+    """Which fits, cost histories `hist (B, n_iter)` of `m` residuals each, were still falling
+    at their iteration cap: $m \\log(V_{k-W} / V_k) >$ `FALL_LR` over the last `FALL_WINDOW`
+    iterations, the units of the diagnosis's likelihood ratios (a fit that stopped on `RTOL`
+    repeats its final cost: 0)."""
+    h = np.asarray(hist, float)
+    w = min(FALL_WINDOW, h.shape[1] - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fall = m * np.log(h[:, -1 - w] / h[:, -1])
+    return np.isfinite(fall) & (fall > FALL_LR)
 
 
 def _sim_zones(theta, on, per, shared, lay):
@@ -208,4 +230,4 @@ def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     return r, yh, c
 
 
-__all__ = ["fit_joint", "fit_records", "fit_zones", "sim_zones"]
+__all__ = ["FALL_LR", "FALL_WINDOW", "fit_joint", "fit_records", "fit_zones", "sim_zones", "still_falling"]
