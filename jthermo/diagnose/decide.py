@@ -109,6 +109,22 @@ def thresholds(n_tests: int, dof: int, alpha: float = ALPHA) -> tuple[float, flo
     return float(norm.isf(level)), float(chi2.isf(level, max(dof, 1)))
 
 
+def chi2_log_tail(x: float, dof: int) -> float:
+    """$\\log P(\\chi^2_{dof} \\ge x)$, finite for any finite `x`: the strength of a likelihood
+    ratio's evidence, for ranking. SciPy's `chi2.logsf` underflows to $-\\infty$ above
+    $x \\approx 1400$ (a strong mechanism's ratio on a long record is often 2000-20000), which made
+    every strong candidate's evidence equal; there the upper incomplete gamma function's
+    asymptotic series is used: $\\Gamma(s, t) \\approx t^{s-1} e^{-t}[1 + (s-1)/t + (s-1)(s-2)/t^2]$,
+    $s = dof/2$, $t = x/2$."""
+    k = max(int(dof), 1)
+    v = float(chi2.logsf(x, k))
+    if np.isfinite(v) or not np.isfinite(x):
+        return v
+    s, t = 0.5 * k, 0.5 * float(x)
+    return float((s - 1.0) * math.log(t) - t + math.log1p((s - 1.0) / t + (s - 1.0) * (s - 2.0) / t ** 2)
+                 - math.lgamma(s))
+
+
 def p_value(z: float) -> float:
     """One-sided p-value of a validation statistic."""
     return float(norm.sf(z)) if np.isfinite(z) else (0.0 if z > 0 else 1.0)
@@ -345,7 +361,7 @@ def prefer_evidence(rows: list, tied, dof) -> list:
     slow = ("heat_accumulation", "ambient_variation")
     first_slow = next((r for r in rows if r["mechanism"] in slow), None)
     pool = [rows[0]] + [r for r in rows[1:] if (r["mechanism"] not in slow or r is first_slow) and tied(r)]
-    ev = lambda r: float(chi2.logsf(r["estimation_lr"], max(int(dof(r)), 1)))
+    ev = lambda r: chi2_log_tail(r["estimation_lr"], dof(r))
     best = min(pool, key=ev)
     return [best] + [r for r in rows if r is not best]
 
@@ -424,8 +440,9 @@ def is_rival(z_top_vs_other: float) -> bool:
 
 
 __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPENDENCE_POINTS", "ar_filter",
-           "body_drift_tied", "body_identified", "combined_dependence", "common_drift", "common_drift_z",
-           "confidence", "confidence_runner", "dependence_testable", "drift_contradicted", "input_dependence", "input_dependent", "is_rival", "lag_filter",
+           "body_drift_tied", "body_identified", "chi2_log_tail", "combined_dependence", "common_drift",
+           "common_drift_z", "confidence", "confidence_runner", "dependence_testable", "drift_contradicted",
+           "input_dependence", "input_dependent", "is_rival", "lag_filter",
            "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_evidence",
            "prefer_fewer_slow", "prefer_identified",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

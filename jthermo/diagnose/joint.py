@@ -55,7 +55,6 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
-from scipy.stats import chi2
 
 from . import decide as D
 from . import mechanisms as M
@@ -418,7 +417,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
             # among those that pass both tests, the strongest evidence on the estimation record
             # (χ² tail of the likelihood ratio): the validation MSE would favour a mechanism whose
             # parameters are re-estimated on the validation record itself (a drift)
-            ev = chi2.logsf(t["estimation_lr"], max(js.n_added(m), 1))
+            ev = D.chi2_log_tail(t["estimation_lr"], js.n_added(m))
             # an addition that predicts the validation record worse is never the augmented model
             if t["passed"] and D.not_worse(js.yv, a["e"], cur["e"]):
                 passing.append((m, a))

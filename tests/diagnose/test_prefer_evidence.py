@@ -40,3 +40,24 @@ def test_equal_evidence_keeps_the_validation_order():
             {"mechanism": "radiative_loss", "estimation_lr": 30.0}]
     assert names(D.prefer_evidence(rows, lambda r: True, dof)) == names(rows)
     assert D.prefer_evidence(rows[:1], lambda r: True, dof) == rows[:1]
+
+
+def test_evidence_beyond_scipy_underflow_still_ranks():
+    # held-out set 20 case 36 (natural convection, 4 zones): both tied candidates' ratios are far
+    # above the ~1400 where `chi2.logsf` underflows to -inf; the stronger one (radiation) is named
+    rows = [{"mechanism": "input_nonlinearity", "estimation_lr": 4454.0},
+            {"mechanism": "radiative_loss", "estimation_lr": 4654.0}]
+    d4 = lambda r: 4
+    assert names(D.prefer_evidence(rows, lambda r: True, d4)) == ["radiative_loss", "input_nonlinearity"]
+    assert D.chi2_log_tail(4654.0, 4) < D.chi2_log_tail(4454.0, 4) < D.chi2_log_tail(1000.0, 4) < 0.0
+
+
+def test_chi2_log_tail_matches_scipy_where_finite():
+    from scipy.stats import chi2
+
+    for k in (1, 4, 9, 40):
+        for x in (5.0, 300.0, 1300.0):
+            assert abs(D.chi2_log_tail(x, k) - chi2.logsf(x, k)) < 1e-9 * max(1.0, abs(chi2.logsf(x, k)))
+    # and continues it smoothly past the underflow (the asymptotic series against the last finite value)
+    assert abs(D.chi2_log_tail(1400.0, 4) - chi2.logsf(1400.0, 4)) < 1e-6
+    assert D.chi2_log_tail(1500.0, 4) < D.chi2_log_tail(1400.0, 4)
