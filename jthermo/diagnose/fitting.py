@@ -116,7 +116,8 @@ def _fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None):
     def one(a):
         t, m, o, p = a
         z = {**shared, **p}
-        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active, rtol=RTOL)
+        return masked_lm(lambda th: _zone_residual(th, o, z, lay), t, m, n_iter, n_active, rtol=RTOL,
+                         geodesic=True)
 
     return jax.lax.map(one, (theta0, mask, on, per))
 
