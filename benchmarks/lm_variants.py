@@ -9,8 +9,8 @@ Replay (default): each stored problem is fitted again, one after another (`lax.m
 `fitting._fit_zones`), by `variant_lm` below under each variant, with the production stop
 (`fitting.RTOL` over `lm.STALL` iterations, at most the call's `n_iter`); per problem its final
 cost, iterations and Jacobians. Per variant: the problems whose cost is above the baseline's
-(relative, beyond 1e-9), the worst relative excess, each candidate's estimation statistic shift
-m log(SSE / SSE_base) (each zone its best start), total iterations and Jacobians, CPU s of the run.
+(relative, beyond 1e-9), the worst relative excess, each (candidate set x start) block's estimation
+statistic shift m log(SSE / SSE_base) (its zones' costs summed), total iterations and Jacobians, CPU s of the run.
 
     python benchmarks/lm_variants.py --capture latency
     python benchmarks/lm_variants.py --records latency,heldout:12:08 --variants base,nielsen --tag _h35
@@ -245,8 +245,8 @@ def main(argv=None) -> int:
     rows, L = [], [f"# Masked LM variants on the diagnosis's per-zone problems{args.tag}", "",
                    f"`python benchmarks/lm_variants.py --records {args.records} --variants {args.variants}"
                    f"{' --tag ' + args.tag if args.tag else ''}` (load {os.getloadavg()[0]:.1f}). Excess: problems "
-                   "whose final cost is above the baseline's by more than 1e-9 relative; LR shift: each candidate's "
-                   "m log(SSE/SSE_base) summed over zones' best starts (worst over candidates, negative = lower cost). "
+                   "whose final cost is above the baseline's by more than 1e-9 relative; LR shift: each (candidate set x start) "
+                   "block's m log(SSE/SSE_base), its zones' costs summed (min / max over blocks, negative = lower cost). "
                    "CPU s: the replay run (second call, compiled).", "",
                    "| record | variant | iterations | Jacobians | problems above base | worst rel. excess | "
                    "min / max LR shift | CPU s |", "|---|---|---|---|---|---|---|---|"]
