@@ -17,7 +17,7 @@ import jax.numpy as jnp
 STALL = 3
 
 
-def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=None):
+def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=None, geodesic=False):
     """Minimise $V(\\theta) = \\frac1m \\|r(\\theta)\\|^2$ over the parameters that `mask` frees.
 
     **Arguments:**
@@ -34,6 +34,12 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
       than `rtol` of itself over the last `STALL` iterations (or $\\lambda$ reached its bound).
     - `budget`: optional iteration count of this problem (a traced integer, at most `n_iter`;
       0 returns the start).
+    - `geodesic`: (static) a fourth trial each iteration, the damping $\\lambda$ step with
+      geodesic acceleration (Transtrum & Sethna 2012): $\\delta = v + a/2$,
+      $a = -(J^\\top J + \\lambda D)^{-1} J^\\top r''$, $r''$ the second directional derivative
+      along $v$ by a finite difference of step 0.1 (one more residual), used only where
+      $2\\|a\\| \\le 0.75 \\|v\\|$. On the diagnosis's per-zone problems it follows curved valleys
+      that the plain steps crawl along: `benchmarks/results/lm_variants_h35*.md`.
 
     With `rtol` or `budget` the loop is a `lax.while_loop` that forms the Jacobian only where
     $\\theta$ moved: after a rejected step the next iteration reuses $r$ and $J$ (the same
@@ -81,8 +87,16 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
         scale = jnp.where(valid > 0, d + 1e-9 * (jnp.max(d) + 1e-30), 1.0)
         Hm = H * (valid[:, None] * valid[None, :]) + jnp.diag(1.0 - valid)
 
-        def step(lm):
-            delta = -jnp.linalg.solve(Hm + lm * jnp.diag(scale), gvec * valid)
+        def step(lm, accelerate=False):
+            A = Hm + lm * jnp.diag(scale)
+            delta = -jnp.linalg.solve(A, gvec * valid)
+            if accelerate:
+                v = jnp.where(jnp.isfinite(delta), delta * valid, 0.0)
+                h = 0.1
+                rpp = (2.0 / h) * ((residual(th.at[idx].add(h * v)) - r) / h - J @ v)
+                acc = -jnp.linalg.solve(A, (J.T @ jnp.where(jnp.isfinite(rpp), rpp, 0.0)) * valid)
+                small = 2.0 * jnp.linalg.norm(acc) <= 0.75 * jnp.linalg.norm(delta)
+                delta = jnp.where(small, delta + 0.5 * acc, delta)
             delta = jnp.clip(delta, -2.0, 2.0)     # log parameters: at most e^2 per step
             delta = jnp.where(jnp.isfinite(delta), delta * valid, 0.0)
             tn = th.at[idx].add(delta)
@@ -90,6 +104,10 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
 
         lams = lam * jnp.array([0.1, 1.0, 10.0], dt)
         tns, cs = jax.vmap(step)(lams)
+        if geodesic:
+            tg, cg = step(lam, True)
+            lams = jnp.append(lams, lam)
+            tns, cs = jnp.concatenate([tns, tg[None]]), jnp.append(cs, cg)
         k = jnp.argmin(cs)
         better = cs[k] < c_now
         th = jnp.where(better, tns[k], th)
