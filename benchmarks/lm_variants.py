@@ -25,7 +25,6 @@ import json
 import os
 import pickle
 import sys
-import time
 from pathlib import Path
 
 import jax

@@ -31,7 +31,6 @@ from scipy.stats import chi2
 
 import jthermo.diagnose as JD
 from jthermo.diagnose import decide as D
-from jthermo.diagnose import joint as J
 from jthermo.diagnose import select as S
 
 STATE = {"top_changed": [], "joint_underflow": 0}
