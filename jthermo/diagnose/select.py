@@ -273,14 +273,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                           delays=[best_delay if "input_delay" in st else 0.0 for st in sets])
         if n_act is None:
             n_act = 4 * math.ceil(masks.sum(axis=1).max() / 4)      # fewer distinct compilations
-        its = n_iter if iters is None else iters
-        th, _, hist = fit_zones(jnp.asarray(starts.reshape(S * n, -1)), jnp.asarray(masks), ons, per_s,
-                                sh_e, lay, its, n_act)
+        its, masks = n_iter if iters is None else iters, jnp.asarray(masks)
+        th, _, hist = fit_zones(jnp.asarray(starts.reshape(S * n, -1)), masks, ons, per_s, sh_e, lay, its, n_act)
         for _ in range(CONTINUE_ROUNDS):       # fits still falling at the cap go on (`fitting.py`)
             more = still_falling(hist, T)
             if not more.any():
                 break
-            th, _, hist = fit_zones(th, jnp.asarray(masks), ons, per_s, sh_e, lay, its, n_act, more * its)
+            th, _, hist = fit_zones(th, masks, ons, per_s, sh_e, lay, its, n_act, more * its)
         ys = np.asarray(sim_zones(th, ons, per_s, sh_e, lay)).reshape(S, n, T).transpose(0, 2, 1)
         return np.asarray(th).reshape(S, n, -1), y[None] - ys
 
