@@ -397,14 +397,15 @@ def drift_contradicted(lrs, n_knots: int) -> bool:
     fit) fits its record better than the drift shared by every zone (`joint.common_drift_fit`)
     beyond chance. `lrs` the zones' likelihood ratios (own against common, whitened as
     `likelihood_ratio`), each against the $\\chi^2$ quantile with the `n_knots - 1` drift shape
-    parameters a zone's own drift adds (its level is free in both), at the one-sided
-    `RIVAL_LEVEL` shared by the zones (Bonferroni). A zone that sees the drift too weakly to
+    parameters a zone's own drift adds (its level is free in both), at the diagnosis's level
+    `ALPHA` shared by the zones (Bonferroni): rejecting the common drift withholds a significant
+    candidate, a decision at the level of every other one that names or withholds. A zone that sees the drift too weakly to
     determine it contradicts nothing (where `common_drift_z`, which compares the zones' own
     drifts, finds no agreement: such a zone's own drift trades with its gains)."""
     lrs = np.asarray(lrs, float)
     if lrs.size == 0:
         return True
-    crit = chi2.isf(RIVAL_LEVEL / lrs.size, max(int(n_knots) - 1, 1))
+    crit = chi2.isf(ALPHA / lrs.size, max(int(n_knots) - 1, 1))
     return bool(not np.all(np.isfinite(lrs)) or np.any(lrs > crit))
 
 

@@ -58,7 +58,7 @@ import numpy as np
 
 from . import decide as D
 from . import mechanisms as M
-from .fitting import fit_joint
+from .fitting import FALL_LR, fit_joint
 
 #: largest number of mechanisms in the augmented model
 MAX_COMBINED = 3
@@ -155,8 +155,8 @@ class JointFits:
 
     def n_added(self, mech) -> int:
         """Free parameters `mech` adds to a joint model, all zones (the tests' degrees of freedom)."""
-        if self.keep is None:
-            return M.n_added_per_zone(mech, self.lay) * self.n
+        if self.keep is None or mech == "ambient_variation":   # the drift: the record's knots
+            return M.n_added(mech, self.lay, shared_drift=True)
         return int(sum(self.keep[:, self.lay.sl(g)].sum() for g in M.MECH_PARAMS.get(mech, ())))
 
     def setup(self, free: bool, validation: bool = False) -> dict:
@@ -451,7 +451,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
     return cur, tried, list(chosen)
 
 
-def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter) -> tuple:
+def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter, rounds: int = 0) -> tuple:
     """The `ambient_variation` candidate refitted over all zones with *one* surroundings drift
     (unmeasured surroundings are one temperature every zone sees), from its per-zone fits
     `theta (n, P)`: each zone's loss, heater gains (and level offset where it is free), every
@@ -460,6 +460,10 @@ def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter) -> tuple:
     this is the per-zone problem with the drift shared. Per zone a drift is not identified: a
     slow zone whose loss and level trade with its gains fits its record with a drift of another
     shape, and then predicts a record whose one drift the other zones determine poorly.
+    A fit still falling after `n_iter` iterations (its cost fell by more than `fitting.FALL_LR`
+    likelihood-ratio units, $T n \\log(V_{before}/V_{after})$) goes on for up to `rounds` more
+    (the same compiled program): the tests of agreement compare it with the zones' own drifts,
+    and an unfinished common fit reads as zones that contradict it.
     Returns (θ (n, P) with the drift written mean-free per zone as `simulate_zone` reads it and
     its mean in the level offset, residuals (T, n))."""
     n, nd = lay.n, lay.n_drift
@@ -475,10 +479,16 @@ def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter) -> tuple:
     fper = {"events": jnp.zeros((1, T, n)), "delay": jnp.zeros(1), "ts_level": jnp.asarray([float(level)]),
             "ts_free": jnp.asarray([float(ts_free)]), "u_pad": jnp.asarray(sh["u_pad"])[None]}
     n_act = 4 * math.ceil((n * (1 + lay.nu + int(bool(ts_free))) + n + nd) / 4)
-    thj, rec, yh, _ = fit_joint(jnp.asarray(th[None]), jnp.asarray(M.on_vector(("ambient_variation",))[None]),
-                                jnp.asarray(rec0), jnp.asarray(mask[None]), jnp.asarray(y), jnp.ones(T), fper,
-                                sh, lay, n_iter, n_act)
-    thj, rec = np.array(thj[0]), np.asarray(rec[0])
+    on = jnp.asarray(M.on_vector(("ambient_variation",))[None])
+    sse = np.inf
+    for _ in range(1 + rounds):
+        thj, rec, yh, _ = fit_joint(jnp.asarray(th[None]), on, jnp.asarray(rec0), jnp.asarray(mask[None]),
+                                    jnp.asarray(y), jnp.ones(T), fper, sh, lay, n_iter, n_act)
+        before, sse = sse, float(np.sum((y - np.asarray(yh[0])) ** 2))
+        th, rec0 = np.array(thj[0]), np.array(rec)
+        if not y.size * np.log(before / sse) > FALL_LR:
+            break
+    thj, rec = th, rec0[0]
     d = rec[2 * n:2 * n + nd]
     thj[:, lay.sl("x0")] = rec[:n, None]
     thj[:, lay.sl("drift")] = (d - d.mean())[None, :]

@@ -107,6 +107,16 @@ def n_added_per_zone(mech: str, lay) -> int:
     return sum(lay.sl(g).stop - lay.sl(g).start for g in MECH_PARAMS.get(mech, ()))
 
 
+def n_added(mech: str, lay, shared_drift: bool) -> int:
+    """Parameters `mech` adds to the `lay.n`-zone model, the degrees of freedom of its tests:
+    its `MECH_PARAMS` in every zone, but a surroundings drift shared by every zone (unmeasured
+    surroundings are one temperature: `joint.common_drift_fit`, the joint fits' record drift)
+    only its `lay.n_drift` knots."""
+    if mech == "ambient_variation" and shared_drift:
+        return lay.n_drift
+    return n_added_per_zone(mech, lay) * lay.n
+
+
 def drift_basis(T: int, ts: float, n_knots: int) -> np.ndarray:
     """Piecewise-linear hat functions with knots every `DRIFT_SPACING` s, `(T, n_knots)`;
     knots beyond the record's end get zero columns."""

@@ -313,7 +313,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         ka = cands.index("ambient_variation")
         thc, res_c = np.array(thc), np.array(res_c)
         res_own = res_c[ka].copy()
-        thc[ka], res_c[ka] = common_drift_fit(thc[ka], y, sh_e, level, ts_free, lay, COMMON_DRIFT_ITER)
+        thc[ka], res_c[ka] = common_drift_fit(thc[ka], y, sh_e, level, ts_free, lay, COMMON_DRIFT_ITER,
+                                              CONTINUE_ROUNDS)
         loc["drift_own_vs_common_lr"] = [D.likelihood_ratio(res_c[ka][:, i:i + 1], res_own[:, i:i + 1])
                                          for i in range(n)]
     tick({"stage": "candidates"})
@@ -381,9 +382,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
              "recoat_times_s": drops["times_s"] if irregular else None,
              "ts_level": level, "measured_ambient": measured_var, "w_range": w_range}
     forbidden = ACTUATORS[actuator]
+    dof = lambda m: M.n_added(m, lay, shared_drift=amb is None)    # the tests' degrees of freedom
     table = []
     for k, m in enumerate(cands):
-        zc, lc = D.thresholds(K, M.n_added_per_zone(m, lay) * n)
+        zc, lc = D.thresholds(K, dof(m))
         zv = D.predictive_z(e_base, e_c[k], k_val((m,)))
         lr = D.likelihood_ratio(R_e, res_c[k])
         fk = fit_of(e_c[k])
@@ -444,7 +446,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         # of the explanations the validation record leaves tied, the strongest on the estimation record
         k0 = sig[0]["k"]
         sig = D.prefer_evidence(sig, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
-                                lambda r: M.n_added_per_zone(r["mechanism"], lay) * n)
+                                lambda r: dof(r["mechanism"]))
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
     added, level_mode, aug = [], None, {}

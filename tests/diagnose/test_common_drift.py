@@ -61,12 +61,45 @@ def test_common_drift_fit_shares_one_drift_and_keeps_the_zone_form():
     assert np.sqrt(np.mean((y[:, 1] - y1) ** 2)) > 10 * NOISE
 
 
+def test_an_unfinished_common_fit_goes_on_while_it_falls():
+    """From a start far off (no drift, every zone's loss e times too fast, gains a third), a
+    3-iteration fit is still falling (far above the noise); with continuation rounds it reaches
+    the noise, and from there a further call changes nothing."""
+    lay, f, y, start, drift, on = _record()
+    far = start.copy()
+    far[:, lay.sl("drift")] = 0.0
+    far[:, lay.sl("log_b")] -= np.log(3.0)
+    far[:, lay.sl("log_a")] += 1.0
+    noise = y.size * NOISE ** 2
+    _, short = common_drift_fit(far, y, f, LEVEL, 1.0, lay, 3)
+    th, longer = common_drift_fit(far, y, f, LEVEL, 1.0, lay, 3, rounds=3)
+    assert np.sum(short ** 2) > 100 * noise
+    assert np.sum(longer ** 2) < 1.5 * noise
+    _, again = common_drift_fit(th, y, f, LEVEL, 1.0, lay, 3)
+    assert np.sum(again ** 2) <= np.sum(longer ** 2) * (1 + 1e-6)
+
+
 def test_a_zone_contradicts_the_common_drift_only_beyond_chance():
-    """Own-against-common likelihood ratios: below the Bonferroni χ² quantile (shape parameters
-    = knots - 1) nothing contradicts; one zone above it, or a diverged fit, does."""
-    crit = chi2.isf(D.RIVAL_LEVEL / 3, 7)
+    """Own-against-common likelihood ratios: below the Bonferroni χ² quantile at the diagnosis's
+    level (shape parameters = knots - 1) nothing contradicts; one zone above it, or a diverged
+    fit, does."""
+    crit = chi2.isf(D.ALPHA / 3, 7)
     assert not D.drift_contradicted([3.6, -29.6, -3.3], 8)
     assert not D.drift_contradicted([0.99 * crit] * 3, 8)
     assert D.drift_contradicted([1.01 * crit, 0.0, 0.0], 8)
     assert D.drift_contradicted([1.0, float("nan")], 8)
     assert D.drift_contradicted([], 8)
+
+
+def test_a_shared_drift_is_charged_its_knots_once():
+    """The tests' degrees of freedom: a drift every zone shares (unmeasured surroundings, refitted
+    by `common_drift_fit`, and the joint fits' record drift) adds its knots once, not per zone;
+    per-zone drifts (measured constant surroundings) and every other mechanism add per zone."""
+    n, knots = 4, M.n_drift_knots(3600, 1.0)
+    lay = M.make_layout(n, n, knots)
+    assert knots == 13
+    assert M.n_added("ambient_variation", lay, shared_drift=True) == knots
+    assert M.n_added("ambient_variation", lay, shared_drift=False) == n * knots
+    for mech in ("heater_lag", "input_delay", "radiative_loss", "heat_accumulation"):
+        assert M.n_added(mech, lay, shared_drift=True) == n * M.n_added_per_zone(mech, lay)
+    assert M.n_added("heat_accumulation", lay, shared_drift=True) == 4 * n
