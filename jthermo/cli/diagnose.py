@@ -74,7 +74,8 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
         result = diag.to_json(result)
     result = {k: v for k, v in result.items() if not str(k).startswith("_")}
     result = write_report(args, js, result)
-    names = [f.get("mechanism") for f in result.get("findings", [])]
+    names = [f"{f.get('mechanism')}" + (" (effect below the sensor noise)" if f.get("below_noise") else "")
+             for f in result.get("findings", [])]
     info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))
     return result
 

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 
-def summary(mech, zones, params, uncertain=False, rivals=()):
-    """One line on the finding; an uncertain one (`decide.uncertain`) says so and names its rivals."""
+def summary(mech, zones, params, uncertain=False, rivals=(), small=None):
+    """One line on the finding; an uncertain one (`decide.uncertain`) says so and names its
+    rivals; one whose effect is below the sensor noise (`small`: (effect, noise) in °C,
+    `decide.below_noise`) says that too."""
     line = _summary(mech, zones, params)
+    if small is not None:
+        line = (f"Small effect ({small[0]:.3g} °C RMS on the prediction, below the sensor noise "
+                f"{small[1]:.3g} °C): {line}")
     if not uncertain:
         return line
     alt = f" or {', '.join(rivals)}" if rivals else ""

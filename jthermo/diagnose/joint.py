@@ -441,6 +441,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
                 break
             best = (best[0], full, best[2], best[3])
         best[0]["accepted"] = True
+        best[0]["effect_rms_C"] = D.rms(cur["yhat"] - best[1]["yhat"])
         cur, chosen = best[1], best[1]["set"]
         pool.remove(best[2])
         if len(chosen) >= MAX_COMBINED or not pool:

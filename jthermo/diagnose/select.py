@@ -511,6 +511,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
 
     e_aug = yv - aug_yhat
     aug_fit = fit_of(e_aug)
+    noise = D.sensor_noise(e_aug)
     findings = []
     for rank, mech in enumerate(chosen):
         row = next(r for r in table if r["mechanism"] == mech)
@@ -519,12 +520,15 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         params = M.physical_parameters(aug_theta, mech, lay, ts, extra)
         if rank == 0:
             conf, mech_rivals = conf_top, rivals
+            effect = D.rms(yhat_v[0] - yhat_v[row["k"] + 1])
         else:
             # an addition tied with others of its round is named with them as its rivals
             acc = next(a for a in added if a["accepted"] and a["mechanisms"][-1] == mech)
             tie = rivals_among(acc.get("z_over", {}), chosen)
             conf = D.confidence(acc["validation_z"], tie["z_over_runner"])
             mech_rivals = tie["rivals"]
+            effect = acc["effect_rms_C"]
+        small = D.below_noise(effect, noise)
         evidence = {"validation_z": round(row["validation_z"], 3),
                     "validation_z_critical": round(row["validation_z_critical"], 3),
                     "estimation_likelihood_ratio": round(row["estimation_lr"], 2),
@@ -533,10 +537,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                     "validation_mse_reduction_percent": round(100 * row["val_reduction"], 2),
                     "validation_fit_gain_points": round(row["fit_gain"], 2),
                     "runner_up": next((r["mechanism"] for r in ranked if r["mechanism"] != mech), None),
-                    "zone_mse_reduction": [round(float(v), 5) for v in dz]}
+                    "zone_mse_reduction": [round(float(v), 5) for v in dz],
+                    "effect_rms_C": round(effect, 4), "sensor_noise_C": round(noise, 4)}
         evidence.update(mechanism_evidence(mech, loc, per_ev, drops if irregular else None))
         findings.append({"mechanism": mech, "confidence": float(conf), "zones": zones,
-                         "summary": summary(mech, zones, params, D.uncertain(conf), mech_rivals),
+                         "summary": summary(mech, zones, params, D.uncertain(conf), mech_rivals,
+                                            (effect, noise) if small else None),
+                         "below_noise": small,
                          "evidence": evidence,
                          "parameters": params, "rivals": mech_rivals,
                          "uncertain": bool(D.uncertain(conf))})

@@ -48,6 +48,10 @@ def test_concealed_mechanism_is_top_finding(results, mech):
     assert gain >= 2.0
     if mech == "input_delay":
         assert abs(res["findings"][0]["parameters"]["delay_s"] - 4.0) <= 0.25
+    # its effect on the prediction is read against the sensor noise (0.05 °C here), and is above it
+    ev = res["findings"][0]["evidence"]
+    assert 0.04 <= ev["sensor_noise_C"] <= 0.06
+    assert ev["effect_rms_C"] > ev["sensor_noise_C"] and not res["findings"][0]["below_noise"]
 
 
 def test_json_contract(results):
