@@ -368,16 +368,15 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     n_ctrl = getattr(ctrl, "zones", None)
     if n_ctrl is not None and n_ctrl != ny:
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
-    key = jax.random.key(int(seed))
     if isinstance(plant, Printer) and not scenario_kw:
-        # the printer's scenarios are drawn inside the same compiled call
+        # the printer's scenarios are drawn inside the same compiled call, its key too
         # traced once per cache: later processes load the exported program (`runtime`)
-        out = exported_call(_scenario_metrics_fn, (kind, plant, ctrl, duration, key,
-                                                   int(rollouts)),
-                            _quick_scenario_metrics(), compiler_options=simulate_compile())
+        out = exported_call(_seeded_metrics_fn, (kind, plant, ctrl, duration,
+                                                 np.asarray(int(seed), np.int64), int(rollouts)),
+                            _quick_seeded_metrics(), compiler_options=simulate_compile())
     else:
-        sc = make_scenario(kind, plant, duration, key, n_rollouts=int(rollouts),
-                           **dict(scenario_kw or {}))
+        sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)),
+                           n_rollouts=int(rollouts), **dict(scenario_kw or {}))
         out = _run_metrics(plant, ctrl, sc, kind not in RECOAT_FREE_KINDS)
     vals, r0, n_samples = jax.device_get(out)   # one transfer to the host
     J = vals.pop("cost")
@@ -439,12 +438,26 @@ def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
 _scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
 
 
+def _seeded_metrics_fn(kind, plant, controller, duration, seed, n_rollouts):
+    """`_scenario_metrics_fn` with its key `jax.random.key(seed)` made inside the program from
+    the 0-d int64 `seed` (traced: one compile for every seed): the same key, bit for bit,
+    without the two small eager programs `jax.random.key` runs outside a trace."""
+    return _scenario_metrics_fn(kind, plant, controller, duration, jax.random.key(seed),
+                                n_rollouts)
+
+
 @functools.cache
 def _quick_scenario_metrics():
     """`_scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
     it where its exported program cannot serve: compiled once per cache and run once per
     command (the same figures to 1e-16 relative)."""
     return eqx.filter_jit(_scenario_metrics_fn, compiler_options=simulate_compile())
+
+
+@functools.cache
+def _quick_seeded_metrics():
+    """`_seeded_metrics_fn` compiled as `_quick_scenario_metrics` (`run`'s fallback)."""
+    return eqx.filter_jit(_seeded_metrics_fn, compiler_options=simulate_compile())
 
 
 def rollouts_and_cost(plant, controller, scenarios, weights=None):

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from ..errors import ControlError
@@ -42,8 +42,11 @@ def as_state_space(model) -> StateSpace:
 
 
 def as_array(x, dtype=None):
-    """A controller leaf: `x` as a JAX array, through float64 (then `dtype` if given)."""
-    return jnp.asarray(np.asarray(x, np.float64), dtype)
+    """A controller leaf: `x` as a JAX array, through float64 (then `dtype` if given). NumPy
+    converts and the array is transferred (`jnp.asarray` would run an eager copy program:
+    traced, lowered and looked up in the compilation cache on every call of the command)."""
+    a = np.asarray(x, np.float64)
+    return jax.device_put(a if dtype is None else a.astype(dtype))
 
 
 def operating_point(model) -> tuple[np.ndarray, np.ndarray]:
@@ -90,15 +93,31 @@ def _horizon(ss: StateSpace, max_n: int = 20000) -> int:
     return int(min(max(50, math.ceil(7 * tau) + 10), max_n))
 
 
-def _np_step(A, B, C, D, n):
-    """Unit step responses (n, ny, nu) of a numpy state space (deviation from rest)."""
+def _np_step(A, B, C, D, n, until=None, check_every: int = 64):
+    """Unit step responses (n, ny, nu) of a numpy state space (deviation from rest).
+
+    `until` (ny,): stop, checking every `check_every` samples, once every diagonal response
+    $s_{ii}$ has reached `until[i]` (then fewer than `n` samples come back: the samples
+    computed are the same numbers)."""
     nx, nu = B.shape
     x = np.zeros((nx, nu))
     out = np.empty((n, C.shape[0], nu))
     for k in range(n):
         out[k] = C @ x + D
         x = A @ x + B
+        if until is not None and (k + 1) % check_every == 0 and _reached(out[: k + 1], until):
+            return out[: k + 1]
     return out
+
+
+def _reached(S: np.ndarray, levels: np.ndarray) -> bool:
+    """Whether every diagonal step response in `S` (k, ny, nu) has a sample >= `levels`."""
+    diag = np.diagonal(S, axis1=1, axis2=2)
+    return bool(np.all(np.any(diag >= levels, axis=0)))
+
+
+#: the fractions of the static gain whose first crossings `fit_step_model` times (28.3 %, 63.2 %)
+FIT_LEVELS = (0.283, 0.632)
 
 
 def fit_step_model(s: np.ndarray, ts: float, K: float | None = None) -> tuple[float, float, float]:
@@ -120,7 +139,7 @@ def fit_step_model(s: np.ndarray, ts: float, K: float | None = None) -> tuple[fl
         s0, s1 = s[idx - 1], s[idx]
         return (idx - 1 + (level * K - s0) / (s1 - s0)) * ts
 
-    t28, t63 = crossing(0.283), crossing(0.632)
+    t28, t63 = (crossing(level) for level in FIT_LEVELS)
     T = max(1.5 * (t63 - t28), 1e-3 * ts)
     L = max(t63 - T, 0.0)
     return K, L, T
@@ -132,8 +151,10 @@ def step_models(model, transform: np.ndarray | None = None) -> StepModel:
     A, B, C, D = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
     if transform is not None:
         B, D = B @ transform, D @ transform
-    S = _np_step(A, B, C, D, _horizon(ss))
     G0 = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
+    # `fit_step_model` with K = G0[i, i] reads a response up to its first sample >= 0.632 K
+    # (the later crossing): the samples after it, most of the horizon, are not computed
+    S = _np_step(A, B, C, D, _horizon(ss), until=FIT_LEVELS[-1] * np.diag(G0))
     K, L, T = zip(*(fit_step_model(S[:, i, i], ss.ts, G0[i, i]) for i in range(S.shape[1])))
     return StepModel(np.array(K), np.array(L), np.array(T))
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -19,6 +20,14 @@ from .geometry import (
     grid_shape,
 )
 from .plant import Printer
+
+
+def _leaf(v, dtype) -> Array:
+    """`jnp.asarray(v, dtype)`, NumPy converting host values (no eager conversion program to
+    trace, lower and look up in the compilation cache): the same array, bit for bit."""
+    if isinstance(v, jax.Array):
+        return jnp.asarray(v, dtype)
+    return jax.device_put(np.asarray(v, dtype))
 
 
 def make_printer(zones: int = 4, effects: Mapping[str, Mapping] | Iterable[str] = (), *,
@@ -102,7 +111,7 @@ def make_printer(zones: int = 4, effects: Mapping[str, Mapping] | Iterable[str] 
             if (name, k) in STATIC_PARAMS:
                 static.append((name, k, v))
             else:
-                leaves[name][k] = jnp.asarray(v, dtype)
+                leaves[name][k] = _leaf(v, dtype)
     delay = 0
     if "input_delay" in eff:
         ds = eff["input_delay"]["delay_s"]
@@ -118,18 +127,18 @@ def make_printer(zones: int = 4, effects: Mapping[str, Mapping] | Iterable[str] 
         pos = grid_positions(n)
         edge[(pos[:, 0] == 0) | (pos[:, 0] == rows - 1) | (pos[:, 1] == 0) | (pos[:, 1] == cols - 1)] = 1.0
         area = {
-            "capacity": jnp.asarray([2000.0, 3000.0, 1500.0], dtype),   # J/K
-            "loss": jnp.asarray([2.0, 3.0, 1.5], dtype),                # W/K to surroundings
-            "power": jnp.asarray([60.0, 150.0, 20.0], dtype),           # W at u = 1
-            "wall_coupling": jnp.asarray(0.05 * edge, dtype),           # W/K zone <-> wall
-            "plate_coupling": jnp.full((n,), 0.1, dtype),               # W/K zone <-> plate
-            "wall_container": jnp.asarray(0.5, dtype),                  # W/K wall <-> container
-            "setpoint": jnp.asarray([surroundings + 10.0, pw.target - 6.0, surroundings + 5.0], dtype),
+            "capacity": _leaf([2000.0, 3000.0, 1500.0], dtype),   # J/K
+            "loss": _leaf([2.0, 3.0, 1.5], dtype),                # W/K to surroundings
+            "power": _leaf([60.0, 150.0, 20.0], dtype),           # W at u = 1
+            "wall_coupling": _leaf(0.05 * edge, dtype),           # W/K zone <-> wall
+            "plate_coupling": _leaf(np.full(n, 0.1), dtype),      # W/K zone <-> plate
+            "wall_container": _leaf(0.5, dtype),                  # W/K wall <-> container
+            "setpoint": _leaf([surroundings + 10.0, pw.target - 6.0, surroundings + 5.0], dtype),
         }
     substeps = int(overrides.get("substeps", 10))
-    return Printer(capacity=jnp.asarray(capacity, dtype), loss=jnp.asarray(loss, dtype),
-                   gain=jnp.asarray(gain, dtype), surroundings=jnp.asarray(surroundings, dtype),
+    return Printer(capacity=_leaf(capacity, dtype), loss=_leaf(loss, dtype),
+                   gain=_leaf(gain, dtype), surroundings=_leaf(surroundings, dtype),
                    effects=leaves, area=area, static=tuple(static), zones=n, delay=delay,
                    substeps=substeps, ts=float(overrides.get("ts", 1.0)), powder=powder,
-                   window=jnp.asarray(pw.window, dtype), has_areas=bool(areas))
+                   window=_leaf(pw.window, dtype), has_areas=bool(areas))
 

@@ -57,6 +57,32 @@ def test_step_models_of_discrete_first_order():
     assert sm.T[0] + sm.L[0] == pytest.approx(-1 / np.log(a), rel=0.1)
 
 
+def _step_models_full_horizon(ss, transform=None):
+    """`step_models` as computed before the early stop: every sample of the horizon."""
+    from jthermo.control import rules
+
+    A, B, C, D = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
+    if transform is not None:
+        B, D = B @ transform, D @ transform
+    S = rules._np_step(A, B, C, D, rules._horizon(ss))
+    G0 = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
+    return [np.array(v) for v in zip(*(fit_step_model(S[:, i, i], ss.ts, G0[i, i])
+                                       for i in range(S.shape[1])))]
+
+
+@pytest.mark.parametrize("n, seed, coupled", [(1, 0, False), (3, 0, True), (5, 2, False),
+                                              (5, 2, True)])
+def test_step_models_early_stop_is_exact(n, seed, coupled):
+    """`step_models` stops the step responses once every diagonal one crossed 63.2 % of its
+    gain: K, L, T equal, bit for bit, to those from the whole horizon."""
+    ss = bed_plant(n, seed)
+    W = (np.eye(n) + 0.1 * np.random.default_rng(seed).standard_normal((n, n))
+         if coupled else None)
+    got = step_models(ss, transform=W)
+    for a, b in zip((got.K, got.L, got.T), _step_models_full_horizon(ss, W)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_rga_and_decision():
     assert np.allclose(rga(np.eye(3)), np.eye(3))
     G = np.array([[1.0, 0.9], [0.9, 1.0]])
