@@ -420,8 +420,8 @@ def drift_contradicted(lrs, n_knots: int) -> bool:
     `likelihood_ratio`), each against the $\\chi^2$ quantile with the `n_knots - 1` drift shape
     parameters a zone's own drift adds (its level is free in both), at the diagnosis's level
     `ALPHA` shared by the zones (Bonferroni): rejecting the common drift withholds a significant
-    candidate, a decision at the level of every other one that names or withholds. A zone that sees the drift too weakly to
-    determine it contradicts nothing (where `common_drift_z`, which compares the zones' own
+    candidate, a decision at the level of every other one that names or withholds. A zone that
+    sees the drift too weakly to determine it contradicts nothing (where `common_drift_z`, which compares the zones' own
     drifts, finds no agreement: such a zone's own drift trades with its gains)."""
     lrs = np.asarray(lrs, float)
     if lrs.size == 0:
