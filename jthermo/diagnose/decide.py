@@ -119,7 +119,7 @@ def sensor_noise(e: np.ndarray) -> float:
 def below_noise(effect: float, noise: float) -> bool:
     """Whether a finding's effect, the RMS change it makes to the validation prediction (°C),
     is below the sensor noise: significant on a long record, yet smaller than what one reading
-    can resolve (an 0.07 °C surroundings drift on 16 zones × 3600 samples). Reported so, not
+    can resolve (a 0.07 °C surroundings drift on 16 zones × 3600 samples). Reported so, not
     headlined as a physical effect."""
     return bool(np.isfinite(effect) and effect < noise)
 
