@@ -461,10 +461,12 @@ def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter, rounds: int = 0)
     this is the per-zone problem with the drift shared. Per zone a drift is not identified: a
     slow zone whose loss and level trade with its gains fits its record with a drift of another
     shape, and then predicts a record whose one drift the other zones determine poorly.
-    A fit still falling after `n_iter` iterations (its cost fell by more than `fitting.FALL_LR`
-    likelihood-ratio units, $T n \\log(V_{before}/V_{after})$) goes on for up to `rounds` more
-    (the same compiled program): the tests of agreement compare it with the zones' own drifts,
-    and an unfinished common fit reads as zones that contradict it.
+    With `rounds` > 0 the fit goes on, round after round of `n_iter` iterations (the same
+    compiled program), up to `rounds` more, until a round lowers its cost by no more than
+    `fitting.FALL_LR` likelihood-ratio units, $T n \\log(V_{before}/V_{after})$: the first
+    round is always followed by one more (one `fit_joint` call reports no cost history; from a
+    converged start that round stops at once). The tests of agreement compare this fit with the
+    zones' own drifts, and an unfinished common fit reads as zones that contradict it.
     Returns (θ (n, P) with the drift written mean-free per zone as `simulate_zone` reads it and
     its mean in the level offset, residuals (T, n))."""
     n, nd = lay.n, lay.n_drift
