@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Wall and CPU time of `make test`'s command (pytest -n 2 --dist loadfile -m "not slow") with a
+# compilation cache of its own: empty at the start (cold, as on a machine that never ran the
+# tests), then the same command again on the cache it filled (warm); the load average before and
+# after each, and a per-test timeline (benchmarks/test_timeline.py) summed by file.
+#   bash benchmarks/test_suite_time.sh OUTDIR [cold|warm|both]
+# Run from the repository root, the venv built (make .venv/.installed).
+set -u
+out=$(realpath -m "$1"); mode=${2:-both}
+mkdir -p "$out"
+cache=$(mktemp -d /tmp/jthermo-tests-cache.XXXX)
+runs=$([ "$mode" = both ] && echo "cold warm" || echo "$mode")
+for run in $runs; do
+  rm -f "$out/timeline_$run.jsonl"
+  la0=$(cut -d' ' -f1-3 /proc/loadavg)
+  s=$(date +%s.%N)
+  { time JTHERMO_CACHE_DIR=$cache JTHERMO_TIMELINE="$out/timeline_$run.jsonl" PYTHONPATH=benchmarks \
+      .venv/bin/python -m pytest -n 2 --dist loadfile -m "not slow" -p no:cacheprovider \
+      -p test_timeline --durations=40 > "$out/pytest_$run.log" 2>&1 ; } 2> "$out/time_$run.txt"
+  e=$(date +%s.%N)
+  echo "$run $(git rev-parse --short HEAD) wall $(echo "$e - $s" | bc) load_before $la0 load_after $(cut -d' ' -f1-3 /proc/loadavg) $(tr '\n' ' ' < "$out/time_$run.txt") | $(tail -1 "$out/pytest_$run.log")" >> "$out/times.txt"
+  .venv/bin/python benchmarks/test_timeline_summary.py "$out/timeline_$run.jsonl" > "$out/files_$run.md"
+done
+rm -rf "$cache"
