@@ -64,6 +64,26 @@ def exported_call(fn, args: tuple, fallback, compiler_options: dict | None = Non
         return fallback(*args)
 
 
+def exported_compile(fn, args: tuple, compiler_options: dict | None = None) -> bool:
+    """Prepare `exported_call(fn, args, ..., compiler_options)` without running it: read (or
+    trace and write) its exported program and compile it for these argument shapes, so that
+    the call itself finds both in this process (`_programs`, `_callers` and JAX's own caches).
+    Meant for a background thread while the caller computes the real arguments (same tree
+    structure, static leaves, shapes and dtypes; the values may differ). True when prepared;
+    False (nothing done) where `exported_call` would use its fallback or anything failed."""
+    if cache_dir() is None or not top_level():
+        return False
+    try:
+        program = _exported_program(fn, args)
+        if program is None:
+            return False
+        exp, arrays = program
+        _caller(exp, compiler_options).lower(*arrays).compile()
+        return True
+    except Exception:  # noqa: BLE001  (preparation is an optimisation: the call itself decides)
+        return False
+
+
 #: this process's programs read or written by `exported_call`: path -> (file's stat, header,
 #: Exported), and their jitted callers: (id of the Exported, options) -> (Exported, jitted call)
 _programs: dict = {}

@@ -244,6 +244,48 @@ def _printer_model_program(printer) -> dict:
                          compiler_options=opts)
 
 
+#: families whose controller structure depends on the design model's values, not only its
+#: shapes (IMC's static `inverse`: whether the model's zeros are stable): not prepared early
+_PREPARE_SKIP = ("imc",)
+
+
+def _shape_model(printer):
+    """A stand-in for `_printer_model(printer)` with its shapes, dtypes and sample time (a
+    stable diagonal plant, NumPy leaves): a controller designed on it has the real one's
+    structure, so `closedloop.prepare_run` can compile for it before the real design."""
+    import jax
+    import numpy as np
+
+    from ..models import StateSpace
+
+    nx, nu, ny = printer.n_states, printer.n_inputs, printer.n_outputs
+    # placed on the device as they are (`jnp.asarray` of a NumPy array compiles a small program)
+    a = jax.device_put((0.9 * np.eye(nx), 0.1 * np.eye(nx, nu), np.eye(ny, nx), np.zeros((ny, nu)),
+                        np.zeros((nx, ny)), np.zeros((nx, 0)), np.full(nu, 0.5), np.zeros(0), np.zeros(ny)))
+    return StateSpace(*a[:5], ts=printer.ts, Bw=a[5], u0=a[6], w0=a[7], y0=a[8])
+
+
+def _prepare_in_background(cl, kind: str, family: str, printer, kwargs: dict):
+    """A started thread that designs `family` on `_shape_model(printer)` and compiles `run`'s
+    program for it (`closedloop.prepare_run`): on a cold cache the compile overlaps the
+    design model's (`_printer_model`). The caller joins it before `run`; a failure there only
+    leaves the compile to `run`."""
+    import threading
+
+    def work():
+        try:
+            from ..control.design import design
+
+            proto = design(family, _shape_model(printer))
+            cl.prepare_run(kind, proto, printer, rollouts=kwargs["rollouts"], duration=kwargs["duration"])
+        except Exception:  # noqa: BLE001  (an optimisation only: `run` compiles what it needs)
+            pass
+
+    thread = threading.Thread(target=work, name="jthermo-prepare-run", daemon=True)
+    thread.start()
+    return thread
+
+
 # ---------------------------------------------------------------- commands
 
 
@@ -283,6 +325,13 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     if own:
         env, r = _own_plant(args, plant, args.model)
         scenario_kw = {"envelope": env, "setpoint": r}
+    kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
+                              "seed": args.seed, "scenario_kw": scenario_kw}
+    prepared = None
+    if (not own and isinstance(controller, str) and controller not in ("untuned", *_PREPARE_SKIP)
+            and args.model is None):
+        # the run program compiles in a thread while the printer's design model is computed
+        prepared = _prepare_in_background(cl, args.scenario, controller, plant, kwargs)
     if isinstance(controller, str) and controller != "untuned":
         from ..control.design import design
 
@@ -292,8 +341,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
         else:
             model = plant if own else _printer_model(plant)
         controller = design(controller, model, **({"setpoint": r} if own else {}))
-    kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
-                              "seed": args.seed, "scenario_kw": scenario_kw}
+    if prepared is not None:
+        prepared.join()
     out = cl.run(args.scenario, controller, plant, **_accepted(cl.run, kwargs))
     seconds = time.perf_counter() - t0
     traj = out.pop("trajectory", None) if isinstance(out, dict) else None

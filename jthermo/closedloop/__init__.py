@@ -35,6 +35,7 @@ from .compact import CompactScenario as CompactScenario, Events as Events
 from .engine import (
     initial_state as initial_state,
     rollout_costs as rollout_costs, rollouts as rollouts, rollouts_and_cost as rollouts_and_cost,
-    rollout_metrics as rollout_metrics, run as run, simulate as simulate,
+    rollout_metrics as rollout_metrics, run as run, prepare_run as prepare_run,
+    simulate as simulate,
     simulate_cost as simulate_cost, simulate_metrics as simulate_metrics,
 )

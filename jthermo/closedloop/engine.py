@@ -22,7 +22,7 @@ from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
 from ..printer.noise import NoiseStream
 from ..runtime import simulate_compile
-from ..stored import exported_call
+from ..stored import exported_call, exported_compile
 from .checks import check_loop
 from .compact import CompactScenario, compact_cost, model_steady_state
 from .scenarios import (
@@ -371,8 +371,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     if isinstance(plant, Printer) and not scenario_kw:
         # the printer's scenarios are drawn inside the same compiled call, its key too
         # traced once per cache: later processes load the exported program (`runtime`)
-        out = exported_call(_seeded_metrics_fn, (kind, plant, ctrl, duration,
-                                                 np.asarray(int(seed), np.int64), int(rollouts)),
+        out = exported_call(_seeded_metrics_fn, _seeded_args(kind, plant, ctrl, duration, seed, rollouts),
                             _quick_seeded_metrics(), compiler_options=simulate_compile())
     else:
         sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)),
@@ -386,6 +385,26 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
             "metrics": {k: float(v) for k, v in vals.items()},
             "setpoints": np.asarray(r0).tolist(), "ts": float(ts),
             "cost": float(J), "seconds": time.perf_counter() - t0}
+
+
+def _seeded_args(kind, plant, ctrl, duration, seed, rollouts) -> tuple:
+    """The arguments of `run`'s compiled printer program (`_seeded_metrics_fn`)."""
+    return kind, plant, ctrl, duration, np.asarray(int(seed), np.int64), int(rollouts)
+
+
+def prepare_run(kind: str, controller, plant: Printer, *, rollouts: int = 8,
+                duration: float | None = None) -> bool:
+    """Compile, without running, the program `run(kind, c, plant, rollouts=..., duration=...)`
+    calls for any controller `c` of `controller`'s structure (the same type, static fields
+    and array shapes; the gains may differ): e.g. in a thread while the real controller is
+    designed, on a cold cache the compile then overlaps the design (`stored.exported_compile`).
+    True when prepared; False where `run` would not use that program (not a printer, the
+    cache off) or preparation failed, which never affects `run` itself."""
+    if not isinstance(plant, Printer):
+        return False
+    ctrl = _controller_from(controller, _n_outputs(plant), plant.ts)
+    return exported_compile(_seeded_metrics_fn, _seeded_args(kind, plant, ctrl, duration, 0, rollouts),
+                            compiler_options=simulate_compile())
 
 
 @eqx.filter_jit
