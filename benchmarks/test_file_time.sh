@@ -11,9 +11,9 @@ for run in cold warm; do
   la0=$(cut -d' ' -f1-3 /proc/loadavg)
   cost="$out/cost_${label}_$run.jsonl"; rm -f "$cost"
   /usr/bin/time -f "wall %e user %U sys %S" -o "$out/time.tmp" env JTHERMO_CACHE_DIR=$cache \
-    JTHERMO_TEST_COST="$cost" PYTHONPATH=benchmarks .venv/bin/python -m pytest "$@" -q \
+    JTHERMO_TEST_COST="$cost" PYTHONPATH=benchmarks .venv/bin/python -m pytest "$@" \
     -p no:cacheprovider -p test_cost --durations=15 > "$out/pytest_${label}_$run.log" 2>&1
-  echo "$label $(git rev-parse --short HEAD) $run $(cat "$out/time.tmp") load $la0 / $(cut -d' ' -f1-3 /proc/loadavg) | $(tail -1 "$out/pytest_${label}_$run.log")" >> "$out/times.txt"
+  echo "$label $(git rev-parse --short HEAD) $run $(cat "$out/time.tmp") load $la0 / $(cut -d' ' -f1-3 /proc/loadavg) | $(grep -E "passed|failed|error" "$out/pytest_${label}_$run.log" | tail -1)" >> "$out/times.txt"
   tail -1 "$out/times.txt"
 done
 rm -rf "$cache" "$out/time.tmp"
