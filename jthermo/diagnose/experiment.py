@@ -451,6 +451,6 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "gap_residuals", "nuisance_basis",
+__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "evaluate", "gap_residuals", "nuisance_basis",
            "nuisance_jacobians", "objective", "over_limit", "pair_mask", "predictions", "rival_context",
            "rival_set", "separations", "squash", "to_json", "with_idle"]
