@@ -250,6 +250,18 @@ def objective(u, ctx, Q, sigma, pm=None):
     return jnp.sum(ls if pm is None else pm * ls)
 
 
+def evaluate(u, ctx, Q, sigma):
+    """(`gap_residuals`, `predictions`) of the input `u` as NumPy arrays, from one compiled
+    program (shared by every candidate of the same length, and cached on disk)."""
+    g, y = _gaps_predictions(u, ctx, Q, sigma)
+    return np.asarray(g), np.asarray(y)
+
+
+@eqx.filter_jit
+def _gaps_predictions(u, ctx, Q, sigma):
+    return gap_residuals(u, ctx, Q, sigma), predictions(u, ctx)
+
+
 def over_limit(u, ctx, y_max):
     """$\\sum$ over models, samples and zones of $\\max(0, \\hat y - y_{max})^2$ (°C²): how far the
     models' predicted temperatures on `u` go above `y_max (n,)`."""
@@ -372,7 +384,7 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
         # holding it reaches is allowed, else a model warmer there than any record (a short record
         # short of its steady state) would leave only the input that cools fastest (TCLab one heater)
         y_given = y_max
-        rest = np.asarray(predictions(jnp.broadcast_to(jnp.asarray(u_rest), (int(T), len(keep))), ctx))
+        rest = evaluate(jnp.asarray(np.broadcast_to(u_rest, (int(T), len(keep)))), ctx, Q, jsig)[1]
         y_max = np.maximum(y_max, np.max(rest, axis=(0, 1)))
     jymax = None if y_max is None else jnp.asarray(y_max)
     z, hist = _optimise_starts(Z0, jlo, jhi, int(hold), int(T), ctx, Q, jsig, int(n_steps),
@@ -383,18 +395,20 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     # of those whose predictions stay within `y_max` (to `OVER_TOL`) if any does
     u_opt = np.asarray(squash(z, jlo, jhi, int(hold), int(T)))
     u_snap = np.where(u_opt >= 0.5 * (lo + hi), hi, lo)
-    score = lambda c: float(objective(jnp.asarray(c), ctx, Q, jsig, jpm))
-    top = lambda c: np.max(np.asarray(predictions(jnp.asarray(c), ctx)), axis=(0, 1))      # (n,)
-    within = lambda c: y_max is None or bool(np.all(top(c) <= y_max + OVER_TOL))
+    cands = (u_opt, u_snap, u_prbs)
+    ev = [evaluate(jnp.asarray(c), ctx, Q, jsig) for c in cands]      # (gaps, predictions) each
+    S = [np.sum(g ** 2, axis=1) for g, _ in ev]
+    score = [float(np.sum(pm * np.log(s + 1e-300))) for s in S]     # `objective`
+    top = [np.max(y, axis=(0, 1)) for _, y in ev]                     # (n,)
+    within = [y_max is None or bool(np.all(t <= y_max + OVER_TOL)) for t in top]
     # with none within `y_max`, the one that exceeds it least (the penalised optimum, not the PRBS)
-    rank = lambda c: (True, score(c)) if within(c) else (False, -float(np.max(top(c) - y_max)))
-    u = max(((*rank(c), -k, c) for k, c in enumerate((u_opt, u_snap, u_prbs))), key=lambda x: x[:3])[3]
-    s_design = np.asarray(separations(jnp.asarray(u), ctx, Q, jsig))
-    s_prbs = np.asarray(separations(jnp.asarray(u_prbs), ctx, Q, jsig))
+    rank = [(True, s) if w else (False, -float(np.max(t - y_max))) for s, t, w in zip(score, top, within)]
+    best = max(range(len(cands)), key=lambda k: (*rank[k], -k))
+    u = cands[best]
+    s_design, s_prbs = S[best], S[2]
     pairs = [f"{names[a]}/{names[b]}" for a, b in zip(*np.triu_indices(len(names), 1))]
-    yp = np.asarray(predictions(jnp.asarray(u), ctx))
+    yp = ev[best][1]
     w = np.broadcast_to(np.mean(np.asarray(est.w, float), axis=0), (T, est.w.shape[1]))
-    u_k, u_prbs_k = u, u_prbs
     u, u_prbs = (with_idle(v, np.asarray(est.u, float)[0], keep) for v in (u, u_prbs))
     record = from_arrays(u, yp[0], ts, w, input_names=est.input_names, output_names=est.output_names,
                          signal_names=est.signal_names,
@@ -407,13 +421,12 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
                                  for p, a, b, k in zip(pairs, s_design, s_prbs, used) if k},
             "duration": int(T), "duration_s": T * ts, "hold": int(hold), "criterion": criterion,
             "y_max": None if y_given is None else y_given.tolist(),
-            "y_max_effective": None if y_max is None else y_max.tolist(), "within_y_max": within(u_k),
-            "max_predicted": top(u_k).tolist(), "max_predicted_prbs": top(u_prbs_k).tolist(),
+            "y_max_effective": None if y_max is None else y_max.tolist(), "within_y_max": within[best],
+            "max_predicted": top[best].tolist(), "max_predicted_prbs": top[2].tolist(),
             "limits": {"inputs": [est.input_names[j] for j in keep], "u_min": lo.tolist(),
                        "u_max": hi.tolist()}, "sigma": sigma.tolist(),
             "u": u, "u_prbs": u_prbs, "predictions": yp,
-            "gaps": np.asarray(gap_residuals(jnp.asarray(u_k), ctx, Q, jsig))[used],
-            "gaps_prbs": np.asarray(gap_residuals(jnp.asarray(u_prbs_k), ctx, Q, jsig))[used],
+            "gaps": ev[best][0][used], "gaps_prbs": ev[2][0][used],
             "history": np.asarray(hist),
             "record": record}
 
@@ -438,6 +451,6 @@ def to_json(design: dict, path=None) -> dict:
     return out
 
 
-__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "gap_residuals", "nuisance_basis",
+__all__ = ["CRITERIA", "design_experiment", "drift_for_all", "evaluate", "gap_residuals", "nuisance_basis",
            "nuisance_jacobians", "objective", "over_limit", "pair_mask", "predictions", "rival_context",
            "rival_set", "separations", "squash", "to_json", "with_idle"]

@@ -7,6 +7,7 @@ rivals, so every test runs without a diagnosis fit.
 import json
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,6 +43,11 @@ def _result(rivals=("input_delay",), top="heater_lag"):
             "_models": models, "_arrays": {"yhat_augmented": np.full((T, 1), TS + 29.0)}}
 
 
+# compiled once for the module (eager, a call compiles each of its operations on its own)
+_separations = eqx.filter_jit(X.separations)
+_jacobians = eqx.filter_jit(X.nuisance_jacobians)
+
+
 def _records(seed=0):
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.choice([0.3, 0.7], size=(T // 10, 1)), 10, axis=0)
@@ -66,7 +72,7 @@ def test_objective_gradient_matches_central_differences():
         assert abs(g[idx] - fd) <= 1e-5 * max(1.0, np.max(np.abs(g)))
     assert np.max(np.abs(g)) > 0
     u = X.squash(z, lo, hi, hold, T)
-    S = np.asarray(X.separations(u, ctx, Q, sig))
+    S = np.asarray(_separations(u, ctx, Q, sig))
     assert S.shape == (3,) and np.all(S > 0) and np.isclose(float(f(z)), np.sum(np.log(S)))
 
 
@@ -82,8 +88,8 @@ def test_nuisance_criterion_removes_an_initial_state_transient_and_has_its_gradi
     sig = jnp.array([0.05])
     u = jnp.asarray(_records()[0].u)
     Q0 = jnp.asarray(X.nuisance_basis(T, 1.0, drift=False))
-    raw = float(X.separations(u, ctx, Q0, sig)[0])
-    assert raw > 50.0 and float(X.separations(u, ctx, None, sig)[0]) < 1e-6 * raw
+    raw = float(_separations(u, ctx, Q0, sig)[0])
+    assert raw > 50.0 and float(_separations(u, ctx, None, sig)[0]) < 1e-6 * raw
     ctx = X.rival_context(res["_models"], ("heater_lag", "input_delay"), T, 1.0, np.array([0.5]),
                           np.array([TS + 29.0]))
     lo, hi, hold = jnp.array([0.3]), jnp.array([0.7]), 5
@@ -95,7 +101,7 @@ def test_nuisance_criterion_removes_an_initial_state_transient_and_has_its_gradi
         dz = jnp.zeros_like(z).at[idx].set(eps)
         fd = (float(f(z + dz)) - float(f(z - dz))) / (2 * eps)
         assert abs(g[idx] - fd) <= 1e-5 * max(1.0, np.max(np.abs(g)))
-    J = np.asarray(X.nuisance_jacobians(u, ctx))
+    J = np.asarray(_jacobians(u, ctx))
     assert J.shape[:2] == (2, T) and np.all(J[:, :, 1] == 0.0)       # no body: its state is not re-estimated
     assert np.allclose(J[:, 1:, 0] / J[:, :-1, 0], math.exp(-A_RATE), rtol=1e-6)   # e^{-a t}
 
@@ -110,9 +116,16 @@ def test_nuisance_projection_removes_constant_and_drift():
     assert np.linalg.norm(d - Q0 @ (Q0.T @ d)) > 1.0
 
 
-def test_design_beats_its_prbs_within_limits_and_is_deterministic():
+@pytest.fixture(scope="module")
+def free_design():
+    """The design without a temperature limit (two tests read it; neither changes it)."""
     est, val = _records()
-    d1 = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    return X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+
+
+def test_design_beats_its_prbs_within_limits_and_is_deterministic(free_design):
+    est, val = _records()
+    d1 = free_design
     d2 = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
     u = d1["u"]
     assert u.shape == (T, 1) and np.array_equal(u, d2["u"])
@@ -145,9 +158,9 @@ def test_no_rival_designs_against_the_runner_up_and_the_baseline_and_says_so():
     assert X.rival_set(nothing)[0] == ("heater_lag", "baseline")
 
 
-def test_a_temperature_limit_keeps_every_model_below_it():
+def test_a_temperature_limit_keeps_every_model_below_it(free_design):
     est, val = _records()
-    free = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
+    free = free_design
     cap = max(free["max_predicted"]) - 1.5          # the unconstrained design goes 1.5 °C above it
     d = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2, y_max=cap)
     assert free["y_max"] is None and free["within_y_max"]
@@ -248,7 +261,7 @@ def test_only_the_drift_model_re_estimates_a_drift_under_the_nuisance_criterion(
                                                         "ambient_variation": res["_models"]["theta"]["baseline"]}},
                             ("ambient_variation", "baseline"), T, 1.0, np.array([0.5]), np.array([TS + 29.0]))
     assert np.asarray(ctx_a[6]["mask"])[:, 2:2 + kr].tolist() == [[1.0] * kr, [0.0] * kr]
-    s, s_d = (float(X.separations(u, c, None, sig)[0]) for c in (ctx, ctx_d))
+    s, s_d = (float(_separations(u, c, None, sig)[0]) for c in (ctx, ctx_d))
     assert s > 0 and s >= s_d * (1 - 1e-9) and s > 1.01 * s_d
     # ... when the drift model is one of the rivals; when it is not, every model follows a drift
     # (a drift candidate the design does not model would take a slow gap)
