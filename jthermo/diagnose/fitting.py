@@ -59,6 +59,14 @@ same-window CPU A/B were not run: not switched on. Nielsen's gain-ratio damping 
 problems up to 8e-3 above), five trials instead of three (5 above, to 2e-6), a step scaled instead
 of clipped (more iterations, 2 above to 3e-7), acceleration on all three trials (14:00: 2 above,
 to 0.13) and an extrapolated step (fewer iterations, no less CPU) were measured and rejected.
+Rechecked on 2026-11-28 (`GEODESIC = True` in a copy of the tree, `PYTHONPATH=TREE`): 14:00's
+shift came from the common surroundings drift's unfinished fit, which now continues
+(`joint.common_drift_fit`, `CONTINUE_ROUNDS`): 10.27 with and without. Real recordings 10/10
+identical (`diagnose_heldout_same_diagnose_real_s36_vs_diagnose_real_s37geo.md`), set 20's nulls
+10/10 quiet (`..._s36drift_nulls20_vs_s37geo_nulls20.md`), the latency record the same findings and
+fit at warm 35.2-35.8 -> 31.9-32.3 CPU s (`benchmarks/diagnose_warm_cpu.py`, load 6-7); but set
+16's case 05 (a drift named at 0.275 with the body its rival) flipped to `heat_accumulation`
+(`diagnose_heldout_hard_s37geo_set16_partial.log`), so it stays off.
 
 Narrower Jacobians were measured and not adopted. A candidate call's Jacobian is formed over
 its widest problem, the surroundings drift's (19 free parameters, width 20 on the latency
