@@ -81,7 +81,9 @@ def add_parsers(sub) -> None:
                     help="family to start from: pi_lambda (alias pi), pi_untuned, pi_decoupled, "
                          "feedforward, imc, lqg, gated_pi")
     sp.add_argument("--model", metavar="MODEL", help="design from (and tune against) this saved model")
-    sp.add_argument("--plant", default="printer", metavar="printer|MODEL")
+    sp.add_argument("--plant", default=None, metavar="printer|MODEL",
+                    help="tune against the virtual printer or a saved model (default: --model "
+                         "when given, else the printer)")
     sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4,
                     help="zones of the virtual printer (default 4)")
     sp.add_argument("--powder", default="PA12",
@@ -362,6 +364,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
     if args.model is not None:
         input_file(args.model, "--model")
         model = io.load_model(args.model)
+    if args.plant is None:   # as the help says and a tune sweep does: the model is the plant
+        args.plant = "printer" if args.model is None else args.model
     plant, _ = _plant(args)
     tune = require("jthermo.tune", "tuning")
     args.controller = _controller_family(args.controller)
