@@ -64,3 +64,23 @@ def test_tune_model_alone_tunes_against_the_model(tmp_path, monkeypatch, capsys)
     assert cli.main(["tune", "--controller", "pi", "--model", str(m), "--plant", "printer",
                      "--quiet"]) == 0, capsys.readouterr().err
     assert seen == {"printer": "printer"}
+
+
+def test_tune_reports_its_own_gain(tmp_path, monkeypatch, capsys):
+    """An LQG whose tuning kept its start still beats the lambda PI (`improvement_percent`):
+    the report and the summary line also say what the tuning itself gained (0 %) and that it
+    kept its start."""
+    import numpy as np
+
+    from jthermo import io, tune
+    from jthermo.models import StateSpace
+
+    m = io.save(StateSpace(np.eye(1) * 0.5, np.ones((1, 1)), np.ones((1, 1))), tmp_path / "m.jtm")
+    monkeypatch.setattr(tune, "tune_own_plant", lambda fam, *a, **kw: {
+        "controller": fam, "start_cost": 2.0, "tuned_cost": 2.0, "lambda_pi_cost": 40.0,
+        "improvement_percent": 95.0, "moved": False, "scenarios": {}, "history": [0.0]})
+    js = tmp_path / "t.json"
+    assert cli.main(["tune", "--controller", "lqg", "--model", str(m), "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert json.loads(js.read_text())["tuned_vs_start_percent"] == 0.0
+    assert "tuned_vs_start_percent=0" in out and "kept its start" in out

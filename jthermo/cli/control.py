@@ -410,6 +410,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         rep.pop(k)
     costs = rep.get("costs") or rep.get("history")
     report = {"controller": args.controller, **rep, "seed": args.seed}
+    report["tuned_vs_start_percent"] = _gain(report.get("start_cost"), report.get("tuned_cost"))
     if not own:
         report["printer_seed"] = args.printer_seed
     report.setdefault("seconds", time.perf_counter() - t0)
@@ -427,6 +428,18 @@ def cmd_tune(args: argparse.Namespace) -> dict:
                                   "tuned_cost": report.get("tuned_cost")})
         report["out"] = str(out)
     report = write_report(args, js, report)
+    kept = " (the tuning kept its start: no step beat it on held-out rollouts)" \
+        if report.get("moved") is False else ""
     info(args, f"{args.controller}: " + summary_line(
-        report, ("start_cost", "tuned_cost", "lambda_pi_cost", "improvement_percent", "seconds")))
+        report, ("start_cost", "tuned_cost", "tuned_vs_start_percent", "lambda_pi_cost",
+                 "improvement_percent", "seconds")) + kept)
     return report
+
+
+def _gain(start, tuned):
+    """100 (1 - tuned / start): what the tuning itself gained over its start (the report's
+    `improvement_percent` compares with the lambda PI, which for another family measures the
+    family, not the tuning); None where either cost is missing or the start's is not positive."""
+    if not isinstance(start, (int, float)) or not isinstance(tuned, (int, float)) or start <= 0:
+        return None
+    return 100.0 * (1.0 - float(tuned) / float(start))
