@@ -24,6 +24,9 @@ from .errors import DataError
 JITTER_TOLERANCE = 0.2
 #: longest gap (in samples) that re-gridding may bridge by interpolation
 MAX_GAP_SAMPLES = 3
+#: how far apart two sample times may be and still be the same (a logged record's median step
+#: wanders ~0.2 % around its nominal Ts; a model at 1 s run on 2 s data is another system)
+TS_TOLERANCE = 0.05
 #: values larger than this in magnitude are refused as corrupt
 MAX_ABS_VALUE = 1e9
 MIN_SAMPLES = 10
@@ -94,6 +97,11 @@ class IOData(eqx.Module):
 
 
 # ---------------------------------------------------------------- construction
+
+
+def same_ts(a: float, b: float) -> bool:
+    """Whether sample times `a` and `b` (s) agree: |a/b - 1| <= `TS_TOLERANCE`."""
+    return abs(float(a) / float(b) - 1.0) <= TS_TOLERANCE
 
 
 def from_arrays(u, y, ts: float = 1.0, w=None, *, input_names=None, output_names=None,

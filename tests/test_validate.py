@@ -91,6 +91,12 @@ def test_compare_errors(plant_data):
         V.compare(m, from_arrays(u, y), x0=np.zeros(3))
     with pytest.raises(DataError, match="IOData"):
         V.compare(m, (u, y))
+    # a model at Ts = 1 s on data at 2 s is another system (it gave exit 0 with fits of 2-7 %)
+    with pytest.raises(DataError, match="sample time 2 s is not the model's 1 s"):
+        V.compare(m, from_arrays(u, y, ts=2.0))
+    with pytest.raises(DataError, match="sample time"):
+        V.residual_tests(m, from_arrays(u, y, ts=2.0))
+    assert V.compare(m, from_arrays(u, y, ts=1.002))["fit_percent"]   # a logged record's jitter
 
 
 def test_residual_tests_white_passes_coloured_fails(plant_data):

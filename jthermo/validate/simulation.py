@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ..data import IOData
+from ..data import IOData, same_ts
 from ..errors import DataError, ModelError
 from ..models import polynomial_numpy, statespace_numpy
 from ..models._base import AbstractModel
@@ -62,6 +62,9 @@ def _check_io(model: AbstractModel, data: IOData, what: str):
         raise DataError(f"{what}: the data have {data.n_inputs} input(s), the model {model.n_inputs}")
     if data.n_outputs != model.n_outputs:
         raise DataError(f"{what}: the data have {data.n_outputs} output(s), the model {model.n_outputs}")
+    if not same_ts(model.ts, data.ts):
+        raise DataError(f"{what}: the data's sample time {data.ts:g} s is not the model's "
+                        f"{model.ts:g} s")
     nw = model.n_signals
     if data.w.shape[1] < nw:
         raise DataError(f"{what}: the model needs {nw} measured signal(s) w, the data have {data.w.shape[1]}")
