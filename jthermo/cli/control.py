@@ -45,6 +45,8 @@ TRAIN_DTYPE = {"pi_lambda": "float32"}
 #: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
 #: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
 DEFAULT_STEPS = 150
+#: the virtual printer `simulate` and `tune` use when no --zones / --powder is given
+PRINTER_ZONES, PRINTER_POWDER = 4, "PA12"
 
 
 def add_parsers(sub) -> None:
@@ -60,7 +62,8 @@ def add_parsers(sub) -> None:
                     help="set point, °C: one value or one per output (a fitted plant only; "
                          "default: the middle of the recorded range)")
     sp.add_argument("--powder", default=None, help="powder preset of the virtual printer")
-    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4)
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=None,
+                    help=f"zones of the virtual printer (default {PRINTER_ZONES})")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=8)
     sp.add_argument("--duration", type=duration, default=None, metavar="SECONDS")
     _add_printer_seed(sp, "the scenarios' disturbances and noise")
@@ -84,10 +87,11 @@ def add_parsers(sub) -> None:
     sp.add_argument("--plant", default=None, metavar="printer|MODEL",
                     help="tune against the virtual printer or a saved model (default: --model "
                          "when given, else the printer)")
-    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4,
-                    help="zones of the virtual printer (default 4)")
-    sp.add_argument("--powder", default="PA12",
-                    help="powder preset tuned on (default PA12); the report adds the other one")
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=None,
+                    help=f"zones of the virtual printer (default {PRINTER_ZONES})")
+    sp.add_argument("--powder", default=None,
+                    help=f"powder preset tuned on (default {PRINTER_POWDER}); the report adds the "
+                         "other one")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
     sp.add_argument("--steps", type=positive_int(100000), default=None,
                     help=f"Adam iterations (default {DEFAULT_STEPS}; on the virtual printer "
@@ -116,11 +120,18 @@ def _add_printer_seed(sp, seed_draws: str) -> None:
 
 
 def _printer_seed_only_for_printer(command: str, args, own: bool) -> None:
-    """A `--printer-seed` other than the default picks a virtual printer: with a fitted plant
-    (`--plant MODEL`) there is none to pick, and the option would be silently ignored."""
-    if own and args.printer_seed != 0:
-        raise ConfigError(f"{command}: --printer-seed is for the virtual printer, not a fitted "
-                          "plant (--plant MODEL)")
+    """`--printer-seed` (other than the default), `--zones` and `--powder` describe the virtual
+    printer: with a fitted plant (`--plant MODEL`) there is none, and the option would be
+    silently ignored. For the printer, unset ones take their defaults."""
+    if own:
+        for opt, given in (("--printer-seed", args.printer_seed != 0),
+                           ("--zones", args.zones is not None),
+                           ("--powder", args.powder is not None)):
+            if given:
+                raise ConfigError(f"{command}: {opt} is for the virtual printer, not a fitted "
+                                  "plant (--plant MODEL)")
+    else:
+        args.zones = PRINTER_ZONES if args.zones is None else args.zones
 
 
 def _plant(args):
@@ -273,8 +284,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     if plant == "printer":
         from ..printer import make_printer
 
-        plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
-                             powder=args.powder or "PA12", seed=args.printer_seed)
+        plant = make_printer(args.zones or PRINTER_ZONES, getattr(cl, "REALISTIC_EFFECTS", ()),
+                             powder=args.powder or PRINTER_POWDER, seed=args.printer_seed)
     from ..models import AbstractModel
 
     own = isinstance(plant, AbstractModel)
@@ -398,7 +409,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             lr = SHORT_LR.get(args.controller) if short else None
             rep = tune.tune_report(args.controller, plant=plant, model=model,
                                    rollouts=args.rollouts, steps=args.steps, seed=args.seed,
-                                   zones=args.zones, powder=args.powder, progress=bar,
+                                   zones=args.zones, powder=args.powder or PRINTER_POWDER,
+                                   progress=bar,
                                    plant_seed=args.printer_seed,
                                    train_dtype=TRAIN_DTYPE.get(args.controller),
                                    **({} if lr is None else {"lr": lr}))
