@@ -365,6 +365,17 @@ def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
             raise DataError(f"IOData: input `u_{name}` is constant ({col[0]:g}): it cannot excite the system")
 
 
+def require_output_variation(data: IOData, what: str = "IOData", *,
+                             rel_tol: float = 1e-9) -> None:
+    """Raise `DataError` if an output column is constant (to `rel_tol` of its magnitude): there is
+    nothing to identify or explain, and its fit % (a ratio to its variation) is undefined."""
+    for j, name in enumerate(data.output_names):
+        col = np.asarray(data.y[:, j])
+        if np.ptp(col) <= rel_tol * max(1.0, float(np.abs(col).max())):
+            raise DataError(f"{what}: output `y_{name}` is constant ({col[0]:g}): nothing to "
+                            "identify")
+
+
 def require_samples(data: IOData, n_params: int, what: str = "model") -> None:
     """Raise `DataError` if there are fewer samples (per output) than parameters to estimate."""
     if data.n_samples <= n_params:

@@ -44,8 +44,8 @@ def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Float[Array, "*ny"]:
         raise DataError(f"fit_percent: expected (T,) or (T, ny) with T >= 2, got shape {y.shape}")
     num = jnp.linalg.norm(y - yhat, axis=0)
     den = jnp.linalg.norm(y - jnp.mean(y, axis=0), axis=0)
-    if not is_traced(den) and bool(jnp.any(den == 0)):
-        j = int(np.flatnonzero(np.atleast_1d(np.asarray(den)) == 0)[0])
+    if not is_traced(den) and bool(jnp.any(_flat(den, y, jnp))):
+        j = int(np.flatnonzero(np.atleast_1d(np.asarray(_flat(den, y, jnp))))[0])
         raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
     return 100.0 * (1.0 - num / den)
 
@@ -207,11 +207,17 @@ def compare(model: AbstractModel, data: IOData, *, k: int | None = None,
             "yhat": yhat, "x0": np.asarray(x_init), "k": k}
 
 
+def _flat(den, y, xp):
+    """Outputs whose variation ||y - mean(y)|| is rounding error of ||y|| (1e-12): their fit %
+    is a ratio to that error (e.g. -1e291 %), so undefined like an exactly constant one's."""
+    return den <= 1e-12 * xp.linalg.norm(y, axis=0)
+
+
 def _fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     """`fit_percent` of host arrays in NumPy (no compile), same errors."""
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
-    if np.any(den == 0):
-        j = int(np.flatnonzero(np.atleast_1d(den) == 0)[0])
+    if np.any(_flat(den, y, np)):
+        j = int(np.flatnonzero(np.atleast_1d(_flat(den, y, np)))[0])
         raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
     return 100.0 * (1.0 - np.linalg.norm(y - yhat, axis=0) / den)
 
