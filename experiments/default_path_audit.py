@@ -104,6 +104,30 @@ def non_finite(obj, path=""):
     return bad
 
 
+def figures(rep) -> dict:
+    """A few figures of a report, for the table: fit % range, what a diagnosis names, a closed
+    loop's worst error, a tuning's gains."""
+    out = {}
+    fits = rep.get("fit_percent") or (rep.get("augmented") or {}).get("fit_percent")
+    if fits:
+        out["fit %"] = f"{min(fits):.4g}..{max(fits):.4g}" if len(fits) > 1 else f"{fits[0]:.4g}"
+    if "augmented" in rep:
+        out["names"] = ",".join(rep["augmented"].get("mechanisms") or []) or "-"
+        conf = [f.get("confidence") for f in rep.get("findings") or []]
+        if conf:
+            out["confidence"] = max(c for c in conf if c is not None)
+    m = rep.get("metrics") or {}
+    if isinstance(m, dict) and "max_abs_error_C" in m:
+        out["max abs e °C"] = round(m["max_abs_error_C"], 3)
+        out["mean u"] = round(m.get("mean_input", float("nan")), 3)
+    for k in ("improvement_percent", "tuned_vs_start_percent"):
+        if isinstance(rep.get(k), (int, float)):
+            out[k] = round(rep[k], 2)
+    if "moved" in rep:
+        out["moved"] = rep["moved"]
+    return out
+
+
 def last_line(text):
     lines = [ln for ln in text.strip().splitlines() if ln.strip()]
     return lines[-1][:300] if lines else ""
@@ -123,7 +147,7 @@ class Audit:
         problems = []
         if "Traceback" in out + err:
             problems.append("traceback")
-        report = None
+        report, fig = None, {}
         if expect == "ok":
             if rc != 0:
                 problems.append(f"exit {rc}")
@@ -133,12 +157,18 @@ class Audit:
                 except (OSError, ValueError) as exc:
                     problems.append(f"no JSON report ({exc})")
                 if report is not None:
+                    fig = figures(report)
                     bad = non_finite(report)
                     if bad:
                         problems.append("non-finite: " + ", ".join(bad[:5]))
                     for check in checks:
                         problems += check(report)
         else:
+            if rc == 0 and js is not None:   # a wrong success: what it reported
+                try:
+                    fig = figures(json.loads((self.work / js).read_text()))
+                except (OSError, ValueError):
+                    pass
             lines = [ln for ln in err.strip().splitlines() if ln.strip()]
             if rc != 2:
                 problems.append(f"exit {rc} (want 2)")
@@ -148,7 +178,8 @@ class Audit:
                 problems.append(f"message lacks `{expect}`")
         row = {"group": group, "name": name, "argv": ["jthermo", *map(str, argv)],
                "rc": rc, "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
-               "stderr_last": last_line(err), "ok": not problems, "problems": problems}
+               "stderr_last": last_line(err), "ok": not problems, "problems": problems,
+               "figures": fig}
         self.rows.append(row)
         flag = "ok  " if not problems else "FAIL"
         print(f"{flag} {group:10s} {name:42s} rc={rc} {wall:6.1f}s {cpu:6.1f}cpu "
@@ -406,7 +437,7 @@ def bad_cases(a: Audit):
     a.call("bad", "validate: constant output", ["validate", "bad/m.jtm", fy, "--quiet"],
            expect="is constant")
     a.call("bad", "diagnose: constant output", ["diagnose", good, "--validation", fy, "--quiet"],
-           expect="is constant")
+           expect="is constant", js="bad/diag_flat.json")
     zero = np.column_stack([t, np.zeros((T, 2)), y]).tolist()
     a.call("bad", "fit ss: all-zero input", ["fit", write("zero.csv", H, zero), "--model", "ss",
                                              "--quiet"], expect="constant")
@@ -444,7 +475,8 @@ def bad_cases(a: Audit):
                                                    one, "--quiet"], expect="validation")
     slow = write("ts2.csv", H, np.column_stack([2 * t, u, y]).tolist())
     a.call("bad", "validate: model at Ts 1 s on data at 2 s", ["validate", "bad/m.jtm", slow,
-                                                                 "--quiet"], expect="sample time")
+                                                                 "--quiet"], expect="sample time",
+           js="bad/val_ts2.json")
     a.call("bad", "(setup) fit arx 1x1", ["fit", one, "--model", "arx", "--orders", "1,1,1",
                                           "--out", "bad/m1.jtm", "--quiet"])
     a.call("bad", "(setup) tune pi on the 2x2 model", ["tune", "--controller", "pi", "--model",
@@ -463,7 +495,7 @@ def bad_cases(a: Audit):
                                                 "--out", m_slow, "--quiet"])
     a.call("bad", "simulate: Ts-1 controller on a Ts-2 plant",
            ["simulate", "--scenario", "tracking", "--controller-file", "bad/c2.jtm", "--plant",
-            m_slow, "--quiet"], expect="sample time")
+            m_slow, "--quiet"], expect="sample time", js="bad/sim_ts2.json")
     # a TCLab record with its heaters logged in % (0-100) instead of power fractions
     src = REAL / "tclab_cace2020" / "id_2heaters" / "data.csv"
     rec = np.loadtxt(src, delimiter=",", skiprows=1)
@@ -473,7 +505,7 @@ def bad_cases(a: Audit):
                                                             4, "--out", "bad/pct.jtm", "--quiet"])
     a.call("bad", "simulate: plant recorded with inputs in %", ["simulate", "--scenario",
            "tracking", "--controller", "pi", "--plant", "bad/pct.jtm", "--quiet"],
-           expect="rescale the inputs")
+           expect="rescale the inputs", js="bad/sim_pct.json")
     a.call("bad", "tune: plant recorded with inputs in %", ["tune", "--controller", "pi", "--model",
                                                             "bad/pct.jtm", "--quiet"],
            expect="rescale the inputs")
@@ -506,13 +538,14 @@ def markdown(rows, argv, total_cpu, total_wall, load, commit=""):
              "program); `cold` uses an empty one (`JTHERMO_CACHE_DIR`), a user's first calls.", "",
              "| group | calls | failing | wall s | CPU s |", "|---|---|---|---|---|"]
     lines += [f"| {g} | {v[0]} | {v[1]} | {v[2]:.0f} | {v[3]:.0f} |" for g, v in groups.items()]
-    lines += ["", "| group | call | exit | wall s | CPU s | result | stderr (last line) |",
-              "|---|---|---|---|---|---|---|"]
+    lines += ["", "| group | call | exit | wall s | CPU s | result | figures | stderr (last line) |",
+              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         res = "ok" if r["ok"] else "**FAIL**: " + "; ".join(r["problems"])
         err = r["stderr_last"].replace("|", "\\|")[:160]
+        fig = "; ".join(f"{k} {v}" for k, v in (r.get("figures") or {}).items())
         lines.append(f"| {r['group']} | {r['name']} | {r['rc']} | {r['wall_s']} | {r['cpu_s']} | "
-                     f"{res} | {err} |")
+                     f"{res} | {fig} | {err} |")
     lines += ["", "Failing calls, with the command:", ""]
     for r in rows:
         if not r["ok"]:
