@@ -24,6 +24,9 @@ from .errors import DataError
 JITTER_TOLERANCE = 0.2
 #: longest gap (in samples) that re-gridding may bridge by interpolation
 MAX_GAP_SAMPLES = 3
+#: how far apart two sample times may be and still be the same (a logged record's median step
+#: wanders ~0.2 % around its nominal Ts; a model at 1 s run on 2 s data is another system)
+TS_TOLERANCE = 0.05
 #: values larger than this in magnitude are refused as corrupt
 MAX_ABS_VALUE = 1e9
 MIN_SAMPLES = 10
@@ -94,6 +97,11 @@ class IOData(eqx.Module):
 
 
 # ---------------------------------------------------------------- construction
+
+
+def same_ts(a: float, b: float) -> bool:
+    """Whether sample times `a` and `b` (s) agree: |a/b - 1| <= `TS_TOLERANCE`."""
+    return abs(float(a) / float(b) - 1.0) <= TS_TOLERANCE
 
 
 def from_arrays(u, y, ts: float = 1.0, w=None, *, input_names=None, output_names=None,
@@ -355,6 +363,17 @@ def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
         col = data.u[:, j]
         if np.ptp(col) <= rel_tol * max(1.0, float(np.abs(col).max())):
             raise DataError(f"IOData: input `u_{name}` is constant ({col[0]:g}): it cannot excite the system")
+
+
+def require_output_variation(data: IOData, what: str = "IOData", *,
+                             rel_tol: float = 1e-9) -> None:
+    """Raise `DataError` if an output column is constant (to `rel_tol` of its magnitude): there is
+    nothing to identify or explain, and its fit % (a ratio to its variation) is undefined."""
+    for j, name in enumerate(data.output_names):
+        col = np.asarray(data.y[:, j])
+        if np.ptp(col) <= rel_tol * max(1.0, float(np.abs(col).max())):
+            raise DataError(f"{what}: output `y_{name}` is constant ({col[0]:g}): nothing to "
+                            "identify")
 
 
 def require_samples(data: IOData, n_params: int, what: str = "model") -> None:

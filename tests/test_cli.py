@@ -213,6 +213,10 @@ def test_simulate_option_errors(tmp_path, capsys):
                 ["tune", "--controller", "pi"]):
         rc, _, err = _run([*cmd, "--plant", m, "--printer-seed", "3"], capsys)
         assert rc == 2 and "--printer-seed is for the virtual printer" in _one_line_error(err)
+        # so are --zones and --powder (a 1-zone model with --zones 3 ran silently on 1 zone)
+        for opt, val in (("--zones", "3"), ("--powder", "PA11")):
+            rc, _, err = _run([*cmd, "--plant", m, opt, val], capsys)
+            assert rc == 2 and f"{opt} is for the virtual printer" in _one_line_error(err)
 
 
 def test_interrupt_and_internal_error(monkeypatch, tmp_path, capsys):

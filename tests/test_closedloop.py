@@ -120,3 +120,6 @@ def test_scenarios_and_run(printer):
         cost(simulate(printer, DiagonalPI.untuned(N), sc["print"]), sc["print"], {"speed": 1.0})
     with pytest.raises(ConfigError, match="drives 3 zones"):
         run("tracking", DiagonalPI.untuned(3), printer, rollouts=1, duration=50)
+    # a controller tuned at another sample time is refused (it ran silently at the plant's)
+    with pytest.raises(ConfigError, match="sample time of 2 s, the plant at 1 s"):
+        run("tracking", DiagonalPI.untuned(N, ts=2.0), printer, rollouts=1, duration=50)

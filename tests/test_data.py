@@ -229,6 +229,11 @@ def test_checks():
     data.require_excitation(d)
     with pytest.raises(DataError, match="input `u_h1` is constant \\(0.5\\)"):
         data.require_excitation(d.replace(u=np.full_like(d.u, 0.5)))
+    data.require_output_variation(d)
+    name = d.output_names[0]
+    flat = d.replace(y=np.column_stack([np.full(d.n_samples, 25.0), *np.asarray(d.y)[:, 1:].T]))
+    with pytest.raises(DataError, match=f"output `y_{name}` is constant \\(25\\): nothing to identify"):
+        data.require_output_variation(flat)
     data.require_samples(d, 10)
     with pytest.raises(DataError, match="50 samples are too few for a ARX with 60 parameters"):
         data.require_samples(d, 60, "ARX")

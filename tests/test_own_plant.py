@@ -234,3 +234,17 @@ def test_change_scale_keeps_a_ten_times_faster_loop_inside_the_limits():
     u = np.linalg.solve([[1.0, 0.5], [0.0, 1.0]], [0.3, 0.5])              # [0.05, 0.5]
     assert change_scale(coupled, env, (0.3, 0.5), 0.1) == pytest.approx(
         min(u / (19 * g)))
+
+
+def test_inputs_recorded_beyond_power_fractions_are_refused_for_a_closed_loop():
+    """A heater logged in % (0-100): the loop clips inputs to [0, 1], so every set point was
+    out of reach while `simulate` exited 0 (input at 1 throughout, 25 °C error)."""
+    from jthermo.models import StateSpace
+
+    plant = StateSpace(0.9 * np.eye(1), 0.001 * np.eye(1), np.eye(1))
+    env = Envelope(ts=1.0, y_min=(20.0,), y_max=(60.0,), u_min=(0.0,), u_max=(100.0,),
+                   u_mean=(30.0,), u_std=(10.0,), rest=(20.0,), noise_std=(0.1,))
+    with pytest.raises(ConfigError, match="inputs span 0 to 100; .* rescale the inputs"):
+        env.check(plant)
+    with pytest.raises(ConfigError, match="inputs span 0 to 100"):
+        model_scenario("tracking", plant, 100.0, 0, envelope=env, setpoint=(40.0,))

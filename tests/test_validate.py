@@ -77,6 +77,18 @@ def test_compare_uses_measured_signals():
         V.compare(m, from_arrays(u, y))
 
 
+def test_fit_percent_of_a_flat_output_is_undefined():
+    """An output whose variation is rounding error of its level has no fit % (it was a ratio to
+    that error: -1e291 % in a diagnosis of a constant record)."""
+    y = np.full((50, 1), 25.0) + np.r_[np.zeros(49), 1e-13][:, None]
+    from jthermo.validate.simulation import _fit_percent_np
+
+    for f in (V.fit_percent, _fit_percent_np):
+        with pytest.raises(DataError, match="output 0 is constant"):
+            f(y, y + 0.1)
+    assert float(V.fit_percent(y + np.arange(50)[:, None] * 1e-3, y)[0]) < 100.0
+
+
 def test_compare_errors(plant_data):
     m, u, y, _ = plant_data
     with pytest.raises(DataError, match="input"):
@@ -91,6 +103,12 @@ def test_compare_errors(plant_data):
         V.compare(m, from_arrays(u, y), x0=np.zeros(3))
     with pytest.raises(DataError, match="IOData"):
         V.compare(m, (u, y))
+    # a model at Ts = 1 s on data at 2 s is another system (it gave exit 0 with fits of 2-7 %)
+    with pytest.raises(DataError, match="sample time 2 s is not the model's 1 s"):
+        V.compare(m, from_arrays(u, y, ts=2.0))
+    with pytest.raises(DataError, match="sample time"):
+        V.residual_tests(m, from_arrays(u, y, ts=2.0))
+    assert V.compare(m, from_arrays(u, y, ts=1.002))["fit_percent"]   # a logged record's jitter
 
 
 def test_residual_tests_white_passes_coloured_fails(plant_data):

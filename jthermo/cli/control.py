@@ -45,6 +45,8 @@ TRAIN_DTYPE = {"pi_lambda": "float32"}
 #: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
 #: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
 DEFAULT_STEPS = 150
+#: the virtual printer `simulate` and `tune` use when no --zones / --powder is given
+PRINTER_ZONES, PRINTER_POWDER = 4, "PA12"
 
 
 def add_parsers(sub) -> None:
@@ -60,7 +62,8 @@ def add_parsers(sub) -> None:
                     help="set point, °C: one value or one per output (a fitted plant only; "
                          "default: the middle of the recorded range)")
     sp.add_argument("--powder", default=None, help="powder preset of the virtual printer")
-    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4)
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=None,
+                    help=f"zones of the virtual printer (default {PRINTER_ZONES})")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=8)
     sp.add_argument("--duration", type=duration, default=None, metavar="SECONDS")
     _add_printer_seed(sp, "the scenarios' disturbances and noise")
@@ -81,11 +84,14 @@ def add_parsers(sub) -> None:
                     help="family to start from: pi_lambda (alias pi), pi_untuned, pi_decoupled, "
                          "feedforward, imc, lqg, gated_pi")
     sp.add_argument("--model", metavar="MODEL", help="design from (and tune against) this saved model")
-    sp.add_argument("--plant", default="printer", metavar="printer|MODEL")
-    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=4,
-                    help="zones of the virtual printer (default 4)")
-    sp.add_argument("--powder", default="PA12",
-                    help="powder preset tuned on (default PA12); the report adds the other one")
+    sp.add_argument("--plant", default=None, metavar="printer|MODEL",
+                    help="tune against the virtual printer or a saved model (default: --model "
+                         "when given, else the printer)")
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=None,
+                    help=f"zones of the virtual printer (default {PRINTER_ZONES})")
+    sp.add_argument("--powder", default=None,
+                    help=f"powder preset tuned on (default {PRINTER_POWDER}); the report adds the "
+                         "other one")
     sp.add_argument("--rollouts", type=positive_int(MAX_ROLLOUTS), default=16)
     sp.add_argument("--steps", type=positive_int(100000), default=None,
                     help=f"Adam iterations (default {DEFAULT_STEPS}; on the virtual printer "
@@ -114,11 +120,18 @@ def _add_printer_seed(sp, seed_draws: str) -> None:
 
 
 def _printer_seed_only_for_printer(command: str, args, own: bool) -> None:
-    """A `--printer-seed` other than the default picks a virtual printer: with a fitted plant
-    (`--plant MODEL`) there is none to pick, and the option would be silently ignored."""
-    if own and args.printer_seed != 0:
-        raise ConfigError(f"{command}: --printer-seed is for the virtual printer, not a fitted "
-                          "plant (--plant MODEL)")
+    """`--printer-seed` (other than the default), `--zones` and `--powder` describe the virtual
+    printer: with a fitted plant (`--plant MODEL`) there is none, and the option would be
+    silently ignored. For the printer, unset ones take their defaults."""
+    if own:
+        for opt, given in (("--printer-seed", args.printer_seed != 0),
+                           ("--zones", args.zones is not None),
+                           ("--powder", args.powder is not None)):
+            if given:
+                raise ConfigError(f"{command}: {opt} is for the virtual printer, not a fitted "
+                                  "plant (--plant MODEL)")
+    else:
+        args.zones = PRINTER_ZONES if args.zones is None else args.zones
 
 
 def _plant(args):
@@ -313,8 +326,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     if plant == "printer":
         from ..printer import make_printer
 
-        plant = make_printer(args.zones, getattr(cl, "REALISTIC_EFFECTS", ()),
-                             powder=args.powder or "PA12", seed=args.printer_seed)
+        plant = make_printer(args.zones or PRINTER_ZONES, getattr(cl, "REALISTIC_EFFECTS", ()),
+                             powder=args.powder or PRINTER_POWDER, seed=args.printer_seed)
     from ..models import AbstractModel
 
     own = isinstance(plant, AbstractModel)
@@ -411,6 +424,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
     if args.model is not None:
         input_file(args.model, "--model")
         model = io.load_model(args.model)
+    if args.plant is None:   # as the help says and a tune sweep does: the model is the plant
+        args.plant = "printer" if args.model is None else args.model
     plant, _ = _plant(args)
     tune = require("jthermo.tune", "tuning")
     args.controller = _controller_family(args.controller)
@@ -443,7 +458,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             lr = SHORT_LR.get(args.controller) if short else None
             rep = tune.tune_report(args.controller, plant=plant, model=model,
                                    rollouts=args.rollouts, steps=args.steps, seed=args.seed,
-                                   zones=args.zones, powder=args.powder, progress=bar,
+                                   zones=args.zones, powder=args.powder or PRINTER_POWDER,
+                                   progress=bar,
                                    plant_seed=args.printer_seed,
                                    train_dtype=TRAIN_DTYPE.get(args.controller),
                                    **({} if lr is None else {"lr": lr}))
@@ -455,6 +471,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         rep.pop(k)
     costs = rep.get("costs") or rep.get("history")
     report = {"controller": args.controller, **rep, "seed": args.seed}
+    report["tuned_vs_start_percent"] = _gain(report.get("start_cost"), report.get("tuned_cost"))
     if not own:
         report["printer_seed"] = args.printer_seed
     report.setdefault("seconds", time.perf_counter() - t0)
@@ -472,6 +489,18 @@ def cmd_tune(args: argparse.Namespace) -> dict:
                                   "tuned_cost": report.get("tuned_cost")})
         report["out"] = str(out)
     report = write_report(args, js, report)
+    kept = " (the tuning kept its start: no step beat it on held-out rollouts)" \
+        if report.get("moved") is False else ""
     info(args, f"{args.controller}: " + summary_line(
-        report, ("start_cost", "tuned_cost", "lambda_pi_cost", "improvement_percent", "seconds")))
+        report, ("start_cost", "tuned_cost", "tuned_vs_start_percent", "lambda_pi_cost",
+                 "improvement_percent", "seconds")) + kept)
     return report
+
+
+def _gain(start, tuned):
+    """100 (1 - tuned / start): what the tuning itself gained over its start (the report's
+    `improvement_percent` compares with the lambda PI, which for another family measures the
+    family, not the tuning); None where either cost is missing or the start's is not positive."""
+    if not isinstance(start, (int, float)) or not isinstance(tuned, (int, float)) or start <= 0:
+        return None
+    return 100.0 * (1.0 - float(tuned) / float(start))

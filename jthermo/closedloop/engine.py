@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..control._base import AbstractController
+from ..data import same_ts
 from ..errors import ConfigError
 from ..models._base import AbstractModel
 from ..printer import DiscretePrinter, Printer, make_printer
@@ -368,6 +369,10 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     n_ctrl = getattr(ctrl, "zones", None)
     if n_ctrl is not None and n_ctrl != ny:
         raise ConfigError(f"run: the controller drives {n_ctrl} zones, the plant has {ny} outputs")
+    c_ts = getattr(ctrl, "ts", None)
+    if isinstance(c_ts, (int, float)) and not same_ts(c_ts, ts):
+        raise ConfigError(f"run: the controller runs at a sample time of {c_ts:g} s, the plant "
+                          f"at {ts:g} s")
     if isinstance(plant, Printer) and not scenario_kw:
         # the printer's scenarios are drawn inside the same compiled call, its key too
         # traced once per cache: later processes load the exported program (`runtime`)

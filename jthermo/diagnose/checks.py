@@ -29,6 +29,13 @@ def check_records(est, val, ts_tolerance: float) -> None:
         j = int(np.argmin(np.std(est.u, axis=0)))
         raise DataError(f"diagnose: input `u_{est.input_names[j]}` is constant in the estimation "
                         "data and cannot excite the system")
+    for nm, d in (("estimation", est), ("validation", val)):
+        y = np.asarray(d.y)
+        flat = np.ptp(y, axis=0) <= 1e-9 * np.maximum(1.0, np.abs(y).max(axis=0))
+        if np.any(flat):
+            j = int(np.flatnonzero(flat)[0])
+            raise DataError(f"diagnose: output `y_{d.output_names[j]}` is constant in the {nm} "
+                            "data: there is nothing to explain")
     if np.any(est.u < -1e-9) and "power" not in " ".join(est.notes):
         pass  # inputs are power fractions on the printer; other systems may differ: no check
 

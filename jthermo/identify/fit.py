@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..data import IOData, require_excitation
+from ..data import IOData, require_excitation, require_output_variation
 from ..errors import ConfigError, DataError, ModelError
 from ..models import polynomial_numpy
 from ..models.envelope import Envelope
@@ -90,6 +90,7 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
         raise DataError(f"fit: expected IOData, got {type(data).__name__}")
     o = _check_orders(family, orders) if orders is not None else None
     require_excitation(data)
+    require_output_variation(data)
     fitter = FITTERS[family]
     _check_options(fitter.options, kw, family)
     table = None

@@ -147,6 +147,13 @@ class Envelope:
         if abs(float(ss.ts) - self.ts) > 1e-9 * max(1.0, self.ts):
             raise ConfigError(f"envelope: recorded at Ts {self.ts:g} s, the model runs at "
                               f"{float(ss.ts):g} s")
+        lo, hi = min(self.u_min), max(self.u_max)
+        if lo < U_LIMITS[0] - 1e-6 or hi > U_LIMITS[1] + 1e-6:
+            # the closed loop clips every input to U_LIMITS: a heater recorded in % (0-100) or
+            # volts could never be driven past 1 % / 1 V, and no set point would be reached
+            raise ConfigError(f"envelope: the recorded inputs span {lo:g} to {hi:g}; a closed "
+                              f"loop drives power fractions {U_LIMITS[0]:g} to {U_LIMITS[1]:g} "
+                              "(the data contract): rescale the inputs (e.g. % / 100) and refit")
         return self
 
     def signals(self, model: AbstractModel) -> np.ndarray:

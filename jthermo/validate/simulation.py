@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ..data import IOData
+from ..data import IOData, same_ts
 from ..errors import DataError, ModelError
 from ..models import polynomial_numpy, statespace_numpy
 from ..models._base import AbstractModel
@@ -44,8 +44,8 @@ def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Float[Array, "*ny"]:
         raise DataError(f"fit_percent: expected (T,) or (T, ny) with T >= 2, got shape {y.shape}")
     num = jnp.linalg.norm(y - yhat, axis=0)
     den = jnp.linalg.norm(y - jnp.mean(y, axis=0), axis=0)
-    if not is_traced(den) and bool(jnp.any(den == 0)):
-        j = int(np.flatnonzero(np.atleast_1d(np.asarray(den)) == 0)[0])
+    if not is_traced(den) and bool(jnp.any(_flat(den, y, jnp))):
+        j = int(np.flatnonzero(np.atleast_1d(np.asarray(_flat(den, y, jnp))))[0])
         raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
     return 100.0 * (1.0 - num / den)
 
@@ -62,6 +62,9 @@ def _check_io(model: AbstractModel, data: IOData, what: str):
         raise DataError(f"{what}: the data have {data.n_inputs} input(s), the model {model.n_inputs}")
     if data.n_outputs != model.n_outputs:
         raise DataError(f"{what}: the data have {data.n_outputs} output(s), the model {model.n_outputs}")
+    if not same_ts(model.ts, data.ts):
+        raise DataError(f"{what}: the data's sample time {data.ts:g} s is not the model's "
+                        f"{model.ts:g} s")
     nw = model.n_signals
     if data.w.shape[1] < nw:
         raise DataError(f"{what}: the model needs {nw} measured signal(s) w, the data have {data.w.shape[1]}")
@@ -204,11 +207,17 @@ def compare(model: AbstractModel, data: IOData, *, k: int | None = None,
             "yhat": yhat, "x0": np.asarray(x_init), "k": k}
 
 
+def _flat(den, y, xp):
+    """Outputs whose variation ||y - mean(y)|| is rounding error of ||y|| (1e-12): their fit %
+    is a ratio to that error (e.g. -1e291 %), so undefined like an exactly constant one's."""
+    return den <= 1e-12 * xp.linalg.norm(y, axis=0)
+
+
 def _fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     """`fit_percent` of host arrays in NumPy (no compile), same errors."""
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
-    if np.any(den == 0):
-        j = int(np.flatnonzero(np.atleast_1d(den) == 0)[0])
+    if np.any(_flat(den, y, np)):
+        j = int(np.flatnonzero(np.atleast_1d(_flat(den, y, np)))[0])
         raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
     return 100.0 * (1.0 - np.linalg.norm(y - yhat, axis=0) / den)
 

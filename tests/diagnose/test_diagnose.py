@@ -86,6 +86,11 @@ def test_bad_input_errors():
         diagnose(est, val.replace(y=val.y[:, :1], output_names=("1",)))
     with pytest.raises(DataError, match="is constant"):
         diagnose(est.replace(u=np.full_like(est.u, 0.5)), val)
+    # a constant output: it used to name heater_lag at 0.999 with fits of -1e291 %
+    flat = np.asarray(val.y).copy()
+    flat[:, 1] = 25.0
+    with pytest.raises(DataError, match="output `y_.*` is constant in the validation data"):
+        diagnose(est, val.replace(y=flat))
     with pytest.raises(DataError, match="unknown mechanism"):
         diagnose(est, val, mechanisms=("magic",))
 
