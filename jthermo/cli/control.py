@@ -264,7 +264,7 @@ _PREPARE_SKIP = ("imc",)
 
 def _shape_model(printer):
     """A stand-in for `_printer_model(printer)` with its shapes, dtypes and sample time (a
-    stable diagonal plant, NumPy leaves): a controller designed on it has the real one's
+    stable diagonal plant): a controller designed on it has the real one's
     structure, so `closedloop.prepare_run` can compile for it before the real design."""
     import jax
     import numpy as np

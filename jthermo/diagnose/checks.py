@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..data import require_output_variation
 from ..errors import DataError
 
 
@@ -30,12 +31,7 @@ def check_records(est, val, ts_tolerance: float) -> None:
         raise DataError(f"diagnose: input `u_{est.input_names[j]}` is constant in the estimation "
                         "data and cannot excite the system")
     for nm, d in (("estimation", est), ("validation", val)):
-        y = np.asarray(d.y)
-        flat = np.ptp(y, axis=0) <= 1e-9 * np.maximum(1.0, np.abs(y).max(axis=0))
-        if np.any(flat):
-            j = int(np.flatnonzero(flat)[0])
-            raise DataError(f"diagnose: output `y_{d.output_names[j]}` is constant in the {nm} "
-                            "data: there is nothing to explain")
+        require_output_variation(d, f"diagnose: the {nm} data")
     if np.any(est.u < -1e-9) and "power" not in " ".join(est.notes):
         pass  # inputs are power fractions on the printer; other systems may differ: no check
 

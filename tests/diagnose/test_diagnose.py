@@ -89,7 +89,7 @@ def test_bad_input_errors():
     # a constant output: it used to name heater_lag at 0.999 with fits of -1e291 %
     flat = np.asarray(val.y).copy()
     flat[:, 1] = 25.0
-    with pytest.raises(DataError, match="output `y_.*` is constant in the validation data"):
+    with pytest.raises(DataError, match="the validation data: output `y_.*` is constant"):
         diagnose(est, val.replace(y=flat))
     with pytest.raises(DataError, match="unknown mechanism"):
         diagnose(est, val, mechanisms=("magic",))
