@@ -129,6 +129,8 @@ def test_design_beats_its_prbs_within_limits_and_is_deterministic(free_design):
     d2 = X.design_experiment(_result(), est, val, hold=5, n_steps=40, seed=2)
     u = d1["u"]
     assert u.shape == (T, 1) and np.array_equal(u, d2["u"])
+    # both starts' optimisation, not only the input kept (the PRBS's seed, the random start's)
+    assert np.array_equal(d1["history"], d2["history"])
     assert np.all(u >= 0.3 - 1e-12) and np.all(u <= 0.7 + 1e-12)
     assert np.all(u.reshape(-1, 5)[:, :1] == u.reshape(-1, 5))          # held over 5 samples
     assert d1["separation_designed"] > d1["separation_prbs"] > 0
