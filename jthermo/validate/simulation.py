@@ -44,9 +44,8 @@ def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Float[Array, "*ny"]:
         raise DataError(f"fit_percent: expected (T,) or (T, ny) with T >= 2, got shape {y.shape}")
     num = jnp.linalg.norm(y - yhat, axis=0)
     den = jnp.linalg.norm(y - jnp.mean(y, axis=0), axis=0)
-    if not is_traced(den) and bool(jnp.any(_flat(den, y, jnp))):
-        j = int(np.flatnonzero(np.atleast_1d(np.asarray(_flat(den, y, jnp))))[0])
-        raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
+    if not is_traced(den):
+        _refuse_flat(np.asarray(_flat(den, y, jnp)))
     return 100.0 * (1.0 - num / den)
 
 
@@ -213,12 +212,18 @@ def _flat(den, y, xp):
     return den <= 1e-12 * xp.linalg.norm(y, axis=0)
 
 
+def _refuse_flat(flat: np.ndarray) -> None:
+    """`DataError` naming the first output flagged in `flat` (`_flat`), if any."""
+    flat = np.atleast_1d(flat)
+    if flat.any():
+        raise DataError(f"fit_percent: output {int(np.flatnonzero(flat)[0])} is constant: the fit "
+                        "is undefined")
+
+
 def _fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     """`fit_percent` of host arrays in NumPy (no compile), same errors."""
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
-    if np.any(_flat(den, y, np)):
-        j = int(np.flatnonzero(np.atleast_1d(_flat(den, y, np)))[0])
-        raise DataError(f"fit_percent: output {j} is constant: the fit is undefined")
+    _refuse_flat(_flat(den, y, np))
     return 100.0 * (1.0 - np.linalg.norm(y - yhat, axis=0) / den)
 
 
