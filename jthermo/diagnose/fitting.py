@@ -64,7 +64,8 @@ shift came from the common surroundings drift's unfinished fit, which now contin
 (`joint.common_drift_fit`, `CONTINUE_ROUNDS`): 10.27 with and without. Real recordings 10/10
 identical (`diagnose_heldout_same_diagnose_real_s36_vs_diagnose_real_s37geo.md`), set 20's nulls
 10/10 quiet (`..._s36drift_nulls20_vs_s37geo_nulls20.md`), the latency record the same findings and
-fit at warm 35.2-35.8 -> 31.9-32.3 CPU s (`benchmarks/diagnose_warm_cpu.py`, load 6-7); but set
+fit at warm 32.4-32.5 -> 29.2-30.6 CPU s, its per-zone fits 14.3-14.8 -> 11.8-12.2
+(`benchmarks/results/diagnose_warm_cpu_s37geo.md`, interleaved, load 1.4-4.1); but set
 16's case 05 (a drift named at 0.275 with the body its rival) flipped to `heat_accumulation`
 (`diagnose_heldout_hard_s37geo_set16_partial.log`), so it stays off.
 
