@@ -358,7 +358,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         best = "pi_lambda (tuned)" if "pi_lambda (tuned)" in controllers else names[0]
         for k in SCENARIOS:
             sc = cl.compiled_make_scenario()(k, plant, cfg["scenario_s"], jax.random.key(seed + HELD_OUT))
-            tr = _quick_simulate()(plant, controllers[best], sc)
+            tr = _quick_simulate()(plant, controllers[best], cl.unlabelled(sc))  # one program
             t = np.arange(sc.n_samples) * sc.ts
             plots.plot_closed_loop(t, np.asarray(tr.y), np.asarray(tr.u), np.asarray(tr.r),
                                    path=figs / f"closed_loop_{k}.png")

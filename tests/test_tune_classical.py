@@ -93,3 +93,39 @@ def test_evaluate_fitted_model_equals_plain_path():
     traj = rollouts(model, ctrl, sc)
     assert np.isclose(got["cost"], float(cost(traj, sc)), rtol=1e-9)
     assert np.isclose(got["scenarios"][kind]["mse"], metrics(traj, sc)["mse"], rtol=1e-9)
+
+
+def test_evaluate_compiles_one_program_for_every_kind():
+    """`evaluate` runs every scenario kind through one compiled program (the kind is a label
+    no rollout or score reads): after a first kind, the others lower nothing, and each kind's
+    figures are bit for bit those of the labelled scenario."""
+    import collections
+
+    from jax import monitoring
+
+    from jthermo.closedloop import compiled_make_scenario
+
+    plant = report.make_printer(2, report.REALISTIC_EFFECTS, seed=0)
+    ctrl = report.design("pi_decoupled", report.printer_model(plant))
+    kw = {"rollouts": 2, "duration": 37.0}          # shapes no other test uses
+    kinds = tuple(report.SCENARIOS)
+    report.evaluate(ctrl, plant, kinds[0], (7,), **kw)
+    for k in kinds[1:]:                              # the scenario builders, compiled apart
+        compiled_make_scenario()(k, plant, kw["duration"], jax.random.key(7), n_rollouts=2)
+    events = collections.Counter()
+
+    def count(name, _secs, **_):
+        events[name] += 1
+
+    monitoring.register_event_duration_secs_listener(count)
+    try:
+        got = report.evaluate(ctrl, plant, kinds, (7,), **kw)
+    finally:
+        monitoring.unregister_event_duration_listener(count)
+    assert events["/jax/core/compile/jaxpr_to_mlir_module_duration"] == 0
+    for k in kinds:
+        sc = compiled_make_scenario()(k, plant, kw["duration"], jax.random.key(7), n_rollouts=2)
+        assert sc.kind == k
+        J, m = jax.device_get(report._quick_evaluate()[0](plant, ctrl, sc, None))
+        assert got["scenarios"][k]["cost"] == float(J)
+        assert got["scenarios"][k]["mse"] == float(m["mse"])

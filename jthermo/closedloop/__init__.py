@@ -25,7 +25,7 @@ from .scenarios import (
     compiled_make_scenario as compiled_make_scenario,
     PREVIEW_S as PREVIEW_S, event_schedule as event_schedule,
     MODEL_KINDS as MODEL_KINDS, model_duration as model_duration,
-    model_scenario as model_scenario,
+    model_scenario as model_scenario, unlabelled as unlabelled,
 )
 from .scoring import (
     DEFAULT_WEIGHTS as DEFAULT_WEIGHTS, METRICS as METRICS, RunningMetrics as RunningMetrics,

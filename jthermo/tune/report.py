@@ -20,6 +20,7 @@ from ..closedloop import (
     make_scenario,
     metric_arrays,
     rollouts,
+    unlabelled,
 )
 from ..control._base import AbstractController
 from ..control.design import design
@@ -80,7 +81,8 @@ def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_
         for s in seeds:
             sc = scenario(k, plant, duration, jax.random.key(int(s)),
                           n_rollouts=int(rollouts), **dict(scenario_kw or {}))
-            J, m = jax.device_get(run(plant, controller, sc, weights))
+            # the kind is a label no rollout or score reads: one program for every kind
+            J, m = jax.device_get(run(unlabelled(plant), controller, unlabelled(sc), weights))
             costs.append(float(J))
             mets.append(m)
         m = {name: float(np.mean([d[name] for d in mets])) for name in mets[0]}
