@@ -5,6 +5,10 @@ stage times (its JSON report):
 
     git archive REV | (mkdir -p BASE && tar -x -C BASE)
     python benchmarks/demo_time_ab.py --base BASE --base-label REV [--out FILE]
+
+`--base`/`--base-label` may repeat (several trees against this checkout); `--repeats K` runs the
+whole interleaved round (every tree cold, then every tree warm) K times, each round on fresh
+caches.
 """
 
 from __future__ import annotations
@@ -39,25 +43,31 @@ def run(tree: Path, cache: str, tmp: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--base", required=True)
-    ap.add_argument("--base-label", default="base")
+    ap.add_argument("--base", required=True, action="append")
+    ap.add_argument("--base-label", action="append")
+    ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/demo_time_ab.md"))
     args = ap.parse_args()
-    trees = {args.base_label: Path(args.base).resolve(), "this checkout": ROOT}
+    labels = args.base_label or [f"base{i}" for i in range(len(args.base))]
+    trees = {lab: Path(b).resolve() for lab, b in zip(labels, args.base)}
+    trees["this checkout"] = ROOT
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        caches = {k: tempfile.mkdtemp(dir=tmp) for k in trees}
-        for phase in ("cold", "warm"):
-            for name, tree in trees.items():
-                work = Path(tempfile.mkdtemp(dir=tmp))
-                rows.append((name, phase, run(tree, caches[name], work)))
+        for _ in range(args.repeats):
+            caches = {k: tempfile.mkdtemp(dir=tmp) for k in trees}
+            for phase in ("cold", "warm"):
+                for name, tree in trees.items():
+                    work = Path(tempfile.mkdtemp(dir=tmp))
+                    rows.append((name, phase, run(tree, caches[name], work)))
     lines = ["# `jthermo demo`: two trees, cold and warm (issue 13)", "",
-             f"`python benchmarks/demo_time_ab.py --base BASE --base-label {args.base_label}`: each run "
+             f"`python benchmarks/demo_time_ab.py --repeats {args.repeats} "
+             + " ".join(f"--base BASE --base-label {lab}" for lab in labels) + "`: each run "
              "a fresh process from the tree's directory; cold = an empty compilation cache, warm = "
              "the second run on the cache the first filled; 2 shared CPUs, 1-minute load before each run.", "",
              "| tree | run | wall s | CPU s | exit | load | stages (s) |", "|---|---|---|---|---|---|---|"]
     for name, phase, r in rows:
-        short = lambda k: "scenarios" if k.startswith("the three") else k.split(" ")[0]
+        def short(k):
+            return "scenarios" if k.startswith("the three") else k.split(" ")[0]
         st = ", ".join(f"{short(k)} {v:.1f}" for k, v in r["stages"].items() if v is not None)
         lines.append(f"| {name} | {phase} | {r['wall']:.1f} | {r['cpu']:.1f} | {r['rc']} | {r['load']} | {st} |")
     text = "\n".join(lines) + "\n"

@@ -1,12 +1,13 @@
 """`jthermo demo`: the whole workflow on the built-in virtual printer, ending in a report.
 
-Stages: PRBS experiment → fit every model family → validate → design controllers → tune by
-gradient → the three test scenarios (tracking, powder, print) → diagnose a concealed effect →
+Stages: PRBS experiment → fit every model family → design controllers → tune by
+gradient → residual tests → the three test scenarios (tracking, powder, print) → diagnose a concealed effect →
 `runs/<name>/report.md` with figures, `summary.json`, the data, the models and the tuned
 controller. Each stage is guarded: a stage that fails (or whose library piece is missing) is
 reported in the report with its one-line reason, and the later stages go on without it. The
 diagnosis and the tuning (on the virtual printer's own design model) need nothing from the
-stages before them and run in two more threads beside them.
+stages before them and run in two more threads beside them; the scenarios (stage 6) run beside
+the residual tests (stage 5).
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     ev = st.run("PRBS experiment on the virtual printer", experiment)
     est, val = ev if ev is not None else (None, None)
 
-    # 6 -------------------------------------------------------------- diagnosis (started early)
+    # 7 -------------------------------------------------------------- diagnosis (started early)
     # independent of every other stage: it runs in a second thread from here on, so that its
     # compilations and fits overlap theirs (a second core, or the time one stage waits on its
     # compiler); its stage waits for it below
@@ -265,33 +266,6 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         st.records.append({"stage": "fit every model family and validate", "status": "skipped",
                            "message": "no data"})
 
-    def residuals():
-        from . import plots
-        from .validate import residual_tests, spectral_estimate
-
-        ok = [r for r in S.get("identification", []) if "mean_fit_percent" in r]
-        best = max(ok, key=lambda r: r["mean_fit_percent"])["model"]
-        res = residual_tests(models[best], val)
-        S["validation"] = {"best": best, "whiteness_pass": res.get("whiteness_pass"),
-                           "independence_pass": res.get("independence_pass"),
-                           "ljung_box_p": res.get("ljung_box_p")}
-        plots.plot_residual_tests(res, path=figs / "residuals.png")
-        fig("validation", figs / "residuals.png", f"Residual tests of the best model ({best})")
-        spec = spectral_estimate(val)
-        # each heater's own zone and one neighbour coupling: all ny x nu channels of a 4-zone
-        # bed are 32 log axes: 5.8-6.2 against 1.5-1.6 CPU s of drawing (python benchmarks/demo_bode.py)
-        m = models[best]
-        chans = [(i, i) for i in range(min(m.n_outputs, m.n_inputs))]
-        chans += [(1, 0)] if m.n_outputs > 1 else []
-        plots.plot_bode({best: m}, spectral=spec, channels=chans, path=figs / "bode.png")
-        fig("validation", figs / "bode.png", f"Bode diagram of {best} against the spectral estimate "
-            "(each heater to its own zone, and heater 1 to zone 2)")
-
-    if models:
-        st.run("residual and spectral validation", residuals)
-    else:
-        st.records.append({"stage": "residual and spectral validation", "status": "skipped"})
-
     # 3 -------------------------------------------------------------- controller design
     controllers: dict[str, Any] = {}
     plant_box: dict[str, Any] = {}
@@ -317,10 +291,10 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
     st.run("design controllers from the fitted model", design_stage)
 
-    st.run("tune lambda-PI by gradient over vmapped rollouts (run beside stages 2-4)", tuning)
+    st.run("tune lambda-PI by gradient over vmapped rollouts (run beside stages 2-3)", tuning)
     controllers.update(tuned_box)
 
-    # 5 -------------------------------------------------------------- scenarios
+    # 6 -------------------------------------------------------------- scenarios
     def scenarios():
         import jax
 
@@ -373,15 +347,48 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
                                        path=figs / "bed_heatmap.png")
                 fig("scenarios", figs / "bed_heatmap.png", "Zone temperatures over the bed (print scenario, last sample)")
 
-    if controllers:
-        st.run("the three test scenarios against the virtual printer", scenarios)
+    # the scenarios' compilations (one program per controller structure) overlap the residual
+    # stage's tests and figures: started here, waited for after it
+    scenarios_done = _in_background(scenarios) if controllers else None
+
+    # 5 -------------------------------------------------------------- residual tests
+    def residuals():
+        from . import plots
+        from .validate import residual_tests, spectral_estimate
+
+        ok = [r for r in S.get("identification", []) if "mean_fit_percent" in r]
+        best = max(ok, key=lambda r: r["mean_fit_percent"])["model"]
+        res = residual_tests(models[best], val)
+        S["validation"] = {"best": best, "whiteness_pass": res.get("whiteness_pass"),
+                           "independence_pass": res.get("independence_pass"),
+                           "ljung_box_p": res.get("ljung_box_p")}
+        plots.plot_residual_tests(res, path=figs / "residuals.png")
+        fig("validation", figs / "residuals.png", f"Residual tests of the best model ({best})")
+        spec = spectral_estimate(val)
+        # each heater's own zone and one neighbour coupling: all ny x nu channels of a 4-zone
+        # bed are 32 log axes: 5.8-6.2 against 1.5-1.6 CPU s of drawing (python benchmarks/demo_bode.py)
+        m = models[best]
+        chans = [(i, i) for i in range(min(m.n_outputs, m.n_inputs))]
+        chans += [(1, 0)] if m.n_outputs > 1 else []
+        plots.plot_bode({best: m}, spectral=spec, channels=chans, path=figs / "bode.png")
+        fig("validation", figs / "bode.png", f"Bode diagram of {best} against the spectral estimate "
+            "(each heater to its own zone, and heater 1 to zone 2)")
+
+    if models:
+        st.run("residual and spectral validation", residuals)
+    else:
+        st.records.append({"stage": "residual and spectral validation", "status": "skipped"})
+
+    if scenarios_done is not None:
+        st.run("the three test scenarios against the virtual printer (run beside stage 5)",
+               scenarios_done)
     else:
         st.records.append({"stage": "the three test scenarios against the virtual printer",
                            "status": "skipped", "message": "no controller"})
 
     st.run("diagnose a concealed effect (run beside stages 2-6)", diagnosing)
 
-    # 7 -------------------------------------------------------------- report
+    # 8 -------------------------------------------------------------- report
     S["stages"] = st.records
     S["seconds"] = round(time.perf_counter() - t_start, 1)
 
