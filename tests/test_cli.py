@@ -111,6 +111,18 @@ def test_fit_validate_round_trip(tmp_path, capsys):
     rep2 = json.loads(js2.read_text())
     np.testing.assert_allclose(rep2["fit_percent"], rep["fit_percent"], rtol=1e-10)
     assert rep2["model"] == "arx" and "whiteness_pass" in rep2["residual_tests"]
+    assert not any(o["shifted"] for o in rep["level_offsets"] + rep2["level_offsets"])
+    # a record at another level on output 2: the fit falls, and the note says why
+    mat = np.loadtxt(val, delimiter=",", skiprows=1)
+    mat[:, 4] += 30.0
+    shifted = tmp_path / "shifted.csv"
+    np.savetxt(shifted, mat, delimiter=",", header="t,u_1,u_2,y_1,y_2", comments="", fmt="%.10g")
+    rc, _, err = _run(["validate", model, shifted, "--json", js2, "--quiet"], capsys)
+    assert rc == 0, err
+    rep3 = json.loads(js2.read_text())
+    assert [o["shifted"] for o in rep3["level_offsets"]] == [False, True]
+    assert rep3["level_offsets"][1]["mean_error"] == pytest.approx(30.0, rel=0.1)  # x0 takes a little
+    assert "note: the record sits at another level" in err and "mean error 2 +2" in err and "error 1" not in err
     # a data file given as the model is a one-line error
     rc, _, err = _run(["validate", val, val], capsys)
     assert rc == 2 and "not a jthermo save file" in _one_line_error(err)

@@ -291,3 +291,27 @@ def test_estimate_initial_state_nonlinear_is_no_worse_than_steady():
     err = lambda x: float(np.sum((y[:30] - np.asarray(m.simulate(u, None, x))[:30]) ** 2))
     assert err(x_est) <= err(x_st)
     np.testing.assert_allclose(np.asarray(x_est), [1.2], atol=1e-6)   # Gauss-Newton converged
+
+
+def test_level_offsets_flag_a_shift_that_alone_makes_the_fit_negative():
+    """The mean error bounds the fit: fit <= 100 (1 - |m| / std y); an output is flagged where
+    that bound is negative and the shift carries at least half the squared error."""
+    rng = np.random.default_rng(3)
+    y = 50.0 + np.cumsum(rng.standard_normal((800, 3)), axis=0) * 0.2
+    noise = 0.1 * rng.standard_normal((800, 3))
+    sd = y.std(axis=0)
+    shift = np.array([0.0, 0.5, 2.0]) * sd          # none, below std, twice the std
+    yhat = y - noise - shift
+    out = V.level_offsets(y, yhat, ["a", "b", "c"])
+    assert [o["shifted"] for o in out] == [False, False, True]
+    assert [o["output"] for o in out] == ["a", "b", "c"]
+    np.testing.assert_allclose([o["mean_error"] for o in out], shift + noise.mean(axis=0))
+    fits = np.asarray(V.fit_percent(y, yhat))
+    bound = 100.0 * (1.0 - np.abs([o["mean_error"] for o in out]) / sd)
+    assert np.all(fits <= bound + 1e-9) and fits[2] < 0
+    notes = V.level_offset_notes(out)
+    assert len(notes) == 1 and "error c +" in notes[0] and "error a" not in notes[0] and " b " not in notes[0]
+    assert V.level_offset_notes(V.level_offsets(y, y - noise)) == []
+    # a large error that is not a shift (wrong dynamics) is not called one
+    wrong = y - 3.0 * sd * np.sin(np.arange(800) / 20.0)[:, None]
+    assert not any(o["shifted"] for o in V.level_offsets(y, wrong))

@@ -145,6 +145,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "checks": (getattr(res, "extra", None) or {}).get("check"),
         "repaired": (getattr(res, "extra", None) or {}).get("repaired"),
         "warnings": plausible["warnings"],
+        "level_offsets": validate.level_offsets(target.y, cmp["yhat"], target.output_names),
         "data": str(args.data),
         "validation": args.validation,
         "n_samples": est.n_samples,
@@ -171,6 +172,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     report = write_report(args, js, report)
     for w in report["warnings"]:     # physically implausible, not fatal: the fit stands
         print(f"warning: {w}", file=sys.stderr)
+    for n in validate.level_offset_notes(report["level_offsets"]):
+        print(f"note: on the {report['fit_on']} data, {n}", file=sys.stderr)
     info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
                f"(mean {cmp['mean_fit_percent']:.2f} % on {report['fit_on']} data), "
                f"{report['seconds']:.1f} s")
@@ -205,6 +208,7 @@ def cmd_validate(args: argparse.Namespace) -> dict:
         "fit_percent": cmp["fit_percent"],
         "mean_fit_percent": cmp["mean_fit_percent"],
         "residual_tests": {k: res[k] for k in keep if k in res},
+        "level_offsets": validate.level_offsets(data.y, cmp["yhat"], data.output_names),
         "data_notes": list(data.notes),
     }
     if plot is not None:
@@ -216,6 +220,8 @@ def cmd_validate(args: argparse.Namespace) -> dict:
         plots.plot_residual_tests(res, path=plot / "residuals.png")
         report["figures"] = [str(plot / "compare.png"), str(plot / "residuals.png")]
     report = write_report(args, js, report)
+    for n in validate.level_offset_notes(report["level_offsets"]):
+        print(f"note: {n}", file=sys.stderr)
     info(args, f"fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % (mean {cmp['mean_fit_percent']:.2f} %), "
                f"residuals white: {res.get('whiteness_pass')}, independent of inputs: "
                f"{res.get('independence_pass')}")

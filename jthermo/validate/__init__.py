@@ -13,6 +13,7 @@ Array results of the reporting functions are NumPy (host side, for JSON and plot
 from .simulation import (
     compare as compare, correlations as correlations,
     estimate_initial_state as estimate_initial_state, fit_percent as fit_percent,
+    level_offset_notes as level_offset_notes, level_offsets as level_offsets,
     residual_tests as residual_tests,
 )
 from .properties import (
@@ -30,6 +31,8 @@ __all__ = [
     "estimate_initial_state",
     "fit_percent",
     "information_criteria",
+    "level_offset_notes",
+    "level_offsets",
     "plausibility",
     "poles_zeros",
     "residual_tests",

@@ -227,6 +227,42 @@ def _fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     return 100.0 * (1.0 - np.linalg.norm(y - yhat, axis=0) / den)
 
 
+def level_offsets(y: ArrayLike, yhat: ArrayLike, names=None) -> list[dict]:
+    """Per output, how much of the simulation error is a constant level shift.
+
+    With $e = y - \\hat y$, the mean error $m = \\bar e$ carries the share
+    $m^2 / \\overline{e^2}$ of the mean square error, and alone it bounds the fit from above:
+    $\\mathrm{fit} \\le 100\\,(1 - |m| / \\sigma_y)$ ($\\sigma_y$ the output's standard
+    deviation on the record). An output is flagged (`shifted`) where the shift alone makes the
+    fit negative ($|m| > \\sigma_y$) and carries at least half the error: the record sits at
+    another level than the model predicts from its inputs (another operating point or
+    surroundings, a sensor offset), which a model without an input for it cannot follow.
+
+    **Returns:** one dict per output: `output`, `mean_error` (°C, measured minus simulated),
+    `share` of the mean square error, `output_std`, `shifted`."""
+    y, yhat = np.asarray(y, np.float64), np.asarray(yhat, np.float64)
+    e = y - yhat
+    m = e.mean(axis=0)
+    mse = np.mean(e ** 2, axis=0)
+    sd = y.std(axis=0)
+    names = list(names) if names is not None else [f"y{i + 1}" for i in range(y.shape[1])]
+    return [{"output": str(n), "mean_error": float(mi), "share": float(mi ** 2 / ms) if ms > 0 else 0.0,
+             "output_std": float(si), "shifted": bool(abs(mi) > si and mi ** 2 >= 0.5 * ms)}
+            for n, mi, ms, si in zip(names, m, mse, sd)]
+
+
+def level_offset_notes(offsets: list[dict]) -> list[str]:
+    """One line for the flagged outputs of `level_offsets` (none when no output is)."""
+    bad = [o for o in offsets if o["shifted"]]
+    if not bad:
+        return []
+    parts = ", ".join(f"{o['output']} {o['mean_error']:+.3g} ({100 * o['share']:.0f} % of its "
+                      f"squared error; its standard deviation {o['output_std']:.3g})" for o in bad)
+    return [f"the record sits at another level than the model simulates: mean error {parts}; "
+            "the fit is low because of that shift (another operating point or surroundings, "
+            "or a sensor offset, which the model has no input for), not the dynamics alone"]
+
+
 # ---------------------------------------------------------------- residual analysis
 
 
