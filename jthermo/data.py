@@ -357,12 +357,36 @@ def save_csv(data: IOData, path: str | os.PathLike) -> None:
 # ---------------------------------------------------------------- checks
 
 
+def idle_inputs(data: IOData, *, rel_tol: float = 1e-9) -> list[int]:
+    """Indices of the input columns constant over the record (to `rel_tol` of their magnitude):
+    e.g. a logged heater that was never switched on."""
+    u = np.asarray(data.u)
+    return [j for j in range(u.shape[1])
+            if np.ptp(u[:, j]) <= rel_tol * max(1.0, float(np.abs(u[:, j]).max()))]
+
+
 def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
     """Raise `DataError` if an input column is constant: it cannot excite the system."""
-    for j, name in enumerate(data.input_names):
-        col = data.u[:, j]
-        if np.ptp(col) <= rel_tol * max(1.0, float(np.abs(col).max())):
-            raise DataError(f"IOData: input `u_{name}` is constant ({col[0]:g}): it cannot excite the system")
+    for j in idle_inputs(data, rel_tol=rel_tol)[:1]:
+        raise DataError(f"IOData: input `u_{data.input_names[j]}` is constant ({data.u[0, j]:g}): "
+                        "it cannot excite the system")
+
+
+def keep_inputs(data: IOData, names, what: str = "data") -> IOData:
+    """`data` with only the inputs `names` (without the `u_` prefix), in that order; the others
+    must be constant in it (a model without them cannot follow their effect), else `DataError`."""
+    names = [str(n) for n in names]
+    missing = [n for n in names if n not in data.input_names]
+    if missing:
+        raise DataError(f"{what}: no input `u_{missing[0]}` (its inputs: "
+                        f"{', '.join('u_' + n for n in data.input_names)})")
+    idle = set(idle_inputs(data))
+    for j, n in enumerate(data.input_names):
+        if n not in names and j not in idle:
+            raise DataError(f"{what}: input `u_{n}` varies in this record, but the model has no "
+                            "such input (it was constant, and left out, in the estimation record)")
+    keep = [data.input_names.index(n) for n in names]
+    return data.replace(u=np.asarray(data.u)[:, keep], input_names=tuple(names))
 
 
 def require_output_variation(data: IOData, what: str = "IOData", *,

@@ -128,6 +128,40 @@ def test_fit_validate_round_trip(tmp_path, capsys):
     assert rc == 2 and "not a jthermo save file" in _one_line_error(err)
 
 
+def test_fit_leaves_out_a_heater_never_switched_on(tmp_path, capsys):
+    """A record that logs a heater held off: fit leaves it out with a note, validate picks the
+    model's inputs from a record with it, and refuses one where it varies."""
+    def with_idle(src, dst, idle=True):
+        mat = np.loadtxt(src, delimiter=",", skiprows=1)
+        mat = np.column_stack([mat[:, :3], np.zeros(len(mat)) if idle else mat[:, 1], mat[:, 3:]])
+        np.savetxt(dst, mat, delimiter=",", header="t,u_1,u_2,u_3,y_1,y_2", comments="", fmt="%.10g")
+        return dst
+
+    est = with_idle(_arx_csv(tmp_path / "e.csv", seed=0), tmp_path / "est.csv")
+    val = with_idle(_arx_csv(tmp_path / "v.csv", seed=1), tmp_path / "val.csv")
+    js, model = tmp_path / "fit.json", tmp_path / "m.jtm"
+    rc, _, err = _run(["fit", est, "--model", "arx", "--orders", "1,1,1", "--validation", val,
+                       "--out", model, "--json", js, "--quiet"], capsys)
+    assert rc == 0, err
+    assert "note: u_3 constant in the record: left out of the model" in err
+    rep = json.loads(js.read_text())
+    assert rep["inputs"] == ["1", "2"] and rep["dropped_inputs"] == ["3"] and rep["mean_fit_percent"] > 90
+    assert io.load_model(model).n_inputs == 2
+    rc, _, err = _run(["validate", model, val, "--json", js, "--quiet"], capsys)
+    assert rc == 0, err
+    np.testing.assert_allclose(json.loads(js.read_text())["fit_percent"], rep["fit_percent"], rtol=1e-10)
+    busy = with_idle(_arx_csv(tmp_path / "b.csv", seed=2), tmp_path / "busy.csv", idle=False)
+    rc, _, err = _run(["validate", model, busy], capsys)
+    assert rc == 2 and "input `u_3` varies in this record, but the model has no such input" in _one_line_error(err)
+    # every input idle: refused as before
+    mat = np.loadtxt(est, delimiter=",", skiprows=1)
+    mat[:, 1:4] = 0.5
+    still = tmp_path / "still.csv"
+    np.savetxt(still, mat, delimiter=",", header="t,u_1,u_2,u_3,y_1,y_2", comments="", fmt="%.10g")
+    rc, _, err = _run(["fit", still, "--model", "arx", "--orders", "1,1,1"], capsys)
+    assert rc == 2 and "is constant" in _one_line_error(err)
+
+
 def test_fit_common_denominator_and_rest_level(tmp_path, capsys):
     """`--common-denominator`: the saved OE model has one F per output, equal across inputs;
     `--rest-level`: its operating point is that level at zero input (88.5 °C is the data's

@@ -239,6 +239,21 @@ def test_checks():
         data.require_samples(d, 60, "ARX")
 
 
+def test_idle_and_kept_inputs():
+    """A logged heater never switched on is idle; keeping the other inputs drops it, and a
+    record where a left-out input varies is refused."""
+    rng = np.random.default_rng(1)
+    d = data.from_columns(_cols(u_h2=np.zeros(50), u_h3=rng.random(50)))
+    assert data.idle_inputs(d) == [d.input_names.index("h2")]
+    kept = data.keep_inputs(d, ["h3", "h1"])
+    assert kept.input_names == ("h3", "h1")
+    np.testing.assert_array_equal(kept.u, np.asarray(d.u)[:, [2, 0]])
+    with pytest.raises(DataError, match="input `u_h1` varies in this record, but the model has no such input"):
+        data.keep_inputs(d, ["h3"], "validation data")
+    with pytest.raises(DataError, match="no input `u_h9`"):
+        data.keep_inputs(d, ["h9"])
+
+
 def test_preprocessing():
     rng = np.random.default_rng(1)
     T = 400

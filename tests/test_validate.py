@@ -142,6 +142,19 @@ def test_residual_tests_detects_input_correlation(plant_data):
     r = V.residual_tests(wrong, from_arrays(u, y + e), max_lag=10)
     assert r["cross_pass"][1][1] is False
     assert np.abs(r["cross"][:, 1, 1]).max() > 3 * r["bound_cross_family"]
+    # an input held constant through the record has no cross-correlation: not judged, the
+    # other input's pairs are (the same figures as with it varying)
+    u_still = u.copy()
+    u_still[:, 0] = 0.5
+    y_still = np.asarray(wrong.simulate(jnp.asarray(u_still), None, jnp.zeros(2))) + e
+    r_still = V.residual_tests(wrong, from_arrays(u_still, y_still), max_lag=10)
+    assert r_still["constant_inputs"] == [r_still["input_names"][0]]
+    assert [row[0] for row in r_still["cross_pass"]] == [None, None]
+    assert [row[0] for row in r_still["n_outside_cross"]] == [None, None]
+    assert np.all(np.isnan(r_still["cross"][:, :, 0])) and np.all(np.isfinite(r_still["cross"][:, :, 1]))
+    assert r_still["independence_pass"] is (r_still["cross_pass"][0][1] and r_still["cross_pass"][1][1])
+    y_none = np.asarray(m.simulate(jnp.full((T, 2), 0.5), None, jnp.array([1.5, -2.0]))) + e
+    assert V.residual_tests(m, from_arrays(np.full((T, 2), 0.5), y_none), max_lag=10)["independence_pass"] is None
     with pytest.raises(DataError, match="max_lag"):
         V.residual_tests(m, from_arrays(u, y), max_lag=0)
     with pytest.raises(DataError, match="alpha"):

@@ -96,6 +96,20 @@ def _fit_options(args) -> dict:
     return extra
 
 
+def _leave_out_idle_inputs(est, val):
+    """`(est, val, names)`: the records without the inputs constant in the estimation record (a
+    logged heater never switched on), where at least one input varies; a left-out input that
+    varies in `val` is refused (`data.keep_inputs`). With none varying, `fit` refuses the record."""
+    from ..data import idle_inputs, keep_inputs
+
+    idle = idle_inputs(est)
+    if not idle or len(idle) == est.n_inputs:
+        return est, val, []
+    kept = [n for j, n in enumerate(est.input_names) if j not in idle]
+    val = None if val is None else keep_inputs(val, kept, "validation data")
+    return keep_inputs(est, kept, "estimation data"), val, [est.input_names[j] for j in idle]
+
+
 def cmd_fit(args: argparse.Namespace) -> dict:
     from .. import io
 
@@ -110,6 +124,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     val = load_data(args.validation, "validation data") if args.validation else None
     if val is not None:
         same_layout(est, val)
+    est, val, dropped = _leave_out_idle_inputs(est, val)
     fit_mod = require("jthermo.identify.fit", "identification (fit)")
     validate = require("jthermo.validate", "validation")
 
@@ -151,6 +166,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "n_samples": est.n_samples,
         "ts": est.ts,
         "data_notes": list(est.notes) + (list(val.notes) if val is not None else []),
+        "inputs": list(est.input_names),
+        "dropped_inputs": dropped,
         "seed": args.seed,
     }
     if plot is not None:
@@ -165,6 +182,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     if out is not None:
         io.save(res.model, out, meta={"family": family, "orders": report["orders"],
                                       "data": str(args.data), "seed": args.seed,
+                                      "inputs": list(est.input_names),
                                       "fit_percent": cmp["fit_percent"],
                                       **({"envelope": res.envelope.to_dict()}
                                          if getattr(res, "envelope", None) else {})})
@@ -172,6 +190,9 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     report = write_report(args, js, report)
     for w in report["warnings"]:     # physically implausible, not fatal: the fit stands
         print(f"warning: {w}", file=sys.stderr)
+    if dropped:
+        print(f"note: {', '.join('u_' + n for n in dropped)} constant in the record: left out "
+              "of the model (a constant input's effect cannot be told from the level)", file=sys.stderr)
     for n in validate.level_offset_notes(report["level_offsets"]):
         print(f"note: on the {report['fit_on']} data, {n}", file=sys.stderr)
     info(args, f"{family} {report['orders']}: fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % "
@@ -196,10 +217,16 @@ def cmd_validate(args: argparse.Namespace) -> dict:
     data = load_data(args.data)
     validate = require("jthermo.validate", "validation")
     header = io.load_header(args.model)
+    names = (header.get("meta") or {}).get("inputs")
+    if names and len(names) == model.n_inputs and data.n_inputs > model.n_inputs:
+        from ..data import keep_inputs
+
+        data = keep_inputs(data, names)      # the model left out inputs constant when fitted
     cmp = validate.compare(model, data)
     res = validate.residual_tests(model, data)
-    keep = ("auto_pass", "cross_pass", "whiteness_pass", "independence_pass", "ljung_box_q",
-            "ljung_box_p", "n_outside_auto", "n_outside_cross", "bound", "max_lag", "alpha")
+    keep = ("auto_pass", "cross_pass", "whiteness_pass", "independence_pass", "constant_inputs",
+            "ljung_box_q", "ljung_box_p", "n_outside_auto", "n_outside_cross", "bound", "max_lag",
+            "alpha")
     report = {
         "model": header.get("family"),
         "orders": header.get("orders") or header.get("meta", {}).get("orders"),

@@ -310,6 +310,9 @@ def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha:
     `auto_pass` (list per output), `cross_pass` (ny × nu lists), `n_outside_auto`,
     `n_outside_cross`, `ljung_box_q`, `ljung_box_p` (per output), `residuals` `(T, ny)`,
     `whiteness_pass`/`independence_pass` (all outputs/pairs), `n_samples`, `alpha`, `max_lag`.
+    An input constant over the record has no cross-correlation: NaN in `cross`, None in
+    `cross_pass` and `n_outside_cross`, named in `constant_inputs`; `independence_pass` judges
+    the other pairs (None when no input varies).
     """
     y, u, w = _check_io(model, data, "residual_tests")
     N = y.shape[0]
@@ -323,33 +326,39 @@ def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha:
         raise ModelError("residual_tests: the residuals are not finite (unstable predictor?)")
     if bool(jnp.any(jnp.std(e, axis=0) == 0)):
         raise DataError("residual_tests: a residual is identically constant: correlations are undefined")
-    if bool(jnp.any(jnp.std(u, axis=0) == 0)):
-        raise DataError("residual_tests: an input is constant: its cross-correlation is undefined")
+    # a constant input (e.g. a heater held at one level through the record) has no
+    # cross-correlation: NaN there, and its pairs are not judged (`cross_pass` None)
+    still = np.asarray(jnp.std(u, axis=0) == 0)
     M = int(max_lag)
     auto, cross = correlations(e, u, M)
     auto = np.asarray(auto)
-    cross = np.asarray(cross)
+    c_abs = np.where(still[None, None, :], 0.0, np.abs(np.asarray(cross)))   # judged as nothing
+    cross = np.where(still[None, None, :], np.nan, np.asarray(cross))
     nd = NormalDist()
     bound = nd.inv_cdf(1 - alpha / 2) / math.sqrt(N)
     b_auto = nd.inv_cdf(1 - alpha / (2 * M)) / math.sqrt(N)
     b_cross = nd.inv_cdf(1 - alpha / (2 * (2 * M + 1))) / math.sqrt(N)
     a_abs = np.abs(auto[1:])
-    c_abs = np.abs(cross)
     taus = np.arange(1, M + 1)
     q = N * (N + 2) * np.sum(auto[1:] ** 2 / (N - taus)[:, None], axis=0)
     p = np.asarray(jax.scipy.special.gammaincc(M / 2.0, jnp.asarray(q) / 2.0))
     auto_pass = (a_abs.max(axis=0) < b_auto)
     cross_pass = (c_abs.max(axis=0) < b_cross)
+    judged = np.broadcast_to(~still[None, :], cross_pass.shape)
     return {
         "lags_auto": np.arange(M + 1), "auto": auto,
         "lags_cross": np.arange(-M, M + 1), "cross": cross,
         "bound": bound, "bound_auto_family": b_auto, "bound_cross_family": b_cross,
         "auto_pass": [bool(v) for v in auto_pass],
-        "cross_pass": [[bool(v) for v in row] for row in cross_pass],
+        "cross_pass": [[bool(v) if ok else None for v, ok in zip(row, jr)]
+                       for row, jr in zip(cross_pass, judged)],
         "n_outside_auto": [int(v) for v in (a_abs >= bound).sum(axis=0)],
-        "n_outside_cross": [[int(v) for v in row] for row in (c_abs >= bound).sum(axis=0)],
+        "n_outside_cross": [[int(v) if ok else None for v, ok in zip(row, jr)]
+                            for row, jr in zip((c_abs >= bound).sum(axis=0), judged)],
         "ljung_box_q": [float(v) for v in q], "ljung_box_p": [float(v) for v in p],
-        "whiteness_pass": bool(auto_pass.all()), "independence_pass": bool(cross_pass.all()),
+        "whiteness_pass": bool(auto_pass.all()),
+        "independence_pass": bool(cross_pass[judged].all()) if judged.any() else None,
+        "constant_inputs": [data.input_names[j] for j in np.flatnonzero(still)],
         "residuals": np.asarray(e), "n_samples": N, "alpha": float(alpha), "max_lag": M,
         "input_names": tuple(data.input_names), "output_names": tuple(data.output_names),
     }
