@@ -372,6 +372,19 @@ def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
                         "it cannot excite the system")
 
 
+def keep_outputs(data: IOData, names, what: str = "data") -> IOData:
+    """`data` with only the outputs `names` (with or without the `y_` prefix), in that order
+    (e.g. the sensor of the heated zone of a one-heater device that logs two)."""
+    names = [str(n)[2:] if str(n).startswith("y_") else str(n) for n in names]
+    missing = [n for n in names if n not in data.output_names]
+    if missing or not names or len(set(names)) < len(names):
+        raise DataError(f"{what}: " + (f"no output `y_{missing[0]}`" if missing else
+                                       "the outputs to keep must be distinct and at least one")
+                        + f" (its outputs: {', '.join('y_' + n for n in data.output_names)})")
+    keep = [data.output_names.index(n) for n in names]
+    return data.replace(y=np.asarray(data.y)[:, keep], output_names=tuple(names))
+
+
 def keep_inputs(data: IOData, names, what: str = "data") -> IOData:
     """`data` with only the inputs `names` (without the `u_` prefix), in that order; the others
     must be constant in it (a model without them cannot follow their effect), else `DataError`."""

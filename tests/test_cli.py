@@ -153,6 +153,16 @@ def test_fit_leaves_out_a_heater_never_switched_on(tmp_path, capsys):
     busy = with_idle(_arx_csv(tmp_path / "b.csv", seed=2), tmp_path / "busy.csv", idle=False)
     rc, _, err = _run(["validate", model, busy], capsys)
     assert rc == 2 and "input `u_3` varies in this record, but the model has no such input" in _one_line_error(err)
+    # one sensor only (--outputs): validate takes it from the full record
+    rc, _, err = _run(["fit", est, "--model", "arx", "--orders", "1,1,1", "--outputs", "2",
+                       "--out", model, "--json", js, "--quiet"], capsys)
+    assert rc == 0, err
+    rep = json.loads(js.read_text())
+    assert rep["outputs"] == ["2"] and len(rep["fit_percent"]) == 1 and io.load_model(model).n_outputs == 1
+    rc, _, err = _run(["validate", model, val, "--json", js, "--quiet"], capsys)
+    assert rc == 0 and len(json.loads(js.read_text())["fit_percent"]) == 1, err
+    rc, _, err = _run(["fit", est, "--model", "arx", "--outputs", "9"], capsys)
+    assert rc == 2 and "--outputs: no output `y_9`" in _one_line_error(err)
     # every input idle: refused as before
     mat = np.loadtxt(est, delimiter=",", skiprows=1)
     mat[:, 1:4] = 0.5

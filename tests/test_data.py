@@ -254,6 +254,18 @@ def test_idle_and_kept_inputs():
         data.keep_inputs(d, ["h9"])
 
 
+def test_kept_outputs():
+    rng = np.random.default_rng(2)
+    d = data.from_columns(_cols(y_z2=30 + rng.random(50)))
+    one = data.keep_outputs(d, ["y_z2"])
+    assert one.output_names == ("z2",) and one.n_outputs == 1
+    np.testing.assert_array_equal(one.y[:, 0], np.asarray(d.y)[:, 1])
+    with pytest.raises(DataError, match="no output `y_z7` \\(its outputs: y_z1, y_z2\\)"):
+        data.keep_outputs(d, ["z7"], "--outputs")
+    with pytest.raises(DataError, match="distinct"):
+        data.keep_outputs(d, ["z1", "z1"])
+
+
 def test_preprocessing():
     rng = np.random.default_rng(1)
     T = 400

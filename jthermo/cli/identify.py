@@ -32,6 +32,9 @@ def add_parsers(sub) -> None:
                     "armax na,nb,nc,nk; oe nb,nf,nk; bj nb,nc,nd,nf,nk; ss n (default: chosen "
                     "by the order-selection criterion)")
     sp.add_argument("--validation", metavar="VAL.csv", help="validation data (default: EST)")
+    sp.add_argument("--outputs", metavar="NAME[,NAME...]",
+                    help="fit only these output columns (e.g. T1 of a one-heater device that "
+                    "logs two sensors; default: all); validate picks them again")
     sp.add_argument("--out", metavar="MODEL", help="save the fitted model here")
     sp.add_argument("--common-denominator", action="store_true",
                     help="oe/bj: one F per output shared by its inputs (SIPPY's MIMO structure) "
@@ -110,6 +113,19 @@ def _leave_out_idle_inputs(est, val):
     return keep_inputs(est, kept, "estimation data"), val, [est.input_names[j] for j in idle]
 
 
+def _model_columns(data, model, meta: dict):
+    """`data` with the model's own inputs and outputs where the record has more (`fit` left out
+    inputs constant in its record, or kept `--outputs`), by the names in the model's header."""
+    from ..data import keep_inputs, keep_outputs
+
+    ins, outs = meta.get("inputs"), meta.get("outputs")
+    if outs and len(outs) == model.n_outputs and data.n_outputs > model.n_outputs:
+        data = keep_outputs(data, outs)
+    if ins and len(ins) == model.n_inputs and data.n_inputs > model.n_inputs:
+        data = keep_inputs(data, ins)
+    return data
+
+
 def cmd_fit(args: argparse.Namespace) -> dict:
     from .. import io
 
@@ -124,6 +140,12 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     val = load_data(args.validation, "validation data") if args.validation else None
     if val is not None:
         same_layout(est, val)
+    if args.outputs is not None:
+        from ..data import keep_outputs
+
+        names = [n.strip() for n in args.outputs.split(",")]
+        est = keep_outputs(est, names, "--outputs")
+        val = None if val is None else keep_outputs(val, names, "--outputs (validation data)")
     est, val, dropped = _leave_out_idle_inputs(est, val)
     fit_mod = require("jthermo.identify.fit", "identification (fit)")
     validate = require("jthermo.validate", "validation")
@@ -168,6 +190,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "data_notes": list(est.notes) + (list(val.notes) if val is not None else []),
         "inputs": list(est.input_names),
         "dropped_inputs": dropped,
+        "outputs": list(est.output_names),
         "seed": args.seed,
     }
     if plot is not None:
@@ -183,6 +206,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         io.save(res.model, out, meta={"family": family, "orders": report["orders"],
                                       "data": str(args.data), "seed": args.seed,
                                       "inputs": list(est.input_names),
+                                      "outputs": list(est.output_names),
                                       "fit_percent": cmp["fit_percent"],
                                       **({"envelope": res.envelope.to_dict()}
                                          if getattr(res, "envelope", None) else {})})
@@ -217,11 +241,7 @@ def cmd_validate(args: argparse.Namespace) -> dict:
     data = load_data(args.data)
     validate = require("jthermo.validate", "validation")
     header = io.load_header(args.model)
-    names = (header.get("meta") or {}).get("inputs")
-    if names and len(names) == model.n_inputs and data.n_inputs > model.n_inputs:
-        from ..data import keep_inputs
-
-        data = keep_inputs(data, names)      # the model left out inputs constant when fitted
+    data = _model_columns(data, model, header.get("meta") or {})
     cmp = validate.compare(model, data)
     res = validate.residual_tests(model, data)
     keep = ("auto_pass", "cross_pass", "whiteness_pass", "independence_pass", "constant_inputs",
