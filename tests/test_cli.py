@@ -161,6 +161,8 @@ def test_fit_leaves_out_a_heater_never_switched_on(tmp_path, capsys):
     assert rep["outputs"] == ["2"] and len(rep["fit_percent"]) == 1 and io.load_model(model).n_outputs == 1
     rc, _, err = _run(["validate", model, val, "--json", js, "--quiet"], capsys)
     assert rc == 0 and len(json.loads(js.read_text())["fit_percent"]) == 1, err
+    rc, _, err = _run(["tune", "--controller", "pi", "--model", model], capsys)   # 2 heaters, 1 sensor
+    assert rc == 2 and "one sensor per heater" in _one_line_error(err) and "--outputs" in err
     rc, _, err = _run(["fit", est, "--model", "arx", "--outputs", "9"], capsys)
     assert rc == 2 and "--outputs: no output `y_9`" in _one_line_error(err)
     # every input idle: refused as before

@@ -439,6 +439,10 @@ def cmd_tune(args: argparse.Namespace) -> dict:
     validation = None
     if own:
         model = plant if model is None else model
+        if model.n_inputs != model.n_outputs:
+            raise ConfigError(f"tune: the model has {model.n_inputs} heater(s) and {model.n_outputs} "
+                              "sensor(s); the controllers need one sensor per heater: fit it on "
+                              "the heated zones' sensors (`jthermo fit ... --outputs NAME[,NAME...]`)")
         env, r = _own_plant(args, model, args.model)
         if args.validation_plant is not None:
             input_file(args.validation_plant, "--validation-plant")
