@@ -114,7 +114,7 @@ import numpy as np
 
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
-from ..stored import exported_call, exported_compile
+from ..stored import exported_call
 from .mechanisms import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
@@ -210,10 +210,6 @@ def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_
     return Th, r, simulate_full(Th, on, f, lay, r), c
 
 
-#: `_fit_joint`'s static arguments
-JOINT_STATIC = ("lay", "n_iter", "n_active")
-
-
 def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None, budget=None,
                src=None):
     """`fit_joint`'s compiled program: the models one after another (`lax.map`), each with its
@@ -239,22 +235,6 @@ def _first_copies(*trees) -> np.ndarray:
                      for j in range(M)])
 
 
-def _joint_args(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active):
-    """`_fit_joint`'s arguments for `fit_joint`'s call: a model repeating an earlier one gets
-    no iterations and is copied from it."""
-    src = _first_copies(Theta0, on, rec0, mask, f_per)
-    budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
-    return (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active,
-            jnp.asarray(budget), jnp.asarray(src))
-
-
-def _records_args(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
-    """`fit_joint`'s arguments for `fit_records`: the zone parameters held, the record's free."""
-    full = jnp.concatenate([jnp.zeros((Theta.shape[0], Theta[0].size), mask.dtype), mask], axis=1)
-    return (Theta, on, rec0, full, y, jnp.ones(y.shape[0], y.dtype), f_per, f_shared, lay, n_iter,
-            rec0.shape[1])
-
-
 def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None):
     """Fit M coupled models jointly over all zones by simulation error (output error): the zones'
     parameters `Theta0 (M, n, P)` and the record parameters `rec0 (M, R)` (initial states, drift,
@@ -267,29 +247,20 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     Jacobian only where its parameters moved (`masked_lm(..., budget=...)`: a rejected step
     reuses it) and a model that repeats an earlier one (padding to a fixed number of slots)
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
-    return _run(_fit_joint, JOINT_STATIC, *_joint_args(Theta0, on, rec0, mask, y, weight, f_per,
-                                                      f_shared, lay, n_iter, n_active))
+    src = _first_copies(Theta0, on, rec0, mask, f_per)
+    budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
+    return _run(_fit_joint, ("lay", "n_iter", "n_active"), Theta0, on, rec0, mask, y, weight, f_per, f_shared,
+                lay, n_iter, n_active, jnp.asarray(budget), jnp.asarray(src))
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
     """Estimate each model's record parameters (initial states, drift) on a record by masked LM
     on the coupled simulation, then simulate it: `Theta (M, n, P)`, `on (M, 8)`,
     `rec0, mask (M, R)`; returns (rec, yhat (M, T, n), cost (M,))."""
-    _, r, yh, c = fit_joint(*_records_args(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter))
+    full = jnp.concatenate([jnp.zeros((Theta.shape[0], Theta[0].size), mask.dtype), mask], axis=1)
+    _, r, yh, c = fit_joint(Theta, on, rec0, full, y, jnp.ones(y.shape[0], y.dtype), f_per, f_shared,
+                            lay, n_iter, rec0.shape[1])
     return r, yh, c
 
 
-def prepare_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter) -> bool:
-    """Compile, without running, the program `fit_records` calls for arguments of these shapes
-    (the values may differ): in a thread while the caller computes the real ones, a first call
-    finds it compiled (`stored.exported_compile`). True when prepared; False where nothing was
-    done (the cache off, or a failure, which never affects `fit_records` itself)."""
-    try:
-        args = _joint_args(*_records_args(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter))
-    except Exception:  # noqa: BLE001  (an optimisation: the call itself decides)
-        return False
-    return exported_compile(_fit_joint, args, compiler_options=quick_compile())
-
-
-__all__ = ["FALL_LR", "FALL_WINDOW", "fit_joint", "fit_records", "fit_zones", "prepare_records", "sim_zones",
-           "still_falling"]
+__all__ = ["FALL_LR", "FALL_WINDOW", "fit_joint", "fit_records", "fit_zones", "sim_zones", "still_falling"]

@@ -39,7 +39,6 @@ smaller joint model, and of those that pass the one with the strongest estimatio
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import jax.numpy as jnp
@@ -52,7 +51,7 @@ from . import decide as D
 from . import mechanisms as M
 from .checks import check_records, drop_idle_inputs
 from .describe import mechanism_evidence, summary
-from .fitting import fit_records, fit_zones, prepare_records, sim_zones, still_falling
+from .fitting import fit_records, fit_zones, sim_zones, still_falling
 from .joint import (
     RESTRICT_ABOVE,
     JointFits,
@@ -108,9 +107,6 @@ JOINT_ITER = 25
 COMMON_DRIFT_ITER = 200
 #: iterations of the body's fit from the drift's start, in `n_iter` (a long valley: `slowbody.py`)
 BODY_ITER_FACTOR = 2
-#: Levenberg–Marquardt iterations re-estimating a model's record parameters (initial states,
-#: body states, drift knots, level) on the validation record
-VALIDATION_ITER = 10
 #: relative difference of the two records' sample times accepted as the same sample time
 TS_TOLERANCE = 0.01
 
@@ -265,68 +261,6 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                          "baseline_cost": float(np.mean(R_e ** 2))}
     tick({"stage": "localisation"})
 
-    # ---- the validation record (before the candidates: its fit program compiles meanwhile) ---
-    Tv = val.n_samples
-    yv = np.asarray(val.y, float)
-    kv = M.n_drift_knots(Tv, ts)
-    Phi_v = M.drift_basis(Tv, ts, kv)
-    sh_v = _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": Phi_v, "u_pad": rec_v["u_pad"]},
-                   level, ts_free, ts, t_ref)
-    # recoat events on the validation record, found again on its own residuals (`recoat.py`)
-    ev_v, flags_v = np.zeros((Tv, n)), 0
-    if P or irregular:
-        thb_v = thb.copy()
-        thb_v[:, lay.sl("x0")] = yv[0][:, None]
-        ybv = baseline.simulate(thb_v, rec_v["u"], rec_v["u_pad"], ts, level, ts_free, lay)
-        ev_v, flags_v = validation_events(yv - ybv, rc, ts, loc)
-
-    def validation_args(models):
-        """`fit_records`' arguments for coupled simulations of models on the validation record:
-        (θ, mechanism set) pairs fitted per zone (surroundings as the baseline's), or (θ, set,
-        setup) for the joint fits (`JointFits.setup` of the validation record), the record
-        parameters re-estimated on it (initial states, body states, drift knots, level)."""
-        Mn = len(models)
-        R = 2 * n + kv + 1              # + the record's own surroundings level (when not measured)
-        rec0, rmask = np.zeros((Mn, R)), np.zeros((Mn, R))
-        per_zone = {"ts_level": level, "ts_free": ts_free, "u_pad": rec_v["u_pad"]}
-        setups = [m[2] if len(m) == 3 else per_zone for m in models]
-        lev_m = np.array([su["ts_level"] for su in setups])
-        free_m = np.array([su["ts_free"] for su in setups])
-        for j, (m, su) in enumerate(zip(models, setups)):
-            th, st = m[0], m[1]
-            rec0[j, :n] = yv[0]
-            _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
-            tsl = lev_m[j] + free_m[j] * float(np.median(th[:, lay.sl("ts0")][:, 0]))
-            rec0[j, n:2 * n] = tsl + (rec0[j, :n].mean() - tsl) / (1.0 + gam)
-            rmask[j, :n] = 1.0
-            rmask[j, n:2 * n] = float("heat_accumulation" in st)
-            rmask[j, 2 * n:2 * n + kv] = float("ambient_variation" in st and not measured_var)
-            rmask[j, -1] = free_m[j]
-        fper = {"events": jnp.asarray(np.stack([ev_v] * Mn)),
-                "delay": jnp.asarray(np.array([best_delay if "input_delay" in m[1] else 0.0
-                                               for m in models])),
-                **{k: jnp.asarray(np.stack([su[k] for su in setups], dtype=float)) for k in per_zone}}
-        return (jnp.asarray(np.stack([m[0] for m in models])),
-                jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
-                jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v, lay, VALIDATION_ITER)
-
-    def validate(models, with_rec=False):
-        """Coupled simulations `(M, Tv, n)` of models on the validation record (`validation_args`);
-        `with_rec`: also the record parameters re-estimated on it `(M, 2 n + kv + 1)`."""
-        rec_fit, yh, _ = fit_records(*validation_args(models))
-        return (np.asarray(yh), np.asarray(rec_fit)) if with_rec else np.asarray(yh)
-
-    def k_val(st):
-        """Parameters re-estimated on the validation record beyond the zones' initial states."""
-        return (n * ("heat_accumulation" in st) + kv * ("ambient_variation" in st and not measured_var)
-                + flags_v * ("recoat_cooling" in st))
-
-    # the validation call's program for the candidates' shapes (the baseline and one model per
-    # candidate), compiled in a thread while the candidates are fitted (`fitting.prepare_records`)
-    prepared = threading.Thread(target=prepare_records, name="diagnose-prepare", daemon=True,
-                                args=validation_args([(thb, ())] + [(thb, (m,)) for m in mechanisms]))
-    prepared.start()
-
     def fit_sets(sets, starts, n_act=None, iters=None):
         """Fit one augmented model per mechanism set on the estimation record: (θ, residuals);
         `n_act` (static) the most free parameters of one problem (default: the sets' own),
@@ -386,7 +320,56 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     tick({"stage": "candidates"})
 
     # ---- 4. validation: simulate every model coupled, initial states re-estimated -----------------
-    prepared.join()
+    Tv = val.n_samples
+    yv = np.asarray(val.y, float)
+    kv = M.n_drift_knots(Tv, ts)
+    Phi_v = M.drift_basis(Tv, ts, kv)
+    sh_v = _shared({"u": rec_v["u"], "wdev": rec_v["wdev"], "Phi": Phi_v, "u_pad": rec_v["u_pad"]},
+                   level, ts_free, ts, t_ref)
+    # recoat events on the validation record, found again on its own residuals (`recoat.py`)
+    ev_v, flags_v = np.zeros((Tv, n)), 0
+    if P or irregular:
+        thb_v = thb.copy()
+        thb_v[:, lay.sl("x0")] = yv[0][:, None]
+        ybv = baseline.simulate(thb_v, rec_v["u"], rec_v["u_pad"], ts, level, ts_free, lay)
+        ev_v, flags_v = validation_events(yv - ybv, rc, ts, loc)
+
+    def validate(models, with_rec=False):
+        """Coupled simulations `(M, Tv, n)` of models on the validation record: (θ, mechanism set)
+        pairs fitted per zone (surroundings as the baseline's), or (θ, set, setup) for the joint
+        fits (`JointFits.setup` of the validation record); `with_rec`: also the record parameters
+        re-estimated on it `(M, 2 n + kv + 1)` (initial states, body states, drift knots, level)."""
+        Mn = len(models)
+        R = 2 * n + kv + 1              # + the record's own surroundings level (when not measured)
+        rec0, rmask = np.zeros((Mn, R)), np.zeros((Mn, R))
+        per_zone = {"ts_level": level, "ts_free": ts_free, "u_pad": rec_v["u_pad"]}
+        setups = [m[2] if len(m) == 3 else per_zone for m in models]
+        lev_m = np.array([su["ts_level"] for su in setups])
+        free_m = np.array([su["ts_free"] for su in setups])
+        for j, (m, su) in enumerate(zip(models, setups)):
+            th, st = m[0], m[1]
+            rec0[j, :n] = yv[0]
+            _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
+            tsl = lev_m[j] + free_m[j] * float(np.median(th[:, lay.sl("ts0")][:, 0]))
+            rec0[j, n:2 * n] = tsl + (rec0[j, :n].mean() - tsl) / (1.0 + gam)
+            rmask[j, :n] = 1.0
+            rmask[j, n:2 * n] = float("heat_accumulation" in st)
+            rmask[j, 2 * n:2 * n + kv] = float("ambient_variation" in st and not measured_var)
+            rmask[j, -1] = free_m[j]
+        fper = {"events": jnp.asarray(np.stack([ev_v] * Mn)),
+                "delay": jnp.asarray(np.array([best_delay if "input_delay" in m[1] else 0.0
+                                               for m in models])),
+                **{k: jnp.asarray(np.stack([su[k] for su in setups], dtype=float)) for k in per_zone}}
+        rec_fit, yh, _ = fit_records(jnp.asarray(np.stack([m[0] for m in models])),
+                               jnp.asarray(np.stack([M.on_vector(m[1]) for m in models])),
+                               jnp.asarray(rec0), jnp.asarray(rmask), jnp.asarray(yv), fper, sh_v, lay, 10)
+        return (np.asarray(yh), np.asarray(rec_fit)) if with_rec else np.asarray(yh)
+
+    def k_val(st):
+        """Parameters re-estimated on the validation record beyond the zones' initial states."""
+        return (n * ("heat_accumulation" in st) + kv * ("ambient_variation" in st and not measured_var)
+                + flags_v * ("recoat_cooling" in st))
+
     yhat_v, rec_v_fit = validate([(thb, ())] + [(thc[k], (m,)) for k, m in enumerate(cands)], with_rec=True)
     e_base = yv - yhat_v[0]
     e_c = [yv - yhat_v[k + 1] for k in range(K)]
