@@ -84,12 +84,13 @@ record was slower: 24.1 / 25.8 -> 28.8 / 28.1 s wall cold, 10.7 / 11.2 -> 10.5 s
 (`experiments/diagnose_heldout_same.py`, `diagnose_heldout_same_*h34speed*.md`).
 
 The traced programs are kept in the cache directory (`stored.exported_call`): a later process
-neither traces them nor lowers them again (the same programs, the same executables). On a first
-call the validation stage's program (its shapes known before any candidate is fitted) compiles
-in a thread while the candidates are fitted (`prepare_records`, `stored.exported_compile`): the
-validation call then compiles nothing (`tests/diagnose/test_prepare_records.py`); the two
-threads never execute programs at once (the two-thread fits deadlocked XLA's pool:
-`benchmarks/results/diagnose_threads_deadlock.md`), one only compiles.
+neither traces them nor lowers them again (the same programs, the same executables). Compiling
+the validation stage's program (its shapes are known before any candidate is fitted) in a
+thread while the candidates are fitted was measured and not adopted (a715d4f, reverted): the
+validation stage fell from 5.6-7.3 to 0.5-0.8 s wall on a first call, but the candidates'
+stage grew by as much (the thread's compile takes the core their fits use), the same report;
+three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 / 53.0 / 36.4 s
+with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
