@@ -271,5 +271,8 @@ def cmd_validate(args: argparse.Namespace) -> dict:
         print(f"note: {n}", file=sys.stderr)
     info(args, f"fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % (mean {cmp['mean_fit_percent']:.2f} %), "
                f"residuals white: {res.get('whiteness_pass')}, independent of inputs: "
-               f"{res.get('independence_pass')}")
+               + (f"{res.get('independence_pass')}" if res.get("independence_pass") is not None
+                  else "not testable (every input constant)")
+               + (f" (not judged: constant {', '.join('u_' + n for n in res['constant_inputs'])})"
+                  if res.get("constant_inputs") and res.get("independence_pass") is not None else ""))
     return report
