@@ -367,7 +367,9 @@ def idle_inputs(data: IOData, *, rel_tol: float = 1e-9) -> list[int]:
 
 def require_excitation(data: IOData, *, rel_tol: float = 1e-9) -> None:
     """Raise `DataError` if an input column is constant: it cannot excite the system."""
-    for j in idle_inputs(data, rel_tol=rel_tol)[:1]:
+    idle = idle_inputs(data, rel_tol=rel_tol)
+    if idle:
+        j = idle[0]
         raise DataError(f"IOData: input `u_{data.input_names[j]}` is constant ({data.u[0, j]:g}): "
                         "it cannot excite the system")
 

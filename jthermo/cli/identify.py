@@ -269,10 +269,9 @@ def cmd_validate(args: argparse.Namespace) -> dict:
     report = write_report(args, js, report)
     for n in validate.level_offset_notes(report["level_offsets"]):
         print(f"note: {n}", file=sys.stderr)
+    indep, still = res.get("independence_pass"), res.get("constant_inputs") or []
+    indep = ("not testable (every input constant)" if indep is None else str(indep)
+             + (f" (constant, not judged: {', '.join('u_' + n for n in still)})" if still else ""))
     info(args, f"fit {[f'{f:.1f}' for f in cmp['fit_percent']]} % (mean {cmp['mean_fit_percent']:.2f} %), "
-               f"residuals white: {res.get('whiteness_pass')}, independent of inputs: "
-               + (f"{res.get('independence_pass')}" if res.get("independence_pass") is not None
-                  else "not testable (every input constant)")
-               + (f" (not judged: constant {', '.join('u_' + n for n in res['constant_inputs'])})"
-                  if res.get("constant_inputs") and res.get("independence_pass") is not None else ""))
+               f"residuals white: {res.get('whiteness_pass')}, independent of inputs: {indep}")
     return report
