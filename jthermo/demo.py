@@ -1,9 +1,9 @@
 """`jthermo demo`: the whole workflow on the built-in virtual printer, ending in a report.
 
-Stages: PRBS experiment → fit every model family → design controllers → tune by
-gradient → residual tests → the three test scenarios (tracking, powder, print) → diagnose a concealed effect →
-`runs/<name>/report.md` with figures, `summary.json`, the data, the models and the tuned
-controller. Each stage is guarded: a stage that fails (or whose library piece is missing) is
+Stages: PRBS experiment → fit every model family → design controllers → tune by gradient →
+residual tests → the three test scenarios (tracking, powder, print) → diagnose a concealed
+effect → `runs/<name>/report.md` with figures, `summary.json`, the data, the models and the
+tuned controller. Each stage is guarded: a stage that fails (or whose library piece is missing) is
 reported in the report with its one-line reason, and the later stages go on without it. The
 diagnosis and the tuning (on the virtual printer's own design model) need nothing from the
 stages before them and run in two more threads beside them; the scenarios (stage 6) run beside
