@@ -59,7 +59,10 @@ def main() -> None:
             ["fit", r / "prbs_kr2022/data.csv", "--model", "ss", "--validation",
              r / "prbs_mlid2024/data.csv"], tmp, "fit_rawlings")
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.with_suffix(".json").write_text(json.dumps(rows, indent=1, default=str))
+    def portable(text: str) -> str:      # no path of this machine in the results
+        return text.replace(str(REAL), "../shared/data/real").replace(str(tmp), "TMP")
+
+    OUT.with_suffix(".json").write_text(portable(json.dumps(rows, indent=1, default=str)))
     lines = ["# A device whose log has more columns than its model (CLI)", "",
              "`python experiments/own_device_columns.py`: each call a `jthermo` process (`--json`, "
              "`--quiet`); real recordings from `../shared/data/real/`.", "",
@@ -85,9 +88,9 @@ def main() -> None:
                         f"{rep['tuned_vs_start_percent']:.1f} % below the start, "
                         f"{rep['improvement_percent']:.1f} % below lambda PI")
         last = row["stderr"].splitlines()[-1] if row["stderr"] else ""
-        lines.append(f"| {step} | `jthermo {row['argv'].replace(tmp.as_posix() + '/', '')}` | {row['rc']} | "
+        lines.append(f"| {step} | `jthermo {row['argv']}` | {row['rc']} | "
                      f"{row['wall_s']} | {'; '.join(figs)} | {last} |")
-    OUT.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    OUT.with_suffix(".md").write_text(portable("\n".join(lines) + "\n"))
     print("\n".join(lines))
 
 
