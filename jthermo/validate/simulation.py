@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ..data import IOData, same_ts
+from ..data import IOData, idle_inputs, same_ts
 from ..errors import DataError, ModelError
 from ..models import polynomial_numpy, statespace_numpy
 from ..models._base import AbstractModel
@@ -328,7 +328,7 @@ def residual_tests(model: AbstractModel, data: IOData, max_lag: int = 25, alpha:
         raise DataError("residual_tests: a residual is identically constant: correlations are undefined")
     # a constant input (e.g. a heater held at one level through the record) has no
     # cross-correlation: NaN there, and its pairs are not judged (`cross_pass` None)
-    still = np.asarray(jnp.std(u, axis=0) == 0)
+    still = np.isin(np.arange(u.shape[1]), idle_inputs(data))
     M = int(max_lag)
     auto, cross = correlations(e, u, M)
     auto = np.asarray(auto)
