@@ -135,7 +135,8 @@ def plot_residual_tests(result: dict, *, outputs=None, path: str | os.PathLike |
         a1.axhspan(-b, b, color="tab:blue", alpha=0.15)
         for j in range(nu):
             a1.plot(lc, cross[:, i, j], lw=1.0, label=f"u_{inames[j]}")
-        ok = "pass" if all(v is not False for v in result["cross_pass"][i]) else "FAIL"   # None: a constant input
+        # a constant input's pairs are None: not judged
+        ok = "pass" if all(v is not False for v in result["cross_pass"][i]) else "FAIL"
         a1.set_title(f"cross-correlation e_{onames[i]} with inputs ({ok})", fontsize="small")
         if nu <= 6:
             a1.legend(fontsize="x-small", loc="upper right")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data import require_output_variation
+from ..data import idle_inputs, keep_inputs, require_output_variation
 from ..errors import DataError
 
 
@@ -41,15 +41,12 @@ def drop_idle_inputs(est, val):
     effect cannot be told from the surroundings level, and they change nothing in either."""
     if not all(hasattr(d, "u") for d in (est, val)) or est.n_inputs != val.n_inputs or est.n_inputs < 2:
         return est, val, []
-    idle = [j for j in range(est.n_inputs)
-            if np.ptp(est.u[:, j]) < 1e-9 and np.ptp(val.u[:, j]) < 1e-9
-            and abs(float(est.u[0, j]) - float(val.u[0, j])) < 1e-9]
+    idle = [j for j in sorted(set(idle_inputs(est)) & set(idle_inputs(val)))
+            if abs(float(est.u[0, j]) - float(val.u[0, j])) < 1e-9]
     if not idle or len(idle) == est.n_inputs:
         return est, val, []
-    keep = [j for j in range(est.n_inputs) if j not in idle]
-    sub = lambda d: d.replace(u=np.asarray(d.u)[:, keep],
-                              input_names=tuple(d.input_names[j] for j in keep))
-    return sub(est), sub(val), [est.input_names[j] for j in idle]
+    keep = [n for j, n in enumerate(est.input_names) if j not in idle]
+    return keep_inputs(est, keep), keep_inputs(val, keep), [est.input_names[j] for j in idle]
 
 
 __all__ = ["check_records", "drop_idle_inputs"]
