@@ -296,6 +296,23 @@ def prefer_fewer_slow(rows: list, z_drift_over_body: float, k_body: int, k_drift
     return _body_ahead(rows) if k_body < k_drift and is_rival(z_drift_over_body) else list(rows)
 
 
+def prefer_input_driven(rows: list, z_drift_over_body_est: float) -> list:
+    """`rows` (dicts with `mechanism`, best first) with `heat_accumulation` moved ahead of an
+    `ambient_variation` named before it when the drift does not fit the *estimation* record
+    better than the body beyond the parameters it adds there (`z_drift_over_body_est`: the
+    `predictive_z` of the drift's residual against the body's, charged the difference of their
+    parameter counts, below the one-sided `RIVAL_LEVEL`).
+
+    Both are fitted on that record with every parameter charged; on the validation record the
+    drift re-estimates its knots and absorbs a body's decay, its misfit and the coloured noise
+    alike, so a validation ranking favours it. Of two slow explanations the estimation record
+    cannot separate, the one that predicts the slow part from the measured inputs (the body,
+    warmed by the heaters) is named and the exogenous signal (re-estimated on every record)
+    stays its rival (`body_drift_tied`); a drift the body cannot follow (one that cools the bed,
+    or turns) beats it there and keeps its place."""
+    return _body_ahead(rows) if is_rival(z_drift_over_body_est) else list(rows)
+
+
 def body_drift_tied(names, z_input: float) -> bool:
     """Both a slow body and a surroundings drift passed, and the drift's input dependence does
     not separate them: the one named second is the other's rival whatever the validation
@@ -306,11 +323,13 @@ def body_drift_tied(names, z_input: float) -> bool:
 
 def slow_order_confidence(top: str, z_input: float) -> float:
     """Chance that `top`, the slow body (`heat_accumulation`) or the surroundings drift
-    (`ambient_variation`) named ahead of the other, is the right one of the two, from the only
-    test that separates them: $\\Phi(z)$ for the body, $\\Phi(-z)$ for the drift, $z$ the
+    (`ambient_variation`) named ahead of the other, is the right one of the two, from the test
+    of the body's defining property: $\\Phi(z)$ for the body, $\\Phi(-z)$ for the drift, $z$ the
     `input_dependence` statistic. Their validation comparison cannot: the drift's knots are
     re-estimated on the validation record (charged one unit each, the chance gain of a correct
-    model), so a drift there absorbs whatever slow error a body's model leaves."""
+    model), so a drift there absorbs whatever slow error a body's model leaves. A body named
+    because the drift does not fit the estimation record better (`prefer_input_driven`) is a
+    choice between explanations that record leaves tied, not evidence: near 0.5, uncertain."""
     z = float(z_input) if np.isfinite(z_input) else 0.0
     return float(norm.cdf(z if top == "heat_accumulation" else -z))
 
@@ -466,5 +485,5 @@ __all__ = ["ALPHA", "BODY_TAUS", "BODY_TAU_MAX_RECORDS", "CONFIDENT", "MIN_DEPEN
            "common_drift_z", "confidence", "confidence_runner", "dependence_testable", "drift_contradicted",
            "input_dependence", "input_dependent", "is_rival", "lag_filter",
            "likelihood_ratio", "not_worse", "order_body_drift", "p_value", "predictive_z", "prefer_evidence",
-           "prefer_fewer_slow", "prefer_identified", "rms", "sensor_noise",
+           "prefer_fewer_slow", "prefer_input_driven", "prefer_identified", "rms", "sensor_noise",
            "slow_order_confidence", "slow_rival", "thresholds", "uncertain", "whiten"]

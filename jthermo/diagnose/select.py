@@ -16,8 +16,10 @@ drift follows the input-driven temperature, tested on the estimation record's fi
 on the drift re-estimated on the validation record, combined over the records long enough to
 test (`decide.combined_dependence`: a long designed validation record can settle the pair), and
 failing that by parsimony (a drift that does not out-predict the body beyond the knots it
-re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`; the body is
-also fitted from the drift restricted to its form, `slowbody.py`);
+re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`, and so does
+one that does not fit the estimation record better beyond the parameters it adds,
+`decide.prefer_input_driven`; the body is also fitted from the drift restricted to its form,
+`slowbody.py`);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
 The candidate tests fit per zone (series-parallel form): zone i's model sees its neighbours' and
@@ -66,7 +68,7 @@ from .joint import (
 )
 from .localise import localise
 from .recoat import estimation_events, validation_events
-from .slowbody import order_by_parsimony, refit_body_from_drift
+from .slowbody import order_by_estimation, order_by_parsimony, refit_body_from_drift
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
 MAX_DELAY = 12
@@ -438,6 +440,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
         # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
         sig = order_by_parsimony(sig, e_c, cands, k_val, loc)
+        # and on the estimation record, where both are charged every parameter (`decide.py`)
+        sig = order_by_estimation(sig, res_c, cands, dof, loc)
     if sig:
         # a body slower than the record, tied with an identified one-parameter mechanism: the latter
         k0 = sig[0]["k"]

@@ -109,4 +109,18 @@ def order_by_parsimony(sig, e_c, cands, k_val, loc) -> list:
     return D.prefer_fewer_slow(sig, loc["drift_over_body_z"], k_val(kb), k_val(kd))
 
 
-__all__ = ["body_from_drift", "order_by_parsimony", "refit_body_from_drift"]
+def order_by_estimation(sig, res_c, cands, dof, loc) -> list:
+    """The significant candidates `sig` (best first) reordered by `decide.prefer_input_driven`: a
+    `heat_accumulation` body goes ahead of an `ambient_variation` drift that does not fit the
+    estimation record better beyond the parameters it adds (`dof(mechanism)`, the tests' degrees
+    of freedom); `res_c` the candidates' estimation residuals (order of `cands`). Records the
+    statistic in `loc["drift_over_body_estimation_z"]`."""
+    if "heat_accumulation" not in cands or "ambient_variation" not in cands:
+        return list(sig)
+    kb, kd = "heat_accumulation", "ambient_variation"
+    z = D.predictive_z(res_c[cands.index(kb)], res_c[cands.index(kd)], dof(kd) - dof(kb))
+    loc["drift_over_body_estimation_z"] = z
+    return D.prefer_input_driven(sig, z)
+
+
+__all__ = ["body_from_drift", "order_by_estimation", "order_by_parsimony", "refit_body_from_drift"]

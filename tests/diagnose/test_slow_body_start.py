@@ -59,3 +59,30 @@ def test_a_drift_not_beating_the_body_goes_behind_it():
     assert names(D.prefer_fewer_slow(rows, 2.0, 2, 7)) == names(rows)       # the drift beats it
     assert names(D.prefer_fewer_slow(rows, 1.0, 7, 7)) == names(rows)       # not fewer parameters
     assert names(D.prefer_fewer_slow(rows[:2], 0.0, 2, 7)) == names(rows[:2])
+
+
+def test_a_drift_not_fitting_the_estimation_record_better_goes_behind_the_body():
+    """`slowbody.order_by_estimation`: on the estimation record both are charged every parameter;
+    a drift whose residual is no smaller than the body's, beyond the parameters it adds, goes
+    behind it (`decide.prefer_input_driven`); one that fits clearly better keeps its place."""
+    from jthermo.diagnose.slowbody import order_by_estimation
+
+    rng = np.random.default_rng(3)
+    e_body = rng.normal(0.0, 0.1, (1800, 3))
+    tied = e_body + rng.normal(0.0, 0.002, e_body.shape)       # the same misfit, a little noise
+    better = 0.8 * e_body                                       # the drift explains a fifth more
+    cands = ["ambient_variation", "heat_accumulation", "radiative_loss"]
+    rows = [{"mechanism": m} for m in ("ambient_variation", "radiative_loss", "heat_accumulation")]
+    names = lambda rs: [r["mechanism"] for r in rs]
+    dof = {"ambient_variation": 13, "heat_accumulation": 12, "radiative_loss": 3}.get
+    for e_drift, order in ((tied, ["heat_accumulation", "ambient_variation", "radiative_loss"]),
+                           (better, names(rows))):
+        loc = {}
+        res = [e_drift, e_body, e_body]
+        assert names(order_by_estimation(rows, res, cands, dof, loc)) == order
+        assert D.is_rival(loc["drift_over_body_estimation_z"]) == (e_drift is tied)
+    assert names(order_by_estimation(rows, [e_body] * 2, cands[1:], dof, {})) == names(rows)
+    assert names(D.prefer_input_driven(rows, 1.0)) == ["heat_accumulation", "ambient_variation",
+                                                        "radiative_loss"]
+    assert names(D.prefer_input_driven(rows, 2.0)) == names(rows)
+
