@@ -85,4 +85,3 @@ def test_a_drift_not_fitting_the_estimation_record_better_goes_behind_the_body()
     assert names(D.prefer_input_driven(rows, 1.0)) == ["heat_accumulation", "ambient_variation",
                                                         "radiative_loss"]
     assert names(D.prefer_input_driven(rows, 2.0)) == names(rows)
-
