@@ -83,11 +83,13 @@ def one(spec, max_zones, n_iter):
             # the drift against the body on the estimation record (Diebold-Mariano, whitened),
             # charged the parameters it fits beyond the body's (`mechanisms.n_added`)
             lay = res["_models"]["layout"]
-            k_est = [M.n_added(m, lay, shared_drift=True)     # the study's slow kinds: no surroundings column
+            k_est = [M.n_added(m, lay, shared_drift=not c["measured_ambient"])   # as `select.diagnose`
                      for m in ("heat_accumulation", "ambient_variation")]
             row["k_est"] = k_est
             row["est_drift_over_body_z"] = D.predictive_z(ee["heat_accumulation"], ee["ambient_variation"],
                                                           k_est[1] - k_est[0])
+            # the diagnosis's own (`slowbody.order_by_estimation`; absent before it existed)
+            row["est_drift_over_body_z_diagnosis"] = res["localisation"].get("drift_over_body_estimation_z")
         row["drift_over_truth_z"] = D.predictive_z(e_true_v, ev["ambient_variation"], kv["ambient_variation"])
         row["body_over_truth_z"] = D.predictive_z(e_true_v, ev["heat_accumulation"], kv["heat_accumulation"])
     for m, key in (("heat_accumulation", "body"), ("ambient_variation", "drift")):
