@@ -596,13 +596,18 @@ def main(argv=None):
                      "uncertain": bool(res["findings"][0].get("uncertain", False)) if named else False,
                      "flagged": [f["mechanism"] for f in res.get("flagged", [])],
                      "drift_input_dependence_z": res["localisation"].get("drift_input_dependence_z"),
+                     # the runner-up the top's confidence is measured against, its z on both records
+                     "runner": res["localisation"].get("runner"),
                      "combinations": res.get("combinations", []),
                      "fit_percent": [res["baseline"]["fit_percent"], res["augmented"]["fit_percent"]],
                      "baseline_fit": res["baseline"]["mean_fit_percent"],
                      "augmented_fit": res["augmented"]["mean_fit_percent"],
                      "gain": res["augmented"]["mean_fit_percent"] - res["baseline"]["mean_fit_percent"],
-                     "candidates": [{k: r[k] for k in ("mechanism", "validation_z", "estimation_lr",
-                                                       "significant", "val_reduction")}
+                     "candidates": [{**{k: r[k] for k in ("mechanism", "validation_z", "estimation_lr",
+                                                          "significant", "val_reduction")},
+                                     # the body's time constant: whether the record identifies it
+                                     **({"time_constant_s": r["parameters"]["time_constant_s"]}
+                                        if r["mechanism"] == "heat_accumulation" else {})}
                                     for r in res["candidates"]],
                      "recovered": recovered(res, c), "seconds": time.perf_counter() - t1,
                      "cpu_s": cpu_s() - c1})

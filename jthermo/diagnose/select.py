@@ -10,11 +10,12 @@ augmented model has to predict a record it was not fitted on, where only initial
 the surroundings level when no surroundings signal is measured, for every model alike), and for
 `ambient_variation` the unmeasured surroundings drift, are re-estimated (and charged for).
 Significant candidates are ranked by their validation MSE (a stored-heat body whose time
-constant the record does not identify yields to a tied one-parameter mechanism:
-`decide.prefer_identified`); a slow body and an unmeasured drift are ordered by whether the
-drift follows the input-driven temperature, tested on the estimation record's fitted drift and
-on the drift re-estimated on the validation record, combined over the records long enough to
-test (`decide.combined_dependence`: a long designed validation record can settle the pair), and
+constant the record does not identify yields to a tied one-parameter mechanism,
+`decide.prefer_identified`, and is not moved ahead by its estimation evidence,
+`decide.promotable`); a slow body and an unmeasured drift are ordered by whether the drift
+follows the input-driven temperature, tested on the estimation record's fitted drift and on the
+drift re-estimated on the validation record, combined over the records long enough to test
+(`decide.combined_dependence`: a long designed validation record can settle the pair), and
 failing that by parsimony (a drift that does not out-predict the body beyond the knots it
 re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`, and so does
 one that does not fit the estimation record better beyond the parameters it adds,
@@ -447,9 +448,12 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         k0 = sig[0]["k"]
         sig = D.prefer_identified(sig, T * ts, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
                                   lambda m: M.n_added_per_zone(m, lay))
-        # of the explanations the validation record leaves tied, the strongest on the estimation record
+        # of the explanations the validation record leaves tied, the strongest on the estimation
+        # record; a body the record does not identify is not moved ahead by it (its near-constant
+        # heat term gains on the estimation record what `prefer_identified` just set aside)
         k0 = sig[0]["k"]
-        sig = D.prefer_evidence(sig, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
+        sig = D.prefer_evidence(sig, lambda r: (D.promotable(r, T * ts)
+                                                and D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0]))),
                                 lambda r: dof(r["mechanism"]))
     chosen, rivals, conf_top = [], [], 0.0
     aug_yhat, aug_theta = yhat_v[0], thb
@@ -466,8 +470,14 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                 rivals.append(r["mechanism"])
         others = [r for r in ranked if r is not top and r["val_reduction"] > 0]
         run = D.confidence_runner(top["mechanism"], [r["mechanism"] for r in others], measured_var)
-        z_run = D.predictive_z(e_c[others[run]["k"]], e_c[kt]) if run is not None else None
-        conf_top = D.confidence(top["validation_z"], z_run)
+        # the top against another candidate on the estimation record, charged what it adds beyond it
+        z_est = lambda r: D.predictive_z(res_c[r["k"]], res_c[kt], dof(top["mechanism"]) - dof(r["mechanism"]))
+        z_run, z_run_est = None, None
+        if run is not None:
+            z_run, z_run_est = D.predictive_z(e_c[others[run]["k"]], e_c[kt]), z_est(others[run])
+            loc["runner"] = {"mechanism": others[run]["mechanism"], "validation_z": z_run,
+                             "estimation_z": z_run_est}
+        conf_top = D.confidence(top["validation_z"], z_run, z_run_est)
         other_slow = next((r for r in table if r["mechanism"] in slow and r is not top
                            and r["mechanism"] not in forbidden), None)
         if other_slow is not None and not measured_var:
@@ -481,9 +491,10 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                * D.slow_order_confidence(top["mechanism"], z_in))
         if D.uncertain(conf_top):
             # not a confident name: every candidate that improved on the baseline and that the
-            # top one does not beat is a rival, significant alone or not
+            # top one does not beat, on the validation record or on the estimation one, is a
+            # rival, significant alone or not
             rivals += [r["mechanism"] for r in others if r["mechanism"] not in rivals + [top["mechanism"]]
-                       and D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt]))]
+                       and (D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt])) or D.is_rival(z_est(r)))]
         chosen = [top["mechanism"]]
         # ---- 6. the combination, fitted jointly over all zones, grown forward by the tests ------
         # every candidate may join (one that helps only beside another, e.g. radiation once the

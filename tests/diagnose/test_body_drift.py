@@ -75,6 +75,11 @@ def test_uncertain_below_the_rival_level():
     assert D.uncertain(0.94) and not D.uncertain(0.95) and not D.uncertain(0.999)
     assert D.uncertain(D.confidence(3.0, 1.0))             # beats the baseline, not the runner-up
     assert not D.uncertain(D.confidence(5.0, None))
+    # better than the runner-up on the validation record, tied with it on the estimation record
+    assert D.uncertain(D.confidence(9.3, 4.77, 0.12))
+    assert D.confidence(9.3, 4.77, 0.12) == D.confidence(9.3, 0.12)
+    assert not D.uncertain(D.confidence(9.3, 4.77, 3.0))
+    assert D.confidence(9.3, 4.77, float("nan")) == D.confidence(9.3, 4.77)
     line = summary("ambient_variation", [1], {}, True, ["heat_accumulation"])
     assert line.startswith("Uncertain") and "heat_accumulation" in line
     assert not summary("ambient_variation", [1], {}).startswith("Uncertain")
