@@ -41,7 +41,7 @@ import diagnose_heldout_hard as H
 #: seed sets of `diagnose_heldout_hard.py` never scored (the others were scored once and are
 #: development records since)
 UNSCORED_SETS = ()
-FIRST_UNSCORED = 24
+FIRST_UNSCORED = 25
 
 
 def one(spec, max_zones, n_iter):
