@@ -18,7 +18,6 @@ Writes `experiments/results/diagnose_power_rule.md`.
 
 from __future__ import annotations
 
-import glob
 import json
 import math
 import sys
