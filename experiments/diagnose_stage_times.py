@@ -68,7 +68,7 @@ def main(argv=None) -> None:
         J.JointFits.fit = spy
         res = S.diagnose(est, val, progress=tick)
         J.JointFits.fit = fit
-    lines = [f"# Diagnosis stage times, N = {n}{args.tag}", "",
+    lines = [f"# Diagnosis stage times, N = {n}", "",
              f"Made by `python experiments/diagnose_stage_times.py --zones {n}"
              f"{' --tag ' + args.tag if args.tag else ''}`; one process, cold compilation cache unless "
              "warm; CPU: the process's (all threads). Named: "
