@@ -92,6 +92,12 @@ stage grew by as much (the thread's compile takes the core their fits use), the 
 three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 / 53.0 / 36.4 s
 with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
 
+Fitting a call's problems in shares, each share's call in a thread of its own (two cores: one
+mostly idle under `lax.map`), took the latency record's per-zone fits, warm, 13.45 -> 7.96 s wall
+with identical results (`python benchmarks/diagnose_zone_threads.py`), but the same split of
+the joint fits hung in XLA's CPU runtime (two concurrent executions wedged its intra-op pool):
+not adopted, a diagnosis must not be able to hang.
+
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
 diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
