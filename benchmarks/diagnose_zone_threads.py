@@ -8,9 +8,9 @@ share's call in a thread of its own (after one compiling call), comparing wall s
 
 Measured and not adopted (2026-11-28): the per-zone fits split well (see the results file), but
 the same split applied to the joint fits (`fitting.fit_joint`) hung: both threads waited in
-`block_until_ready` for good (`faulthandler` stacks, three runs of the whole diagnosis), the
-XLA CPU runtime's intra-op pool wedged by two concurrent executions (the failure reported in
-PyAutoLabs/PyAutoFit#1528 and jax-ml/jax#25861). A diagnosis that can hang is not adopted for a
+`block_until_ready` for good (`faulthandler` stacks, every run of the whole diagnosis, jax
+0.10.2), also with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false` (the workaround reported for
+XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis that can hang is not adopted for a
 third off its time, and the per-zone fits alone are not proven safe either: this script guards
 itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
 
