@@ -10,8 +10,8 @@ Measured and not adopted (2026-11-28): the per-zone fits split well (see the res
 the same split applied to the joint fits (`fitting.fit_joint`) hung: both threads waited in
 `block_until_ready` for good (`faulthandler` stacks, every run of the whole diagnosis, jax
 0.10.2), also with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false` (the workaround reported for
-XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis that can hang is not adopted for a
-third off its time, and the per-zone fits alone are not proven safe either: this script guards
+XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis that can hang
+is not adopted for a third off its time, and the per-zone fits alone are not proven safe either: this script guards
 itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
 
     python benchmarks/diagnose_zone_threads.py [--zones 4] [--shares 2] [--tag T]
@@ -110,9 +110,9 @@ def main(argv=None) -> None:
         finally:
             S.fit_zones = whole_call
     lines = [f"# Per-zone fits split over threads, N = {args.zones}, {k} shares", "",
-             f"Made by `python benchmarks/diagnose_zone_threads.py --zones {args.zones} --shares {k}"
-             f"{' --tag ' + args.tag if args.tag else ''}`; {os.cpu_count()} CPUs, 1-minute load "
-             f"{os.getloadavg()[0]:.2f} at the end; wall s of each warm call (after a compiling one).", "",
+             (f"Made by `python benchmarks/diagnose_zone_threads.py --zones {args.zones} --shares {k}"
+              f"{' --tag ' + args.tag if args.tag else ''}`; {os.cpu_count()} CPUs, 1-minute load "
+              f"{os.getloadavg()[0]:.2f} at the end; wall s of each warm call (after a compiling one)."), "",
              "| problems | with iterations | one call s | shares in threads s | ratio | largest difference |",
              "|---|---|---|---|---|---|"]
     lines += [f"| {B} | {w} | {a:.2f} | {b:.2f} | {b / a:.2f} | {dd:.3g} |" for B, w, a, b, dd in rows]
