@@ -11,8 +11,8 @@ the same split applied to the joint fits (`fitting.fit_joint`) hung: both thread
 `block_until_ready` for good (`faulthandler` stacks, every run of the whole diagnosis, jax
 0.10.2), also with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false` (the workaround reported for
 XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis that can hang
-is not adopted for a third off its time, and the per-zone fits alone are not proven safe either: this script guards
-itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
+is not adopted for a third off its time, and the per-zone fits alone are not proven safe
+either: this script guards itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
 
     python benchmarks/diagnose_zone_threads.py [--zones 4] [--shares 2] [--tag T]
 
