@@ -1,6 +1,7 @@
 """Where a diagnosis's time goes, stage by stage, on the README tour's kind of record at N zones
-(the records of `diagnose_zone_scaling.py`), in one process (cold unless the compilation cache
-is warm): wall and CPU seconds from the start to each progress tick (`diagnose(progress=...)`)
+(the records of `diagnose_zone_scaling.py`), in one process with the command's compilation
+cache (`runtime.enable_cache`, `JTHERMO_CACHE_DIR`; run it twice for a warm second process):
+wall and CPU seconds from the start to each progress tick (`diagnose(progress=...)`)
 and the joint stage's fits (`joint.JointFits.fit`: calls, models, restricted or not, Jacobian width).
 
     .venv/bin/python experiments/diagnose_stage_times.py --zones 16 [--tag T]
@@ -21,6 +22,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from jthermo import runtime
 from jthermo.cli.common import load_data
 from jthermo.diagnose import joint as J
 from jthermo.diagnose import select as S
@@ -40,6 +42,8 @@ def main(argv=None) -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     n = args.zones
+    cache = runtime.enable_cache()
+    warm = cache is not None and any(Path(cache).glob("*-cache"))
     rows, fits = [], []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
@@ -70,8 +74,9 @@ def main(argv=None) -> None:
         J.JointFits.fit = fit
     lines = [f"# Diagnosis stage times, N = {n}", "",
              f"Made by `python experiments/diagnose_stage_times.py --zones {n}"
-             f"{' --tag ' + args.tag if args.tag else ''}`; one process, cold compilation cache unless "
-             "warm; CPU: the process's (all threads). Named: "
+             f"{' --tag ' + args.tag if args.tag else ''}`; one process, compilation cache "
+             + ("warm (filled by an earlier process)" if warm else "cold (empty or off)")
+             + "; CPU: the process's (all threads). Named: "
              + ", ".join(f["mechanism"] for f in res["findings"])
              + f"; augmented fit {res['augmented']['mean_fit_percent']:.2f} %.", "",
              "| stage (ends) | wall s | CPU s |", "|---|---|---|"]
