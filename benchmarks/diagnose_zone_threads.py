@@ -6,7 +6,9 @@ half-hour validation records, `generate --effects lateral_conduction,radiative_l
 are run as they are and again as `--shares` equal shares (problems dealt round-robin), each
 share's call in a thread of its own (after one compiling call), comparing wall s and results.
 
-Measured and not adopted (2026-11-28): the per-zone fits split well (see the results file), but
+A second look at what session 27 rejected (`benchmarks/results/diagnose_threads_deadlock.md`:
+one call per problem, two threads, a hang). Measured and not adopted (2026-11-28): the
+per-zone fits split well (see the results file), but
 the same split applied to the joint fits (`fitting.fit_joint`) hung: both threads waited in
 `block_until_ready` for good (`faulthandler` stacks, every run of the whole diagnosis, jax
 0.10.2), also with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false` (the workaround reported for

@@ -96,7 +96,8 @@ Fitting a call's problems in shares, each share's call in a thread of its own (t
 mostly idle under `lax.map`), took the latency record's per-zone fits, warm, 13.45 -> 7.96 s wall
 with identical results (`python benchmarks/diagnose_zone_threads.py`), but the same split of
 the joint fits hung (both threads waiting on their results for good, also with XLA's Eigen
-pool off; cause not found): not adopted, a diagnosis must not be able to hang.
+pool off; cause not found; as session 27's try, `benchmarks/results/diagnose_threads_deadlock.md`):
+not adopted, a diagnosis must not be able to hang.
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
