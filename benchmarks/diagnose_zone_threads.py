@@ -1,9 +1,8 @@
 """Would the per-zone candidate fits run faster split over threads? `fitting.fit_zones` fits its
 problems one after another in one compiled program (`lax.map`), which on two cores leaves one
 core mostly idle (the warm run's CPU is ~1.3x its wall time). Here the diagnosis's own
-`fit_zones` calls on the latency benchmark's kind of record (N zones, one-hour estimation and
-half-hour validation records, `generate --effects lateral_conduction,radiative_loss,heater_lag`)
-are run as they are and again as `--shares` equal shares (problems dealt round-robin), each
+`fit_zones` calls on the latency record (`diagnose_profile.write_record`: N = 4, one-hour
+estimation and half-hour validation records) are run as they are and again as `--shares` equal shares (problems dealt round-robin), each
 share's call in a thread of its own (after one compiling call), comparing wall s and results.
 
 A second look at what session 27 rejected (`benchmarks/results/diagnose_threads_deadlock.md`:
@@ -16,7 +15,7 @@ XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis th
 is not adopted for a third off its time, and the per-zone fits alone are not proven safe
 either: this script guards itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
 
-    python benchmarks/diagnose_zone_threads.py [--zones 4] [--shares 2] [--tag T]
+    python benchmarks/diagnose_zone_threads.py [--shares 2] [--tag T]
 
 Writes `benchmarks/results/diagnose_zone_threads{tag}.md`.
 """
@@ -26,8 +25,6 @@ from __future__ import annotations
 import argparse
 import faulthandler
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -39,19 +36,17 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
 import numpy as np
+from diagnose_profile import write_record
 
-from jthermo import runtime
-from jthermo.cli.common import load_data
+from jthermo import data, runtime
 from jthermo.diagnose import fitting as F
 from jthermo.diagnose import select as S
 
 HERE = Path(__file__).resolve().parent
-EFFECTS = "lateral_conduction,radiative_loss,heater_lag"
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--zones", type=int, default=4)
     ap.add_argument("--shares", type=int, default=2)
     ap.add_argument("--watchdog", type=float, default=900.0)
     ap.add_argument("--tag", default="")
@@ -100,19 +95,15 @@ def main(argv=None) -> None:
         return ref
 
     with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-            subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", "--zones", str(args.zones),
-                            "--effects", EFFECTS, "--duration", dur, "--seed", seed, "--out", str(d / name),
-                            "--quiet"], check=True)
-        est, val = load_data(str(d / "est.csv"), "e"), load_data(str(d / "val.csv"), "v")
+        e, v = write_record(Path(tmp))
+        est, val = data.load(e), data.load(v)
         S.fit_zones = in_shares
         try:
             S.diagnose(est, val)
         finally:
             S.fit_zones = whole_call
-    lines = [f"# Per-zone fits split over threads, N = {args.zones}, {k} shares", "",
-             (f"Made by `python benchmarks/diagnose_zone_threads.py --zones {args.zones} --shares {k}"
+    lines = [f"# Per-zone fits split over threads, N = 4, {k} shares", "",
+             (f"Made by `python benchmarks/diagnose_zone_threads.py --shares {k}"
               f"{' --tag ' + args.tag if args.tag else ''}`; {os.cpu_count()} CPUs, 1-minute load "
               f"{os.getloadavg()[0]:.2f} at the end; wall s of each warm call (after a compiling one)."), "",
              "| problems | with iterations | one call s | shares in threads s | ratio | largest difference |",

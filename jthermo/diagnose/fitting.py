@@ -93,11 +93,12 @@ three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 /
 with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
 
 Fitting a call's problems in shares, each share's call in a thread of its own (two cores: one
-mostly idle under `lax.map`), took the latency record's per-zone fits, warm, 13.45 -> 7.96 s wall
+mostly idle under `lax.map`), took the latency record's per-zone fits, warm, 11.43 -> 7.95 s wall
 with identical results (`python benchmarks/diagnose_zone_threads.py`), but the same split of
 the joint fits hung (both threads waiting on their results for good, also with XLA's Eigen
 pool off; cause not found; as session 27's try, `benchmarks/results/diagnose_threads_deadlock.md`):
-not adopted, a diagnosis must not be able to hang.
+not adopted, a diagnosis must not be able to hang. Two XLA CPU devices (`jax.shard_map`) hang
+on the joint fits too (`python benchmarks/diagnose_shard_devices.py --fits joint`).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
