@@ -6,6 +6,14 @@ parameters (model candidates, zones, records) share one compiled solve and can b
 `jax.vmap` (or `jax.lax.map`): masked parameters get a zero step. Each iteration tries three
 damping values in parallel and keeps the best (Marquardt 1963; Ljung 1999, §10.2). Used by the
 mismatch diagnosis (`jthermo.diagnose.fitting`).
+
+The three damped systems are solved one matrix at a time (`lax.map`), their costs batched. A
+batched solve calls LAPACK's LU through jaxlib's batch kernel, which above ~2e5 flops (about
+68 free parameters, three matrices) deals the matrices to XLA's CPU thread pool and blocks its
+own pool thread until they are done: two such programs running at once on a two-thread pool
+(two cores) each held one thread and waited for good (the hang of the diagnosis's joint fits
+split over two threads or devices, `gdb`: both pool threads in `ParallelBatchMap`). One matrix
+is factored in the calling thread. Same results: one matrix's LU is the batch's.
 """
 
 from __future__ import annotations
@@ -87,9 +95,11 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
         scale = jnp.where(valid > 0, d + 1e-9 * (jnp.max(d) + 1e-30), 1.0)
         Hm = H * (valid[:, None] * valid[None, :]) + jnp.diag(1.0 - valid)
 
-        def step(lm, accelerate=False):
+        def solve(lm):
+            return -jnp.linalg.solve(Hm + lm * jnp.diag(scale), gvec * valid)
+
+        def step(lm, delta, accelerate=False):
             A = Hm + lm * jnp.diag(scale)
-            delta = -jnp.linalg.solve(A, gvec * valid)
             if accelerate:
                 v = jnp.where(jnp.isfinite(delta), delta * valid, 0.0)
                 h = 0.1
@@ -103,9 +113,10 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
             return tn, cost(tn)
 
         lams = lam * jnp.array([0.1, 1.0, 10.0], dt)
-        tns, cs = jax.vmap(step)(lams)
+        # one matrix at a time (module docstring), the trial costs batched
+        tns, cs = jax.vmap(step)(lams, jax.lax.map(solve, lams))
         if geodesic:
-            tg, cg = step(lam, True)
+            tg, cg = step(lam, solve(lam), True)
             lams = jnp.append(lams, lam)
             tns, cs = jnp.concatenate([tns, tg[None]]), jnp.append(cs, cg)
         k = jnp.argmin(cs)

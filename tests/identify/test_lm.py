@@ -42,3 +42,16 @@ def test_vmapped_masks_equal_single_solves_and_n_active_bounds_the_columns():
         for a, s in zip(batched, single):
             np.testing.assert_allclose(np.asarray(a[k]), np.asarray(s), rtol=1e-7, atol=1e-12)
         np.testing.assert_array_equal(np.asarray(batched[0][k])[np.asarray(masks[k]) == 0], 0.1)
+
+
+def test_damped_systems_are_factored_one_matrix_at_a_time():
+    """Every LAPACK call of the solver takes one matrix (`num_batch_dims = 0`): a batched LU of
+    the three damped systems deals them to XLA's CPU thread pool and blocks a pool thread on
+    them, and two such programs running at once on two cores waited for each other for good."""
+    A, b = _linear_problem(2, m=120, p=70)       # 3 x 70^3 LU flops: over jaxlib's threshold
+    solve = jax.jit(lambda th, m: masked_lm(lambda t: A @ t - b, th, m, 3, rtol=1e-10))
+    text = solve.lower(jnp.zeros(70), jnp.ones(70)).as_text()
+    calls = [ln for ln in text.splitlines() if "custom_call @lapack_" in ln]
+    assert any("getrf" in ln for ln in calls)
+    for ln in calls:
+        assert 'num_batch_dims = "0"' in ln, ln
