@@ -116,6 +116,8 @@ equal to 7e-11).
 from __future__ import annotations
 
 import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -123,7 +125,7 @@ import numpy as np
 
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
-from ..stored import exported_call
+from ..stored import exported_call, exported_compile
 from .mechanisms import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
@@ -154,6 +156,65 @@ def _run(fn, static: tuple, *args):
     return exported_call(fn, args, _compiled(fn, static), compiler_options=quick_compile())
 
 
+#: most shares a fitting call's problems are split into (measured on two cores only)
+MAX_SHARES = 2
+
+
+def n_shares() -> int:
+    """How many shares `_run_shared` splits a call into: the cores this process may use, at
+    most `MAX_SHARES`; the environment variable `JTHERMO_FIT_SHARES` overrides (1: one call)."""
+    env = os.environ.get("JTHERMO_FIT_SHARES", "").strip()
+    if env:
+        return max(1, int(env))
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:              # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, MAX_SHARES))
+
+
+def share_rows(budget: np.ndarray, k: int) -> list[np.ndarray]:
+    """Rows of a batch for `k` shares of equal size $\\lceil B/k \\rceil$: the problems with
+    iterations to do (`budget > 0`) dealt in turn, then those without, then padding (`-1`)."""
+    budget = np.asarray(budget)
+    order = np.concatenate([np.flatnonzero(budget > 0), np.flatnonzero(budget <= 0)])
+    size = -(-order.size // k)
+    order = np.concatenate([order, np.full(size * k - order.size, -1)])
+    return [order[i::k] for i in range(k)]
+
+
+def _run_shared(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, extra=None):
+    """`_run(fn, static, *args)` with the problems split into `n_shares()` shares, each share's
+    call in a thread of its own: `fn` fits its problems one after another (`lax.map`), which
+    leaves a second core idle. `batched`: positions of the arguments with a leading problem
+    axis (pytrees), `budget_at` that of the per-problem iterations; `extra(rows)` the
+    remaining per-share arguments (appended). Padding rows repeat a share's first row with no
+    iterations and are dropped. Each problem's fit is the same computation as in one call
+    (one compiled program of the share's shape, compiled once before the threads start)."""
+    budget = np.asarray(args[budget_at])
+    k = min(n_shares(), budget.size)
+    if k <= 1:
+        whole = (*args[:budget_at], jnp.asarray(budget, jnp.int32), *args[budget_at + 1:])
+        return _run(fn, static, *whole, *(extra(np.arange(budget.size)) if extra else ()))
+    shares = []
+    for rows in share_rows(budget, k):
+        pad = rows < 0
+        take = np.where(pad, rows[0], rows)
+        a = list(args)
+        for i in batched:
+            a[i] = jax.tree_util.tree_map(lambda x: x[take], args[i])
+        a[budget_at] = jnp.asarray(np.where(pad, 0, budget[take]), jnp.int32)
+        shares.append((rows, (*a, *(extra(take) if extra else ()))))
+    exported_compile(fn, shares[0][1], quick_compile())    # once, before the threads
+    with ThreadPoolExecutor(k) as pool:
+        outs = list(pool.map(lambda sh: _run(fn, static, *sh[1]), shares))
+    where = np.concatenate([rows for rows, _ in shares])
+    keep = where >= 0
+    inverse = np.empty(budget.size, int)
+    inverse[where[keep]] = np.flatnonzero(keep)
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[inverse], *outs)
+
+
 def _zone_residual(theta, on, z, lay):
     return z["y"] - simulate_zone(theta, on, z, lay)
 
@@ -176,8 +237,8 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None, budget=
     start: one compiled program for any budget). Returns (θ `(B, P)`, cost `(B,)`, the cost after
     each iteration `(B, n_iter)`)."""
     budget = np.full(theta0.shape[0], n_iter) if budget is None else np.asarray(budget)
-    return _run(_fit_zones, ("lay", "n_iter", "n_active"), theta0, mask, on, per, shared, lay, n_iter, n_active,
-                jnp.asarray(budget, jnp.int32))
+    return _run_shared(_fit_zones, ("lay", "n_iter", "n_active"),
+                       (theta0, mask, on, per, shared, lay, n_iter, n_active, budget), (0, 1, 2, 3), 8)
 
 
 def still_falling(hist, m: int) -> np.ndarray:
@@ -258,8 +319,10 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
     src = _first_copies(Theta0, on, rec0, mask, f_per)
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
-    return _run(_fit_joint, ("lay", "n_iter", "n_active"), Theta0, on, rec0, mask, y, weight, f_per, f_shared,
-                lay, n_iter, n_active, jnp.asarray(budget), jnp.asarray(src))
+    out = _run_shared(_fit_joint, ("lay", "n_iter", "n_active"),
+                      (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active, budget),
+                      (0, 1, 2, 3, 6), 11, lambda rows: (jnp.arange(rows.size),))
+    return jax.tree_util.tree_map(lambda x: x[src], out)
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):
