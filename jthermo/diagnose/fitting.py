@@ -92,13 +92,15 @@ stage grew by as much (the thread's compile takes the core their fits use), the 
 three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 / 53.0 / 36.4 s
 with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
 
-Fitting a call's problems in shares, each share's call in a thread of its own (two cores: one
-mostly idle under `lax.map`), took the latency record's per-zone fits, warm, 11.43 -> 7.95 s wall
-with identical results (`python benchmarks/diagnose_zone_threads.py`), but the same split of
-the joint fits hung (both threads waiting on their results for good, also with XLA's Eigen
-pool off; cause not found; as session 27's try, `benchmarks/results/diagnose_threads_deadlock.md`):
-not adopted, a diagnosis must not be able to hang. Two XLA CPU devices (`jax.shard_map`) hang
-on the joint fits too (`python benchmarks/diagnose_shard_devices.py --fits joint`).
+A call's problems are fitted in shares, each share's call in a thread of its own
+(`_run_shared`, `n_shares`): one after another (`lax.map`) they left the second core mostly
+idle. Each problem's fit is the same computation as in one call, bit for bit (the report on
+the latency record identical). The split hung in sessions 27 and 41 (`benchmarks/results/
+diagnose_threads_deadlock.md`): the joint fits' damped systems (68 free parameters) were
+factored by a batched LU that jaxlib deals to XLA's CPU pool and waits for on a pool thread,
+and two such waits filled a two-thread pool; `masked_lm` now factors one matrix at a time
+(`identify/lm.py`), and the split joint fits run (`python benchmarks/diagnose_shard_devices.py
+--fits joint --tag _s42_lmap`, two XLA devices: 5.8 -> 4.3 s).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
