@@ -10,8 +10,9 @@ call compiles; no persistent cache), comparing wall s and the sum of the fitted 
 
 A probe for issue 13 (2026-11-28): the per-zone fits split with the same costs and no hang; the
 joint fits' sharded call never returned (the watchdog's stacks after 400 s), as the threaded
-splits did (`diagnose_zone_threads.py`, `results/diagnose_threads_deadlock.md`). A watchdog
-(`--watchdog` s) prints the stacks and exits with status 1.
+splits did (`diagnose_zone_threads.py`, `results/diagnose_threads_deadlock.md`), until
+`masked_lm` factored one matrix at a time (the cause, in that record; `--tag _s42_lmap`). A
+watchdog (`--watchdog` s) prints the stacks and exits with status 1.
 
     python benchmarks/diagnose_shard_devices.py --fits zones [--watchdog 400] [--tag T]
 
@@ -24,6 +25,7 @@ import os
 
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
 os.environ["JTHERMO_NO_CACHE"] = "1"
+os.environ["JTHERMO_FIT_SHARES"] = "1"      # the captured calls whole; the split is the devices'
 
 import argparse
 import faulthandler

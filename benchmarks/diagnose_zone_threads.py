@@ -6,14 +6,13 @@ estimation and half-hour validation records) are run as they are and again as `-
 share's call in a thread of its own (after one compiling call), comparing wall s and results.
 
 A second look at what session 27 rejected (`benchmarks/results/diagnose_threads_deadlock.md`:
-one call per problem, two threads, a hang). Measured and not adopted (2026-11-28): the
-per-zone fits split well (see the results file), but
-the same split applied to the joint fits (`fitting.fit_joint`) hung: both threads waited in
-`block_until_ready` for good (`faulthandler` stacks, every run of the whole diagnosis, jax
-0.10.2), also with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false` (the workaround reported for
-XLA CPU pool wedges, PyAutoLabs/PyAutoFit#1528; cause not found). A diagnosis that can hang
-is not adopted for a third off its time, and the per-zone fits alone are not proven safe
-either: this script guards itself with a watchdog (`--watchdog` s, then the stacks and exit status 1).
+one call per problem, two threads, a hang). Measured 2026-11-28: the per-zone fits split well
+(see the results file), but the same split of the joint fits (`fitting.fit_joint`) hung, also
+with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`. The cause, found later that day (the
+deadlock record): `masked_lm`'s batched LU waited on XLA's pool from a pool thread; it now
+factors one matrix at a time and `fitting` splits every call into shares itself
+(`fitting._run_shared`). This script keeps its watchdog (`--watchdog` s, then the stacks and
+exit status 1) and splits the calls it captures explicitly (`JTHERMO_FIT_SHARES=1` inside).
 
     python benchmarks/diagnose_zone_threads.py [--shares 2] [--tag T]
 
@@ -52,6 +51,7 @@ def main(argv=None) -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     faulthandler.dump_traceback_later(args.watchdog, exit=True)
+    os.environ["JTHERMO_FIT_SHARES"] = "1"          # the split is this script's own
     runtime.enable_cache()
     k, rows = args.shares, []
     whole_call = F.fit_zones
