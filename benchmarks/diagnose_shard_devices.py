@@ -25,7 +25,7 @@ import os
 
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
 os.environ["JTHERMO_NO_CACHE"] = "1"
-os.environ["JTHERMO_FIT_SHARES"] = "1"      # the captured calls whole; the split is the devices'
+os.environ["JTHERMO_FIT_THREADS"] = "1"      # the captured calls whole; the split is the devices'
 
 import argparse
 import faulthandler

@@ -11,8 +11,8 @@ one call per problem, two threads, a hang). Measured 2026-11-28: the per-zone fi
 with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`. The cause, found later that day (the
 deadlock record): `masked_lm`'s batched LU waited on XLA's pool from a pool thread; it now
 factors one matrix at a time and `fitting` splits every call into shares itself
-(`fitting._run_shared`). This script keeps its watchdog (`--watchdog` s, then the stacks and
-exit status 1) and splits the calls it captures explicitly (`JTHERMO_FIT_SHARES=1` inside).
+(`fitting._run_spread`). This script keeps its watchdog (`--watchdog` s, then the stacks and
+exit status 1) and splits the calls it captures explicitly (`JTHERMO_FIT_THREADS=1` inside).
 
     python benchmarks/diagnose_zone_threads.py [--shares 2] [--tag T]
 
@@ -51,7 +51,7 @@ def main(argv=None) -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     faulthandler.dump_traceback_later(args.watchdog, exit=True)
-    os.environ["JTHERMO_FIT_SHARES"] = "1"          # the split is this script's own
+    os.environ["JTHERMO_FIT_THREADS"] = "1"          # the split is this script's own
     runtime.enable_cache()
     k, rows = args.shares, []
     whole_call = F.fit_zones

@@ -92,15 +92,17 @@ stage grew by as much (the thread's compile takes the core their fits use), the 
 three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 / 53.0 / 36.4 s
 with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
 
-A call's problems are fitted in shares, each share's call in a thread of its own
-(`_run_shared`, `n_shares`): one after another (`lax.map`) they left the second core mostly
-idle. Each problem's fit is the same computation as in one call, bit for bit (the report on
-the latency record identical). The split hung in sessions 27 and 41 (`benchmarks/results/
-diagnose_threads_deadlock.md`): the joint fits' damped systems (68 free parameters) were
-factored by a batched LU that jaxlib deals to XLA's CPU pool and waits for on a pool thread,
-and two such waits filled a two-thread pool; `masked_lm` now factors one matrix at a time
-(`identify/lm.py`), and the split joint fits run (`python benchmarks/diagnose_shard_devices.py
---fits joint --tag _s42_lmap`, two XLA devices: 5.8 -> 4.3 s).
+A call's problems are spread over threads (`_run_spread`, `n_threads`), one problem per
+compiled call (`CALL_SIZE`), each thread taking the next problem when its last one is done: one
+after another in one call (`lax.map`) they left the second core mostly idle. Each problem's fit
+is the same computation as in one call, bit for bit (held-out set 24 rerun: every name, rival,
+LR and fit equal, `experiments/results/diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`).
+The split hung in sessions 27 and 41 (`benchmarks/results/diagnose_threads_deadlock.md`): the
+joint fits' damped systems (68 free parameters) were factored by a batched LU that jaxlib deals
+to XLA's CPU pool and waits for on a pool thread, and two such waits filled a two-thread pool;
+`masked_lm` now factors one matrix at a time (`identify/lm.py`), and the split joint fits run
+(`python benchmarks/diagnose_shard_devices.py --fits joint --tag _s42_lmap`, two XLA devices:
+5.8 -> 4.3 s).
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
@@ -158,59 +160,65 @@ def _run(fn, static: tuple, *args):
     return exported_call(fn, args, _compiled(fn, static), compiler_options=quick_compile())
 
 
-#: most shares a fitting call's problems are split into (measured on two cores only)
-MAX_SHARES = 2
+#: most threads a fitting call's problems are spread over (measured on two cores only)
+MAX_THREADS = 2
+#: problems per compiled call when spread over threads (None: one call per thread)
+CALL_SIZE = 1
 
 
-def n_shares() -> int:
-    """How many shares `_run_shared` splits a call into: the cores this process may use, at
-    most `MAX_SHARES`; the environment variable `JTHERMO_FIT_SHARES` overrides (1: one call)."""
-    env = os.environ.get("JTHERMO_FIT_SHARES", "").strip()
+def n_threads() -> int:
+    """How many threads `_run_spread` spreads a call's problems over: the cores this process
+    may use, at most `MAX_THREADS`; the environment variable `JTHERMO_FIT_THREADS` overrides
+    (1: one call, as before)."""
+    env = os.environ.get("JTHERMO_FIT_THREADS", "").strip()
     if env:
         return max(1, int(env))
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:              # not on Linux
         cores = os.cpu_count() or 1
-    return max(1, min(cores, MAX_SHARES))
+    return max(1, min(cores, MAX_THREADS))
 
 
-def share_rows(budget: np.ndarray, k: int) -> list[np.ndarray]:
-    """Rows of a batch for `k` shares of equal size $\\lceil B/k \\rceil$: the problems with
+def call_rows(budget: np.ndarray, n_calls: int) -> list[np.ndarray]:
+    """Rows of a batch for `n_calls` calls of equal size $\\lceil B/n \\rceil$: the problems with
     iterations to do (`budget > 0`) dealt in turn, then those without, then padding (`-1`)."""
     budget = np.asarray(budget)
     order = np.concatenate([np.flatnonzero(budget > 0), np.flatnonzero(budget <= 0)])
-    size = -(-order.size // k)
-    order = np.concatenate([order, np.full(size * k - order.size, -1)])
-    return [order[i::k] for i in range(k)]
+    size = -(-order.size // n_calls)
+    order = np.concatenate([order, np.full(size * n_calls - order.size, -1)])
+    return [order[i::n_calls] for i in range(n_calls)]
 
 
-def _run_shared(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, extra=None):
-    """`_run(fn, static, *args)` with the problems split into `n_shares()` shares, each share's
-    call in a thread of its own: `fn` fits its problems one after another (`lax.map`), which
-    leaves a second core idle. `batched`: positions of the arguments with a leading problem
-    axis (pytrees), `budget_at` that of the per-problem iterations; `extra(rows)` the
-    remaining per-share arguments (appended). Padding rows repeat a share's first row with no
-    iterations and are dropped. Each problem's fit is the same computation as in one call
-    (one compiled program of the share's shape, compiled once before the threads start)."""
+def _run_spread(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, extra=None):
+    """`_run(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
+    problems per call (one compiled program of that shape, compiled before the threads start),
+    each thread taking the next call when its last one is done: `fn` fits its problems one
+    after another (`lax.map`), which left the second core idle. `batched`: positions of the
+    arguments with a leading problem axis (pytrees), `budget_at` that of the per-problem
+    iterations; `extra(rows)` the remaining per-call arguments (appended). Padding rows repeat
+    a call's first row with no iterations and are dropped. Each problem's fit is the same
+    computation as in one call, bit for bit."""
     budget = np.asarray(args[budget_at])
-    k = min(n_shares(), budget.size)
+    k = min(n_threads(), budget.size)
     if k <= 1:
         whole = (*args[:budget_at], jnp.asarray(budget, jnp.int32), *args[budget_at + 1:])
         return _run(fn, static, *whole, *(extra(np.arange(budget.size)) if extra else ()))
-    shares = []
-    for rows in share_rows(budget, k):
+    host = {i: jax.tree_util.tree_map(np.asarray, args[i]) for i in batched}
+    n_calls = k if CALL_SIZE is None else -(-budget.size // CALL_SIZE)
+    calls = []
+    for rows in call_rows(budget, n_calls):
         pad = rows < 0
         take = np.where(pad, rows[0], rows)
         a = list(args)
         for i in batched:
-            a[i] = jax.tree_util.tree_map(lambda x: x[take], args[i])
-        a[budget_at] = jnp.asarray(np.where(pad, 0, budget[take]), jnp.int32)
-        shares.append((rows, (*a, *(extra(take) if extra else ()))))
-    exported_compile(fn, shares[0][1], quick_compile())    # once, before the threads
+            a[i] = jax.tree_util.tree_map(lambda x: x[take], host[i])
+        a[budget_at] = np.where(pad, 0, budget[take]).astype(np.int32)
+        calls.append((rows, (*a, *(extra(take) if extra else ()))))
+    exported_compile(fn, calls[0][1], quick_compile())    # once, before the threads
     with ThreadPoolExecutor(k) as pool:
-        outs = list(pool.map(lambda sh: _run(fn, static, *sh[1]), shares))
-    where = np.concatenate([rows for rows, _ in shares])
+        outs = list(pool.map(lambda c: jax.block_until_ready(_run(fn, static, *c[1])), calls))
+    where = np.concatenate([rows for rows, _ in calls])
     keep = where >= 0
     inverse = np.empty(budget.size, int)
     inverse[where[keep]] = np.flatnonzero(keep)
@@ -239,7 +247,7 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None, budget=
     start: one compiled program for any budget). Returns (θ `(B, P)`, cost `(B,)`, the cost after
     each iteration `(B, n_iter)`)."""
     budget = np.full(theta0.shape[0], n_iter) if budget is None else np.asarray(budget)
-    return _run_shared(_fit_zones, ("lay", "n_iter", "n_active"),
+    return _run_spread(_fit_zones, ("lay", "n_iter", "n_active"),
                        (theta0, mask, on, per, shared, lay, n_iter, n_active, budget), (0, 1, 2, 3), 8)
 
 
@@ -321,9 +329,9 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
     src = _first_copies(Theta0, on, rec0, mask, f_per)
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
-    out = _run_shared(_fit_joint, ("lay", "n_iter", "n_active"),
+    out = _run_spread(_fit_joint, ("lay", "n_iter", "n_active"),
                       (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active, budget),
-                      (0, 1, 2, 3, 6), 11, lambda rows: (jnp.arange(rows.size),))
+                      (0, 1, 2, 3, 6), 11, lambda rows: (np.arange(rows.size),))
     return jax.tree_util.tree_map(lambda x: x[src], out)
 
 

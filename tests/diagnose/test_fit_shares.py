@@ -1,5 +1,5 @@
-"""`fitting`'s calls split into shares, one thread each (`_run_shared`): every problem's fit is
-the one of a single call, bit for bit, for the per-zone and the joint fits."""
+"""`fitting`'s calls spread over threads (`_run_spread`): every problem's fit is the one of a
+single call, bit for bit, for the per-zone and the joint fits, whatever the call size."""
 
 import jax
 import jax.numpy as jnp
@@ -13,34 +13,36 @@ from .test_fitting_speed import _problem
 jax.config.update("jax_enable_x64", True)
 
 
-def test_share_rows_deal_the_live_problems_in_turn_and_pad():
-    rows = F.share_rows(np.array([5, 0, 5, 5, 0]), 2)
+def test_call_rows_deal_the_live_problems_in_turn_and_pad():
+    rows = F.call_rows(np.array([5, 0, 5, 5, 0]), 2)
     np.testing.assert_array_equal(rows[0], [0, 3, 4])
     np.testing.assert_array_equal(rows[1], [2, 1, -1])
     every = np.concatenate(rows)
     np.testing.assert_array_equal(np.sort(every[every >= 0]), np.arange(5))
-    assert [r.size for r in F.share_rows(np.ones(7), 3)] == [3, 3, 3]
+    assert [r.size for r in F.call_rows(np.ones(7), 3)] == [3, 3, 3]
 
 
-def _one_call_and_shares(monkeypatch, fit):
-    monkeypatch.setenv("JTHERMO_FIT_SHARES", "1")
+def _one_call_and_spread(monkeypatch, fit):
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "1")
     whole = fit()
-    monkeypatch.setenv("JTHERMO_FIT_SHARES", "2")
-    split = fit()
-    assert len(whole) == len(split)
-    for a, b in zip(whole, split):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "2")
+    for size in (1, 2, None):                   # one problem per call, two, one call per thread
+        monkeypatch.setattr(F, "CALL_SIZE", size)
+        split = fit()
+        assert len(whole) == len(split)
+        for a, b in zip(whole, split):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_joint_fits_in_shares_equal_one_call(monkeypatch):
+def test_joint_fits_spread_equal_one_call(monkeypatch):
     Theta0, on, rec0, mask, y, w, per, f, lay = _problem()
     pad = jnp.asarray([0, 1, 2, 2, 0])                  # padded copies, as the callers make
     take = lambda x: x[pad]                             # noqa: E731
     args = (take(Theta0), take(on), take(rec0), take(mask), y, w, jax.tree_util.tree_map(take, per), f, lay)
-    _one_call_and_shares(monkeypatch, lambda: F.fit_joint(*args, 20, 16))
+    _one_call_and_spread(monkeypatch, lambda: F.fit_joint(*args, 20, 16))
 
 
-def test_zone_fits_in_shares_equal_one_call(monkeypatch):
+def test_zone_fits_spread_equal_one_call(monkeypatch):
     T, N, ts = 300, 3, 1.0
     rng = np.random.default_rng(4)
     u = np.repeat(rng.integers(0, 2, size=(T // 15 + 1, N)), 15, axis=0)[:T] * 0.8
@@ -56,6 +58,6 @@ def test_zone_fits_in_shares_equal_one_call(monkeypatch):
            "ybar": jnp.asarray(np.tile(y.mean(axis=1), (N, 1))), "events": jnp.zeros((N, T)),
            "delay": jnp.zeros(N)}
     budget = np.array([40, 0, 25])                      # one problem with nothing to do
-    _one_call_and_shares(monkeypatch, lambda: F.fit_zones(jnp.asarray(th0), jnp.asarray(np.tile(mask, (N, 1))),
+    _one_call_and_spread(monkeypatch, lambda: F.fit_zones(jnp.asarray(th0), jnp.asarray(np.tile(mask, (N, 1))),
                                                           jnp.zeros((N, 8)), per, shared, lay, 40,
                                                           int(mask.sum()), budget))
