@@ -26,6 +26,13 @@ from latency import measure
 from jthermo.data import atomic_write_text
 
 
+def _imported_from(cwd: str) -> str:
+    """Where a process started as `latency.measure` starts them (in `cwd`, this environment)
+    imports `jthermo` from."""
+    return subprocess.run([sys.executable, "-c", "import jthermo; print(jthermo.__file__)"], cwd=cwd,
+                          capture_output=True, text=True, check=True).stdout.strip()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--a", required=True, help="root of the A code tree")
@@ -44,8 +51,11 @@ def main(argv=None) -> int:
             os.environ["PYTHONPATH"] = (str(Path(root).resolve()) + (os.pathsep + base_pp if base_pp else "")
                                         if root else base_pp)
             with tempfile.TemporaryDirectory() as d:
+                used = _imported_from(d)
+                if root and not used.startswith(str(Path(root).resolve())):
+                    raise SystemExit(f"A imports jthermo from {used}, not from {root}")
                 row = measure("diagnose", Path(d), False)
-            runs.append({"round": r, "code": label, **row})
+            runs.append({"round": r, "code": label, "jthermo": used, **row})
     os.environ["PYTHONPATH"] = base_pp
     L = [f"# `jthermo diagnose` latency, A/B{args.tag}", "",
          (f"`python benchmarks/diagnose_latency_ab.py --a {args.a} --a-label {args.a_label} --rounds {args.rounds}"

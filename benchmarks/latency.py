@@ -96,15 +96,17 @@ def measure(name: str, tmp: Path, no_cache_baseline: bool) -> dict:
         data_env = dict(env, JTHERMO_NO_CACHE="1")
         for out, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
             _jthermo(["generate", *RECORD, "--duration", dur, "--seed", seed,
-                      "--out", str(tmp / out)], data_env, None)
+                      "--out", str(tmp / out)], data_env, None, str(tmp))
     argv = [a.format(**fill) for a in argv]
     row: dict = {"command": "jthermo " + " ".join(argv).replace(str(tmp), "TMP"),
                  "goal_cold_s": goal_cold, "goal_warm_s": goal_warm}
+    # run in `tmp`: `python -m` puts its working directory first on the import path, so from a
+    # checkout's root that checkout's `jthermo` would shadow a tree given on `PYTHONPATH`
     for phase in ("cold", "warm"):
-        row[phase] = _jthermo(argv, env, tmp / f"{name}-{phase}.json")
+        row[phase] = _jthermo(argv, env, tmp / f"{name}-{phase}.json", str(tmp))
         print(name, phase, row[phase], flush=True)
     if no_cache_baseline:
-        row["no_cache"] = _jthermo(argv + ["--no-cache"], env, tmp / f"{name}-nc.json")
+        row["no_cache"] = _jthermo(argv + ["--no-cache"], env, tmp / f"{name}-nc.json", str(tmp))
         print(name, "no-cache", row["no_cache"], flush=True)
     return row
 
