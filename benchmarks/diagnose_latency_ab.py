@@ -55,7 +55,7 @@ def main(argv=None) -> int:
                 if root and not used.startswith(str(Path(root).resolve())):
                     raise SystemExit(f"A imports jthermo from {used}, not from {root}")
                 row = measure("diagnose", Path(d), False)
-            runs.append({"round": r, "code": label, "jthermo": used, **row})
+            runs.append({"round": r, "code": label, "jthermo_from": "the A tree" if root else "the checkout", **row})
     os.environ["PYTHONPATH"] = base_pp
     L = [f"# `jthermo diagnose` latency, A/B{args.tag}", "",
          (f"`python benchmarks/diagnose_latency_ab.py --a {args.a} --a-label {args.a_label} --rounds {args.rounds}"
