@@ -220,9 +220,14 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, 
             a[i] = jax.tree_util.tree_map(lambda x: x[take], host[i])
         a[budget_at] = np.where(pad, 0, budget[take]).astype(np.int32)
         calls.append((rows, (*a, *(extra(take) if extra else ()))))
-    exported_compile(fn, calls[0][1], quick_compile())    # once, before the threads
-    with ThreadPoolExecutor(k) as pool:
-        outs = list(pool.map(lambda c: jax.block_until_ready(_run(fn, static, *c[1])), calls))
+    run = lambda c: jax.block_until_ready(_run(fn, static, *c[1]))     # noqa: E731
+    # compiled once, before the threads (without the cache: by the first call, here)
+    first = [] if exported_compile(fn, calls[0][1], quick_compile()) else [run(calls[0])]
+    pool = ThreadPoolExecutor(k)
+    try:
+        outs = first + list(pool.map(run, calls[len(first):]))
+    finally:                            # an error: the calls not started are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
     where = np.concatenate([rows for rows, _ in calls])
     keep = where >= 0
     inverse = np.empty(budget.size, int)
