@@ -174,9 +174,9 @@ CALL_SIZE = 1
 def n_threads() -> int:
     """How many threads `_run_spread` spreads a call's problems over: the cores this process
     may use, at most `MAX_THREADS`; the environment variable `JTHERMO_FIT_THREADS` overrides
-    (1: one call, as before)."""
+    (a positive integer; 1: one call, as before)."""
     env = os.environ.get("JTHERMO_FIT_THREADS", "").strip()
-    if env:
+    if env.isdigit():                   # anything else: the default
         return max(1, int(env))
     try:
         cores = len(os.sched_getaffinity(0))

@@ -1,5 +1,6 @@
 """`fitting`'s calls spread over threads (`_run_spread`): every problem's fit is the one of a
-single call, bit for bit, for the per-zone and the joint fits, one problem per call or one call per thread."""
+single call, bit for bit, for the per-zone and the joint fits, with one problem per call or one
+call per thread."""
 
 import jax
 import jax.numpy as jnp
@@ -61,3 +62,14 @@ def test_zone_fits_spread_equal_one_call(monkeypatch):
     _one_call_and_spread(monkeypatch, lambda: F.fit_zones(jnp.asarray(th0), jnp.asarray(np.tile(mask, (N, 1))),
                                                           jnp.zeros((N, 8)), per, shared, lay, 40,
                                                           int(mask.sum()), budget))
+
+
+def test_thread_count_from_the_environment(monkeypatch):
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "3")
+    assert F.n_threads() == 3
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "0")
+    assert F.n_threads() == 1
+    monkeypatch.delenv("JTHERMO_FIT_THREADS")
+    default = F.n_threads()
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "many")                 # not a count: the default
+    assert F.n_threads() == default and 1 <= default <= F.MAX_THREADS
