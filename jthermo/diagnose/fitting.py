@@ -105,9 +105,9 @@ to XLA's CPU pool and waits for on a pool thread, and two such waits filled a tw
 5.8 -> 4.3 s). The latency record's diagnosis from the shell, interleaved with the code before
 (`python benchmarks/diagnose_latency_ab.py --a TREE --tag _s42`, load 0.8-1.6): cold 44.8 / 45.2
 -> 36.8 / 31.8 s, warm 33.6 / 30.4 -> 24.4 / 20.1 s. One problem per call rather than one call
-per thread, because the problems' iteration counts differ (4 to 200): a thread that is done
-takes the next problem, and a call's shape no longer depends on the number of problems (fewer
-programs to compile); not measured against one call per thread from the shell.
+per thread, because the problems' iteration counts differ (up to `select.N_ITER`): a thread
+that is done takes the next problem, and a call's shape no longer depends on the number of
+problems (fewer programs to compile); not measured against one call per thread from the shell.
 
 The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
 `runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's

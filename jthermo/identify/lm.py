@@ -8,12 +8,13 @@ damping values in parallel and keeps the best (Marquardt 1963; Ljung 1999, §10.
 mismatch diagnosis (`jthermo.diagnose.fitting`).
 
 The three damped systems are solved one matrix at a time (`lax.map`), their costs batched. A
-batched solve calls LAPACK's LU through jaxlib's batch kernel, which above ~2e5 flops (about
-68 free parameters, three matrices) deals the matrices to XLA's CPU thread pool and blocks its
-own pool thread until they are done: two such programs running at once on a two-thread pool
-(two cores) each held one thread and waited for good (the hang of the diagnosis's joint fits
-split over two threads or devices, `gdb`: both pool threads in `ParallelBatchMap`). One matrix
-is factored in the calling thread. Same results: one matrix's LU is the batch's.
+batched solve calls LAPACK's LU through jaxlib's batch kernel, which above ~2e5 flops (three
+matrices of some 50 free parameters or more; the diagnosis's joint fits have 68) deals the
+matrices to XLA's CPU thread pool and blocks its own pool thread until they are done: two such
+programs running at once on a two-thread pool (two cores) each held one thread and waited for
+good (the hang of the diagnosis's joint fits split over two threads or devices, `gdb`: both
+pool threads in `ParallelBatchMap`). One matrix is factored in the calling thread. Same
+results: one matrix's LU is the batch's.
 """
 
 from __future__ import annotations
