@@ -126,6 +126,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -173,11 +174,14 @@ CALL_SIZE = 1
 
 def n_threads() -> int:
     """How many threads `_run_spread` spreads a call's problems over: the cores this process
-    may use, at most `MAX_THREADS`; the environment variable `JTHERMO_FIT_THREADS` overrides
-    (a positive integer; 1: one call, as before)."""
+    may use, at most `MAX_THREADS`; one where the caller is not the main thread (a diagnosis
+    run beside other work, as `jthermo demo` runs it, leaves them the other core). The
+    environment variable `JTHERMO_FIT_THREADS` overrides (a positive integer; 1: one call)."""
     env = os.environ.get("JTHERMO_FIT_THREADS", "").strip()
     if env.isdigit():                   # anything else: the default
         return max(1, int(env))
+    if threading.current_thread() is not threading.main_thread():
+        return 1
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:              # not on Linux

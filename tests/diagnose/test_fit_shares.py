@@ -73,3 +73,14 @@ def test_thread_count_from_the_environment(monkeypatch):
     default = F.n_threads()
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "many")                 # not a count: the default
     assert F.n_threads() == default and 1 <= default <= F.MAX_THREADS
+
+
+def test_one_thread_where_the_caller_is_not_the_main_thread(monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    monkeypatch.delenv("JTHERMO_FIT_THREADS", raising=False)
+    with ThreadPoolExecutor(1) as pool:
+        assert pool.submit(F.n_threads).result() == 1
+    monkeypatch.setenv("JTHERMO_FIT_THREADS", "2")                    # the variable decides
+    with ThreadPoolExecutor(1) as pool:
+        assert pool.submit(F.n_threads).result() == 2
