@@ -199,31 +199,28 @@ def call_rows(budget: np.ndarray, n_calls: int) -> list[np.ndarray]:
     return [order[i::n_calls] for i in range(n_calls)]
 
 
-def _run_spread(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, extra=None):
+def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
     """`_run(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
     problems per call (one compiled program of that shape, compiled before the threads start),
     each thread taking the next call when its last one is done: `fn` fits its problems one
     after another (`lax.map`), which left the second core idle. `batched`: positions of the
-    arguments with a leading problem axis (pytrees), `budget_at` that of the per-problem
-    iterations; `extra(rows)` the remaining per-call arguments (appended). Padding rows repeat
-    a call's first row with no iterations and are dropped. Each problem's fit is the same
-    computation as in one call, bit for bit."""
-    budget = np.asarray(args[budget_at])
+    arguments with a leading problem axis (pytrees); the last argument is each problem's
+    iterations. Padding rows repeat a call's first row with no iterations and are dropped.
+    Each problem's fit is the same computation as in one call, bit for bit."""
+    budget = np.asarray(args[-1])
     k = min(n_threads(), budget.size)
     if k <= 1:
-        whole = (*args[:budget_at], jnp.asarray(budget, jnp.int32), *args[budget_at + 1:])
-        return _run(fn, static, *whole, *(extra(np.arange(budget.size)) if extra else ()))
+        return _run(fn, static, *args[:-1], jnp.asarray(budget, jnp.int32))
     host = {i: jax.tree_util.tree_map(np.asarray, args[i]) for i in batched}
     n_calls = k if CALL_SIZE is None else -(-budget.size // CALL_SIZE)
     calls = []
     for rows in call_rows(budget, n_calls):
         pad = rows < 0
         take = np.where(pad, rows[0], rows)
-        a = list(args)
+        a = list(args[:-1])
         for i in batched:
             a[i] = jax.tree_util.tree_map(lambda x: x[take], host[i])
-        a[budget_at] = np.where(pad, 0, budget[take]).astype(np.int32)
-        calls.append((rows, (*a, *(extra(take) if extra else ()))))
+        calls.append((rows, (*a, np.where(pad, 0, budget[take]).astype(np.int32))))
     run = lambda c: jax.block_until_ready(_run(fn, static, *c[1]))     # noqa: E731
     # compiled once, before the threads (without the cache: by the first call, here)
     first = [] if exported_compile(fn, calls[0][1], quick_compile()) else [run(calls[0])]
@@ -236,7 +233,8 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple, budget_at: int, 
     keep = where >= 0
     inverse = np.empty(budget.size, int)
     inverse[where[keep]] = np.flatnonzero(keep)
-    return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[inverse], *outs)
+    join = lambda *xs: np.concatenate([np.asarray(x) for x in xs])[inverse]      # noqa: E731
+    return jax.tree_util.tree_map(join, *outs)
 
 
 def _zone_residual(theta, on, z, lay):
@@ -262,7 +260,7 @@ def fit_zones(theta0, mask, on, per, shared, lay, n_iter, n_active=None, budget=
     each iteration `(B, n_iter)`)."""
     budget = np.full(theta0.shape[0], n_iter) if budget is None else np.asarray(budget)
     return _run_spread(_fit_zones, ("lay", "n_iter", "n_active"),
-                       (theta0, mask, on, per, shared, lay, n_iter, n_active, budget), (0, 1, 2, 3), 8)
+                       (theta0, mask, on, per, shared, lay, n_iter, n_active, budget), (0, 1, 2, 3))
 
 
 def still_falling(hist, m: int) -> np.ndarray:
@@ -304,15 +302,14 @@ def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_
     return Th, r, simulate_full(Th, on, f, lay, r), c
 
 
-def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None, budget=None,
-               src=None):
+def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active=None,
+               budget=None):
     """`fit_joint`'s compiled program: the models one after another (`lax.map`), each with its
-    own `budget[j]` iterations, then model j's result taken from model `src[j]`."""
+    own `budget[j]` iterations."""
     M = Theta0.shape[0]
     budget = jnp.full(M, n_iter, jnp.int32) if budget is None else budget
-    out = jax.lax.map(lambda a: _fit_coupled(*a[:5], y, weight, a[5], f_shared, lay, n_iter, n_active),
-                      (Theta0, on, rec0, mask, budget, f_per))
-    return out if src is None else jax.tree_util.tree_map(lambda x: x[src], out)
+    return jax.lax.map(lambda a: _fit_coupled(*a[:5], y, weight, a[5], f_shared, lay, n_iter, n_active),
+                       (Theta0, on, rec0, mask, budget, f_per))
 
 
 def _first_copies(*trees) -> np.ndarray:
@@ -345,8 +342,8 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
     out = _run_spread(_fit_joint, ("lay", "n_iter", "n_active"),
                       (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active, budget),
-                      (0, 1, 2, 3, 6), 11, lambda rows: (np.arange(rows.size),))
-    return jax.tree_util.tree_map(lambda x: x[src], out)
+                      (0, 1, 2, 3, 6))
+    return jax.tree_util.tree_map(lambda x: x[src], out)     # copies take their first's fit
 
 
 def fit_records(Theta, on, rec0, mask, y, f_per, f_shared, lay, n_iter):

@@ -8,11 +8,11 @@ damping values in parallel and keeps the best (Marquardt 1963; Ljung 1999, §10.
 mismatch diagnosis (`jthermo.diagnose.fitting`).
 
 The three damped systems are solved one matrix at a time (`lax.map`), their costs batched. A
-batched solve calls LAPACK's LU through jaxlib's batch kernel, which above ~2e5 flops (three
-matrices of some 50 free parameters or more; the diagnosis's joint fits have 68) deals the
-matrices to XLA's CPU thread pool and blocks its own pool thread until they are done: two such
-programs running at once on a two-thread pool (two cores) each held one thread and waited for
-good (the hang of the diagnosis's joint fits split over two threads or devices, `gdb`: both
+batched solve calls LAPACK's LU through jaxlib's batch kernel, which above a work threshold
+(2e5 flops in jaxlib's source: the diagnosis's joint fits' three 68 x 68 matrices exceed it, its
+per-zone fits' 10-20 do not) deals the matrices to XLA's CPU thread pool and blocks its own
+pool thread until they are done: two such programs running at once on a two-thread pool (two
+cores) each held one thread and waited for good (the hang of the diagnosis's joint fits split over two threads or devices, `gdb`: both
 pool threads in `ParallelBatchMap`). One matrix is factored in the calling thread. Same
 results: one matrix's LU is the batch's.
 """

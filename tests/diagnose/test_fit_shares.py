@@ -23,13 +23,20 @@ def test_call_rows_deal_the_live_problems_in_turn_and_pad():
     assert [r.size for r in F.call_rows(np.ones(7), 3)] == [3, 3, 3]
 
 
-def _one_call_and_spread(monkeypatch, fit):
+def _one_call_and_spread(monkeypatch, fit, n_problems):
+    """`fit()` in one call and spread over two threads: the same arrays, bit for bit, from as
+    many compiled calls as the split makes."""
+    calls, run = [], F._run
+    monkeypatch.setattr(F, "_run", lambda *a: calls.append(1) or run(*a))
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "1")
     whole = fit()
+    assert len(calls) == 1
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "2")
-    for size in (1, None):                      # one problem per call (the default), one per thread
+    for size, n_calls in ((1, n_problems), (None, 2)):   # one problem per call (default), per thread
         monkeypatch.setattr(F, "CALL_SIZE", size)
+        calls.clear()
         split = fit()
+        assert len(calls) == n_calls
         assert len(whole) == len(split)
         for a, b in zip(whole, split):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -40,7 +47,7 @@ def test_joint_fits_spread_equal_one_call(monkeypatch):
     pad = jnp.asarray([0, 1, 2, 2, 0])                  # padded copies, as the callers make
     take = lambda x: x[pad]                             # noqa: E731
     args = (take(Theta0), take(on), take(rec0), take(mask), y, w, jax.tree_util.tree_map(take, per), f, lay)
-    _one_call_and_spread(monkeypatch, lambda: F.fit_joint(*args, 20, 16))
+    _one_call_and_spread(monkeypatch, lambda: F.fit_joint(*args, 20, 16), 5)
 
 
 def test_zone_fits_spread_equal_one_call(monkeypatch):
@@ -61,7 +68,7 @@ def test_zone_fits_spread_equal_one_call(monkeypatch):
     budget = np.array([40, 0, 25])                      # one problem with nothing to do
     _one_call_and_spread(monkeypatch, lambda: F.fit_zones(jnp.asarray(th0), jnp.asarray(np.tile(mask, (N, 1))),
                                                           jnp.zeros((N, 8)), per, shared, lay, 40,
-                                                          int(mask.sum()), budget))
+                                                          int(mask.sum()), budget), N)
 
 
 def test_thread_count_from_the_environment(monkeypatch):
