@@ -12,9 +12,9 @@ batched solve calls LAPACK's LU through jaxlib's batch kernel, which above a wor
 (2e5 flops in jaxlib's source: the diagnosis's joint fits' three 68 x 68 matrices exceed it, its
 per-zone fits' 10-20 do not) deals the matrices to XLA's CPU thread pool and blocks its own
 pool thread until they are done: two such programs running at once on a two-thread pool (two
-cores) each held one thread and waited for good (the hang of the diagnosis's joint fits split over two threads or devices, `gdb`: both
-pool threads in `ParallelBatchMap`). One matrix is factored in the calling thread. Same
-results: one matrix's LU is the batch's.
+cores) each held one thread and waited for good (the hang of the diagnosis's joint fits split
+over two threads or devices, `gdb`: both pool threads in `ParallelBatchMap`). One matrix is
+factored in the calling thread. Same results: one matrix's LU is the batch's.
 """
 
 from __future__ import annotations
