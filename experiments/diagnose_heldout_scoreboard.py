@@ -1,0 +1,111 @@
+"""Every fresh held-out set scored so far, side by side, and its misses by kind and by how
+they missed (issue 14: where the 15/16 goal stands and why).
+
+Reads the stored JSON of `diagnose_heldout_hard.py` runs (no diagnosis is run). A *fresh* set
+was scored once, with the code of its day, and never tuned on afterwards; later code changed
+some answers, so a row is that day's score, not today's (set 24 rerun at 90ef545 gave the same
+19/19: `diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`). A miss is
+
+- `quiet`: nothing named (no candidate passed both tests at the 1 % family-wise level);
+- `tie`: another mechanism named first, the truth among its rivals (reported uncertain);
+- `wrong`: another mechanism named and the truth not among its rivals.
+
+    .venv/bin/python experiments/diagnose_heldout_scoreboard.py [--tags fresh14_mz9,...] [--tag T]
+
+Writes `experiments/results/diagnose_heldout_scoreboard[_T].md` and `.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
+#: the fresh sets scored at 1-9 zones (`--max-zones 9`), in the order they were scored
+TAGS = ("fresh14_mz9", "fresh15_mz9", "fresh16_mz9", "fresh17_mz9", "fresh18_mz9", "fresh19_mz9",
+        "fresh24_mz9", "fresh25_mz9")
+
+
+def miss_kind(rec: dict) -> str:
+    """How a mechanism case was missed: `quiet`, `tie` or `wrong` (module docstring)."""
+    if not rec["named"]:
+        return "quiet"
+    return "tie" if set(rec["counted"]) & set(rec["rivals"]) else "wrong"
+
+
+def score(tags) -> dict:
+    """Per set: top-1, nulls quiet, confident wrong names; per kind: cases, hits and misses."""
+    sets, kinds, misses = [], collections.defaultdict(lambda: collections.Counter()), []
+    for tag in tags:
+        path = RESULTS / f"diagnose_heldout_hard_{tag}.json"
+        if not path.exists():
+            continue
+        d = json.loads(path.read_text())
+        s = d["summary"]
+        sets.append({"tag": tag, "top1": s["top1"], "nulls_quiet": s["nulls_quiet"],
+                     "confident_wrong": s["confident_wrong"],
+                     "truth_among_top_or_rivals": s["truth_among_top_or_rivals"],
+                     "median_gain": s["median_gain"]})
+        for r in d["records"]:
+            if r["kind"] == "null":
+                continue
+            k = kinds[r["kind"]]
+            k["cases"] += 1
+            if r["correct"]:
+                k["hits"] += 1
+                continue
+            how = miss_kind(r)
+            k[how] += 1
+            misses.append({"tag": tag, "case": r["case"], "kind": r["kind"], "zones": r["zones"],
+                           "ts": r["ts"], "how": how, "named": r["top"], "rivals": r["rivals"],
+                           "confidence": r["confidence"]})
+    return {"sets": sets, "kinds": {k: dict(v) for k, v in sorted(kinds.items())}, "misses": misses}
+
+
+def render(res: dict, argv: str) -> str:
+    hits = sum(s["top1"][0] for s in res["sets"])
+    total = sum(s["top1"][1] for s in res["sets"])
+    out = ["# Fresh held-out sets scored so far (issue 14)", "",
+           f"Made by `python experiments/diagnose_heldout_scoreboard.py{argv}` from the stored JSON of "
+           "`diagnose_heldout_hard.py` (each set scored once, with the code of its day; see the "
+           "script's docstring). Goal: top-1 >= 15/16 per set, nulls 3/3.", "",
+           f"Top-1 over the sets: {hits}/{total} ({100 * hits / max(total, 1):.0f} %); the goal is 15/16 (94 %).", "",
+           "| set | top-1 | nulls quiet | truth first or a rival | confident wrong names | median gain pts |",
+           "|---|---|---|---|---|---|"]
+    for s in res["sets"]:
+        out.append(f"| {s['tag']} | {s['top1'][0]}/{s['top1'][1]} | {s['nulls_quiet'][0]}/{s['nulls_quiet'][1]} | "
+                   f"{s['truth_among_top_or_rivals'][0]}/{s['truth_among_top_or_rivals'][1]} | "
+                   f"{s['confident_wrong']} | {s['median_gain']:.2f} |")
+    out += ["", "By kind (misses: quiet = nothing named, tie = truth among the named one's rivals, "
+            "wrong = truth not among them):", "",
+            "| kind | cases | right | quiet | tie | wrong |", "|---|---|---|---|---|---|"]
+    for k, v in res["kinds"].items():
+        out.append(f"| {k} | {v.get('cases', 0)} | {v.get('hits', 0)} | {v.get('quiet', 0)} | "
+                   f"{v.get('tie', 0)} | {v.get('wrong', 0)} |")
+    out += ["", "| set | case | N | Ts s | miss | named | rivals | confidence |", "|---|---|---|---|---|---|---|---|"]
+    for m in res["misses"]:
+        conf = "" if m["confidence"] is None else f"{m['confidence']:.3f}"
+        out.append(f"| {m['tag']} | {m['case']} | {m['zones']} | {m['ts']:.2f} | {m['how']} | {m['named'] or '-'} | "
+                   f"{', '.join(m['rivals']) or '-'} | {conf} |")
+    return "\n".join(out) + "\n"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tags", default=",".join(TAGS), help="comma-separated result tags")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args(argv)
+    res = score([t for t in args.tags.split(",") if t])
+    suffix = f"_{args.tag}" if args.tag else ""
+    shown = "" if args.tags == ",".join(TAGS) else f" --tags {args.tags}"
+    shown += f" --tag {args.tag}" if args.tag else ""
+    (RESULTS / f"diagnose_heldout_scoreboard{suffix}.json").write_text(json.dumps(res, indent=1))
+    (RESULTS / f"diagnose_heldout_scoreboard{suffix}.md").write_text(render(res, shown))
+    print(render(res, shown).split("\n\n")[2])
+
+
+if __name__ == "__main__":
+    main()
