@@ -496,6 +496,16 @@ def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
     assert rc == 0, err
     rep = json.loads(js.read_text())
     assert rep["verdict"] == "no_significant_mismatch" and "_arrays" not in rep and rep["findings"] == []
-    assert "verdict: no_significant_mismatch" in out
+    assert "verdict: no_significant_mismatch" in out and "--design-experiment" not in out
+    # an uncertain finding is named so, with its rivals, and the separating experiment is offered
+    tied = {"mechanism": "ambient_variation", "uncertain": True, "rivals": ["heat_accumulation"],
+            "below_noise": False}
+    small = {"mechanism": "radiative_loss", "uncertain": False, "rivals": [], "below_noise": True}
+    monkeypatch.setattr(diag, "diagnose", lambda e, v, **kw: {"verdict": "mismatch", "findings": [tied, small]})
+    rc, out, err = _run(["diagnose", est, "--validation", val], capsys)
+    assert rc == 0, err
+    assert ("findings: ambient_variation (uncertain, or heat_accumulation), radiative_loss (effect below the "
+            "sensor noise)") in out
+    assert "--design-experiment OUT.csv" in out
     rc, _, err = _run(["diagnose", est, "--json", js], capsys)
     assert rc == 2 and "--validation" in _one_line_error(err)

@@ -74,10 +74,24 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
         result = diag.to_json(result)
     result = {k: v for k, v in result.items() if not str(k).startswith("_")}
     result = write_report(args, js, result)
-    names = [f"{f.get('mechanism')}" + (" (effect below the sensor noise)" if f.get("below_noise") else "")
-             for f in result.get("findings", [])]
-    info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(map(str, names))}" if names else ""))
+    findings = result.get("findings", [])
+    names = [finding_label(f) for f in findings]
+    info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(names)}" if names else ""))
+    if design is None and any(f.get("uncertain") and f.get("rivals") for f in findings):
+        info(args, "an uncertain finding has rivals the records do not separate: --design-experiment OUT.csv "
+                   "designs a record that would")
     return result
+
+
+def finding_label(f: dict) -> str:
+    """A finding as the summary line names it: its mechanism, whether it is uncertain (with the
+    rivals the records do not separate it from) and whether its effect is below the sensor noise."""
+    notes = []
+    if f.get("uncertain"):
+        notes.append("uncertain" + (f", or {' / '.join(f['rivals'])}" if f.get("rivals") else ""))
+    if f.get("below_noise"):
+        notes.append("effect below the sensor noise")
+    return f"{f.get('mechanism')}" + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def _design_samples(args, ts: float) -> tuple[int | None, int]:

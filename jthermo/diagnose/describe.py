@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .decide import CONFIDENT
+
 
 def summary(mech, zones, params, uncertain=False, rivals=(), small=None):
     """One line on the finding; an uncertain one (`decide.uncertain`) says so and names its
@@ -13,8 +15,9 @@ def summary(mech, zones, params, uncertain=False, rivals=(), small=None):
                 f"{small[1]:.3g} °C): {line}")
     if not uncertain:
         return line
-    alt = f" or {', '.join(rivals)}" if rivals else ""
-    return f"Uncertain (the data do not separate it from the alternatives{alt}): {line}"
+    why = (f"the data do not separate it from {', '.join(rivals)}" if rivals
+           else f"its confidence is below {CONFIDENT:g}")
+    return f"Uncertain ({why}): {line}"
 
 
 def _summary(mech, zones, params):
