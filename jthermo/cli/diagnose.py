@@ -75,7 +75,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     result = {k: v for k, v in result.items() if not str(k).startswith("_")}
     result = write_report(args, js, result)
     findings = result.get("findings", [])
-    names = [finding_label(f) for f in findings]
+    names = [_finding_label(f) for f in findings]
     info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(names)}" if names else ""))
     if design is None and any(f.get("uncertain") and f.get("rivals") for f in findings):
         info(args, "an uncertain finding has rivals the records do not separate: --design-experiment OUT.csv "
@@ -83,7 +83,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     return result
 
 
-def finding_label(f: dict) -> str:
+def _finding_label(f: dict) -> str:
     """A finding as the summary line names it: its mechanism, whether it is uncertain (with the
     rivals the records do not separate it from) and whether its effect is below the sensor noise."""
     notes = []
