@@ -3,8 +3,8 @@ they missed (issue 14: where the 15/16 goal stands and why).
 
 Reads the stored JSON of `diagnose_heldout_hard.py` runs (no diagnosis is run). A *fresh* set
 was scored once, with the code of its day, and never tuned on afterwards; later code changed
-some answers, so a row is that day's score, not today's (set 24 rerun at 90ef545 gave the same
-19/19: `diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`). A miss is
+some answers, so a row is that day's score, not today's (set 24 rerun with the fits spread over
+threads, committed in 344910e, gave the same 19/19: `diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`). A miss is
 
 - `quiet`: nothing named (no candidate passed both tests at the 1 % family-wise level);
 - `tie`: another mechanism named first, the truth among its rivals (reported uncertain);
