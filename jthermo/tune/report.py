@@ -30,7 +30,7 @@ from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
-from ..runtime import one_shot, simulate_compile
+from ..runtime import one_matrix_at_a_time, one_shot, simulate_compile
 from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
 from .training import (
@@ -369,6 +369,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
     """
     t0 = time.perf_counter()
+    one_matrix_at_a_time()   # two threads' programs: no LAPACK kernel may wait on XLA's pool
     pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
     if changed_powder == "auto":
         changed_powder = "PA11" if powder != "PA11" else "PA12"
