@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import re
-import subprocess
 import sys
 
 import jax
@@ -16,9 +15,11 @@ import numpy as np
 import pytest
 
 from jthermo import runtime
+from jthermo.cli.watchdog import Stalled, run_watched
 
-#: the watchdog of the two-thread child: it finishes in a few CPU seconds, or hangs for good
-CHILD_LIMIT_S = 300
+#: the two-thread child's watchdog: seconds without CPU work (every thread asleep) before it
+#: is killed; it needs a few CPU seconds, or hangs for good (2.5 CPU s, then asleep)
+IDLE_S = 30
 
 CHILD = r"""
 import os, sys, threading
@@ -123,13 +124,12 @@ def test_an_unbatched_call_keeps_its_kernel_and_a_batched_one_becomes_a_loop():
 def test_two_threads_of_batched_solves_finish():
     """Two programs, each with four independent batched solves (9 x 33 x 33: above jaxlib's
     2e5-flop chunking threshold), run from two threads on a two-thread pool: without the rule
-    this child hangs with every thread asleep; the subprocess's timeout is its watchdog."""
+    this child hangs with every thread asleep; `run_watched` kills it then."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     try:
-        r = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True,
-                           timeout=CHILD_LIMIT_S, env=env)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"two threads of batched solves made no progress for {CHILD_LIMIT_S} s")
+        r = run_watched([sys.executable, "-c", CHILD], IDLE_S, env=env)
+    except Stalled as exc:
+        pytest.fail(f"two threads of batched solves: {exc}")
     assert r.returncode == 0, r.stderr[-2000:]
     line = r.stdout.strip().splitlines()[-1]
     assert line.startswith("finished")

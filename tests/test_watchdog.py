@@ -8,12 +8,14 @@ import os
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 
 from jthermo import progress
 from jthermo.cli import main
-from jthermo.cli.watchdog import EXIT_STALLED, Watchdog, message
+from jthermo.cli.watchdog import (EXIT_STALLED, Stalled, Watchdog, family_cpu_seconds, message,
+                                  run_watched)
 
 #: seconds a test waits for a watchdog that should fire at once (a guard, never reached)
 GUARD_S = 60
@@ -61,11 +63,42 @@ def test_stages_nest_and_every_heartbeat_moves_the_clock():
     assert progress.last_beat() >= t2
 
 
-def test_the_message_says_when_every_thread_slept():
-    asleep = message("jthermo tune", 600, 0.2)
-    busy = message("jthermo tune", 600, 500.0)
-    assert "every thread asleep" in asleep and "every thread asleep" not in busy
-    assert "\n" not in asleep and asleep.startswith("jthermo: error: jthermo tune")
+def test_the_message_is_one_line_with_the_cpu_used():
+    text = message("jthermo tune", 600, 0.2)
+    assert "\n" not in text and text.startswith("jthermo: error: jthermo tune")
+    assert "no progress for 600 s" in text and "0.2 CPU s used meanwhile" in text
+
+
+def test_cpu_work_counts_as_progress():
+    """A thread that computes without beating keeps the watchdog quiet while it works; once
+    it sleeps the watchdog fires."""
+    fired, done = threading.Event(), threading.Event()
+
+    def spin():
+        with progress.stage("computing"):
+            end = time.process_time() + 2.0      # two CPU seconds of work, no beat
+            while time.process_time() < end:
+                sum(range(1000))
+            done.set()
+            fired.wait(GUARD_S)
+
+    worker = threading.Thread(target=spin, name="spinner")
+    said = []
+    with Watchdog(2.0, "jthermo fake", on_stall=lambda t: (said.append(
+            (done.is_set(), t)), fired.set())):
+        worker.start()
+        assert fired.wait(GUARD_S)
+    worker.join()
+    assert said and said[0][0], said      # it fired only once the work was done
+    assert "spinner: computing" in said[0][1]
+
+
+def test_family_cpu_seconds_grows_with_work():
+    t0 = family_cpu_seconds()
+    end = time.process_time() + 0.2
+    while time.process_time() < end:
+        pass
+    assert family_cpu_seconds() >= t0 + 0.2
 
 
 def test_no_limit_starts_no_thread():
@@ -108,3 +141,10 @@ def test_a_stalled_command_exits_2_naming_its_stage(tmp_path, where):
     assert "jthermo export: no progress for 5 s" in line
     assert "MainThread: fake stall" in line
     assert not (tmp_path / "d").exists()
+
+
+def test_run_watched_kills_a_sleeping_child_and_returns_a_working_one():
+    with pytest.raises(Stalled, match="no CPU work for 1 s"):
+        run_watched([sys.executable, "-c", "import time; time.sleep(120)"], 1.0)
+    r = run_watched([sys.executable, "-c", "print(sum(range(10**6)))"], 30.0)
+    assert r.returncode == 0 and r.stdout.strip() == str(sum(range(10**6)))
