@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
@@ -38,10 +40,6 @@ REPS = 5
 class _Captured(Exception):
     pass
 
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def _plain(E, P, a, r, F, sig, s0):
@@ -134,15 +132,15 @@ def main() -> None:
                            ("rule, dense hold", radiative, _zoh_dense)):
         M.radiative, M._zoh = fn, hold
         J = jax.jit(jax.vmap(jac))
-        c0 = _cpu()
+        c0 = cpu_seconds()
         comp = J.lower(V, on, fper).compile()
-        c_comp = _cpu() - c0
+        c_comp = cpu_seconds() - c0
         Js[name] = np.asarray(comp(V, on, fper))
         t = []
         for _ in range(REPS):
-            w0, c0, ld = time.perf_counter(), _cpu(), os.getloadavg()[0]
+            w0, c0, ld = time.perf_counter(), cpu_seconds(), os.getloadavg()[0]
             jax.block_until_ready(comp(V, on, fper))
-            t.append((time.perf_counter() - w0, _cpu() - c0, ld))
+            t.append((time.perf_counter() - w0, cpu_seconds() - c0, ld))
         rows.append((name, c_comp, min(c for _, c, _ in t), min(w for w, _, _ in t), t[0][2]))
     M.radiative, M._zoh = radiative, zoh
     rel = lambda J: float(np.abs(Js["rule"] - J).max() / np.abs(J).max())

@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 RESULTS = HERE / "results"
@@ -40,10 +42,6 @@ RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
 PROGRAMS = ("fit_zones", "sim_zones", "fit_records", "fit_joint")
 OVERLAY = ("jthermo/identify/lm.py", "jthermo/diagnose/fitting.py")
 
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def _child(est: str, val: str, out: str) -> None:
@@ -62,9 +60,9 @@ def _child(est: str, val: str, out: str) -> None:
         orig = getattr(select, name)
 
         def timed(*a):
-            w0, c0, ld = time.perf_counter(), _cpu(), os.getloadavg()[0]
+            w0, c0, ld = time.perf_counter(), cpu_seconds(), os.getloadavg()[0]
             got = jax.block_until_ready(orig(*a))
-            calls.append({"program": name, "wall_s": time.perf_counter() - w0, "cpu_s": _cpu() - c0, "load": ld,
+            calls.append({"program": name, "wall_s": time.perf_counter() - w0, "cpu_s": cpu_seconds() - c0, "load": ld,
                           "cost": [float(v) for v in np.ravel(got[-1] if name != "fit_zones" else got[1])]
                           if name != "sim_zones" else []})
             return got
@@ -75,9 +73,9 @@ def _child(est: str, val: str, out: str) -> None:
     passes = []
     for p in (1, 2):
         calls.clear()
-        w0, c0, ld = time.perf_counter(), _cpu(), os.getloadavg()[0]
+        w0, c0, ld = time.perf_counter(), cpu_seconds(), os.getloadavg()[0]
         res = select.diagnose(load(est), load(val))
-        passes.append({"pass": p, "wall_s": time.perf_counter() - w0, "cpu_s": _cpu() - c0,
+        passes.append({"pass": p, "wall_s": time.perf_counter() - w0, "cpu_s": cpu_seconds() - c0,
                        "load": (ld + os.getloadavg()[0]) / 2, "calls": list(calls),
                        "verdict": res.get("verdict"), "mechanisms": [f["mechanism"] for f in res.get("findings", [])],
                        "fit": res.get("augmented", {}).get("mean_fit_percent")})
@@ -148,7 +146,6 @@ def main(argv=None) -> None:
     ap.add_argument("--rev", default="8b3d005")
     ap.add_argument("--overlay", nargs="*", default=list(OVERLAY))
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--tag", default="_s26")
     ap.add_argument("--child", nargs=3, metavar=("EST", "VAL", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -172,7 +169,7 @@ def main(argv=None) -> None:
     command = "python benchmarks/diagnose_overlay_ab.py" + (f" --rev {args.rev}" if args.rev != "8b3d005" else "") \
         + (f" --repeats {args.repeats}" if args.repeats != 1 else "")
     RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"diagnose_latency{args.tag}"
+    stem = RESULTS / "diagnose_overlay_ab"
     stem.with_suffix(".json").write_text(json.dumps({"rev": args.rev, "overlay": args.overlay, "runs": runs},
                                                     indent=1))
     text = markdown(runs, args.rev, tuple(args.overlay), command)

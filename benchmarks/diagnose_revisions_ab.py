@@ -9,9 +9,9 @@ own; warm: a second process on the cache its cold run filled), `--repeats` times
 load beside. The answers are compared between the trees: verdict, findings, augmented model,
 every tried combination's mean validation fit, the augmented model's parameters.
 
-    python benchmarks/diagnose_revisions_ab.py --base 5647e9c --this HEAD --tag _export
+    python benchmarks/diagnose_revisions_ab.py --base 5647e9c --this HEAD
 
-Writes `benchmarks/results/diagnose_revisions_ab{tag}.md` and `.json`.
+Writes `benchmarks/results/diagnose_revisions_ab.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -89,7 +89,6 @@ def main() -> None:
     ap.add_argument("--base", required=True)
     ap.add_argument("--this", default="HEAD", help="revision(s) to compare with --base, comma-separated")
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args()
     revs = {}
     for label in [args.base] + args.this.split(","):
@@ -119,9 +118,9 @@ def main() -> None:
             else:
                 os.environ["PYTHONPATH"] = old
     base = args.base
-    lines = [f"# `jthermo diagnose` before / after on snapshots (issue 13, session 27{args.tag})", "",
+    lines = [f"# `jthermo diagnose` before / after on snapshots (issue 13, session 27)", "",
              f"`python benchmarks/diagnose_revisions_ab.py --base {args.base} --this {args.this} --repeats "
-             f"{args.repeats}{' --tag ' + args.tag if args.tag else ''}`: "
+             f"{args.repeats}`: "
              + ", ".join(f"`{lab}` = `{rev}`" for lab, rev in revs.items()) + " (`git archive` snapshots). The latency record (1 h, 4 zones; 30 min validation) "
              "diagnosed in a fresh process per run (`diagnose_profile.py`'s child), interleaved: every "
              "tree cold, then every tree warm (on its own cold run's cache). CPU s = user + system (all threads), the load-robust figure; "
@@ -157,7 +156,7 @@ def main() -> None:
         lines.append(f"| {r['repeat']} | {r['phase']} | {r['tree']} | {c['same_names']} | {c['augmented_fit_rel']:.1e} | "
                      f"{c['combination_fits_rel']:.1e} | {c['parameters_rel']:.1e} | {c['findings_rel']:.1e} |")
     RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"diagnose_revisions_ab{args.tag}"
+    stem = RESULTS / f"diagnose_revisions_ab"
     stem.with_suffix(".json").write_text(json.dumps({"runs": runs, "compare": cmp}, indent=1, default=float) + "\n")
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

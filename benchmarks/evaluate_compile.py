@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-from simulate_common import cold_child
+from common import cold_child
 
 ROOT = Path(__file__).resolve().parent.parent
 

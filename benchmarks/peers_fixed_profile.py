@@ -12,7 +12,7 @@ process, the cache only saves the backend compile: what is left in the cached co
 floor a second process pays before it runs.
 
     python benchmarks/peers_fixed_profile.py --n 4 --families armax oe bj
-    -> benchmarks/results/peers_fixed_profile_n4.md (and .json)
+    -> benchmarks/results/peers_fixed_profile.md (and .json)
 
 The machine is shared: the 1-minute load is recorded; CPU seconds depend least on it.
 """
@@ -145,13 +145,13 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", default=["armax", "oe", "bj"],
                     choices=[f for f in B.FAMILIES if f != "n4sid"])
     ap.add_argument("--out", type=Path, default=None,
-                    help="default benchmarks/results/peers_fixed_profile_n<N>.md")
+                    help="default benchmarks/results/peers_fixed_profile.md")
     args = ap.parse_args(argv)
     if args.child:
         fam, n, cache, out = args.child
         child(fam, int(n), cache, Path(out))
         return 0
-    out = args.out or B.RESULTS / f"peers_fixed_profile_n{args.n}.md"
+    out = args.out or B.RESULTS / "peers_fixed_profile.md"
     command = "python benchmarks/peers_fixed_profile.py " + " ".join(argv or sys.argv[1:])
     rows = run(args.n, args.families)
     out.with_suffix(".json").write_text(json.dumps(rows, indent=1))

@@ -32,7 +32,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from simulate_common import finish, load, timed
+from common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 

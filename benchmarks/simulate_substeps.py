@@ -23,7 +23,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from simulate_common import finish, load, timed
+from common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 NOISE = "sensor noise: white 0.05 °C (scenario) + 0.05 °C and AR(1) 0.1 °C (`sensor_noise`)"

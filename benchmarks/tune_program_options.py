@@ -7,7 +7,7 @@ figures from the first option set's.
 The batch is the default report's held-out chunk (`tune_report` at the CLI's defaults: 4 zones,
 16 rollouts, 600 s, 3 plants x 3 scenarios = 9 items), built as `tune_report` builds it.
 
-    python benchmarks/tune_program_options.py --tag s31 \
+    python benchmarks/tune_program_options.py \
         --options quick='{"xla_cpu_use_fusion_emitters": false}' \
         --options o1='{"xla_cpu_use_fusion_emitters": false, "xla_backend_optimization_level": 1}'
 """
@@ -24,13 +24,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 
-
-def _cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def child(options: dict, out: str, repeats: int) -> int:
@@ -66,9 +64,9 @@ def child(options: dict, out: str, repeats: int) -> int:
     fn = eqx.filter_jit(terms._group_terms_fn, compiler_options=runtime.accepted(options) or None)
     rows, values = {}, {}
     for name, c in todo.items():
-        n0, t0, c0 = len(events), time.perf_counter(), _cpu()
+        n0, t0, c0 = len(events), time.perf_counter(), cpu_seconds()
         v = np.asarray(fn(c, batches[0], None))
-        first, first_cpu = time.perf_counter() - t0, _cpu() - c0
+        first, first_cpu = time.perf_counter() - t0, cpu_seconds() - c0
         runs = []
         for _ in range(repeats):
             t1 = time.perf_counter()
@@ -183,8 +181,7 @@ def scenario_table(args, sets, res, base) -> int:
                      f"{r['load']:.2f} | {r['first_wall']:.2f} | {r['first_cpu']:.2f} | "
                      f"{r['rest_wall']:.2f} | {r['rest_cpu']:.2f} | {float(np.max(d)):.3g} | "
                      f"{float(np.max(d / np.maximum(np.abs(b), 1e-300))):.3g} |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_scenario_options{tag}.md"
+    path = RESULTS / "tune_program_options_scenario.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0
@@ -194,7 +191,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--options", action="append", default=[], metavar="LABEL=JSON")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--tag", default="")
     ap.add_argument("--program", choices=("terms", "step", "scenario"), default="terms",
                     help="the evaluation program per structure, or Adam's training step")
     ap.add_argument("--controller", default="lqg", help="with --program step: pi or lqg")
@@ -254,8 +250,7 @@ def main(argv=None) -> int:
                                                                      "backend", "run")}
         lines.append(f"| | | all | {tot['first']:.2f} | {tot['first_cpu']:.2f} | "
                      f"{tot['backend']:.2f} | {tot['run']:.3f} | | |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_program_options{tag}.md"
+    path = RESULTS / "tune_program_options.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0
@@ -284,8 +279,7 @@ def step_table(args, sets, res, base) -> int:
         lines.append(f"| `{label}` {r['options']} | {r['wall']:.1f}, {r['cpu']:.1f}, "
                      f"{r['load']:.2f} | {r['first_wall']:.2f} | {r['first_cpu']:.2f} | "
                      f"{r['step_wall']:.3f} | {r['step_cpu']:.3f} | {h:.3g} | {lv:.3g} |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_step_options_{args.controller}{tag}.md"
+    path = RESULTS / f"tune_program_options_step_{args.controller}.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0

@@ -153,7 +153,7 @@ def main(argv=None) -> int:
     if args.child:
         return child(args)
     out = Path(args.out or ROOT / "benchmarks" / "results"
-               / f"tuning_profile_default_{args.controller}.md")
+               / "tuning_profile_default.md")
     with tempfile.TemporaryDirectory(prefix="jthermo-tune-prof-") as tmp:
         runs = {}
         for name in ("cold", "warm"):

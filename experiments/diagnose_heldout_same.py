@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     L += ["", (f"{n_same}/{len(b['records'])} cases name the same mechanisms with the same rivals; run CPU s "
                f"{a['meta']['cpu_s']:.0f} -> {b['meta']['cpu_s']:.0f} (loads at the end: {a['meta']['load']} / "
                f"{b['meta']['load']}).")]
-    out = RES / f"diagnose_heldout_same_{args.a}_vs_{args.b}.md"
+    out = RES / "diagnose_heldout_same.md"
     out.write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0

@@ -13,7 +13,8 @@ set-point-change MSE on the evaluation plant, the start-up step's overshoot, and
 issue 18 (tuned MSE ≥ 20 % below the best classical; hot-end overshoot ≤ 2 °C).
 
 Usage:  python experiments/own_plant.py [--steps N] [--rollouts N] [--devices tclab,hotend]
-Writes `experiments/results/own_plant.md`, `own_plant.json` and `own_plant_<device>.png`.
+Writes `experiments/results/own_plant.md` and `own_plant.json`; the closed-loop figures go to
+`runs/own_plant/` (untracked).
 """
 
 from __future__ import annotations
@@ -159,8 +160,9 @@ def figure(name, plant, env, setpoint, duration, ctrls, seed):
     for label, c in ctrls.items():
         tr = simulate(plant, c, sc)
         slug = label.replace(" ", "_")
+        (ROOT / "runs" / "own_plant").mkdir(parents=True, exist_ok=True)
         plots.plot_closed_loop(t, np.asarray(tr.y), np.asarray(tr.u), np.asarray(tr.r),
-                               path=OUT / f"own_plant_{name}_{slug}.png")
+                               path=ROOT / "runs" / "own_plant" / f"{name}_{slug}.png")
 
 
 def markdown(results, args) -> str:
