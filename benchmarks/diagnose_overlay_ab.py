@@ -1,4 +1,4 @@
-"""Issue 13, session 26: the diagnosis's fits before and after, on the latency record, same answers.
+"""The diagnosis's fits before and after, on the latency record, same answers.
 
 "before" is the package at `--rev` (`git archive` into a temporary folder, first on PYTHONPATH);
 "after" is the same tree with `--overlay` files taken from the working tree (by default the two
@@ -109,7 +109,7 @@ def _sum(calls, prog, key):
 
 
 def markdown(runs: list, rev: str, overlay: tuple, command: str) -> str:
-    lines = ["# `jthermo diagnose`'s fits before / after (issue 13, session 26)", "",
+    lines = ["# `jthermo diagnose`'s fits before / after", "",
              f"`{command}`: before = the package at `{rev}`, after = the same with "
              + ", ".join(f"`{f}`" for f in overlay) + " from the working tree. The latency record "
              "(1 h, 4 zones; 30 min validation) diagnosed twice per fresh process (empty compilation "

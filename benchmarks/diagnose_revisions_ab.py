@@ -1,4 +1,4 @@
-"""Issue 13, session 27: `jthermo diagnose` before / after on snapshots, interleaved, same answers.
+"""`jthermo diagnose` before / after on snapshots, interleaved, same answers.
 
 Two revisions are extracted (`git archive REV jthermo`) into temporary folders and put first on
 `PYTHONPATH`; each diagnoses the latency record (`benchmarks/diagnose_profile.py`'s child: 1 h,
@@ -118,7 +118,7 @@ def main() -> None:
             else:
                 os.environ["PYTHONPATH"] = old
     base = args.base
-    lines = [f"# `jthermo diagnose` before / after on snapshots (issue 13, session 27)", "",
+    lines = [f"# `jthermo diagnose` before / after on snapshots", "",
              f"`python benchmarks/diagnose_revisions_ab.py --base {args.base} --this {args.this} --repeats "
              f"{args.repeats}`: "
              + ", ".join(f"`{lab}` = `{rev}`" for lab, rev in revs.items()) + " (`git archive` snapshots). The latency record (1 h, 4 zones; 30 min validation) "

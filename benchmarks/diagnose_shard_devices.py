@@ -8,7 +8,7 @@ call compiles; no persistent cache), comparing wall s and the sum of the fitted 
 - `--fits joint`: the second joint call (`fitting._fit_joint`: the top mechanism refitted and
   six additions, padded to 8 slots; a padding copy is refitted, the same answer).
 
-A probe for issue 13 (2026-11-28): the per-zone fits split with the same costs and no hang; the
+A probe: the per-zone fits split with the same costs and no hang; the
 joint fits' sharded call never returned (the watchdog's stacks after 400 s), as the threaded
 splits did (`diagnose_zone_threads.py`, `results/diagnose_threads_deadlock.md`), until
 `masked_lm` factored one matrix at a time (the cause, in that record; `--tag _s42_lmap`). A

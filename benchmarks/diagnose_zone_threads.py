@@ -5,7 +5,7 @@ core mostly idle (the warm run's CPU is ~1.3x its wall time). Here the diagnosis
 estimation and half-hour validation records) are run as they are and again as `--shares` equal shares (problems dealt round-robin), each
 share's call in a thread of its own (after one compiling call), comparing wall s and results.
 
-A second look at what session 27 rejected (`benchmarks/results/diagnose_threads_deadlock.md`:
+A second look at a rejected split (two threads over the joint fits deadlocked:
 one call per problem, two threads, a hang). Measured 2026-11-28: the per-zone fits split well
 (see the results file), but the same split of the joint fits (`fitting.fit_joint`) hung, also
 with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`. The cause, found later that day (the

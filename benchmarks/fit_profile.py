@@ -1,5 +1,5 @@
 """Where the cold `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` spends its time
-(issue 12): the command run from the shell in a fresh process with an empty compilation cache,
+: the command run from the shell in a fresh process with an empty compilation cache,
 on the W1 records of `benchmarks/identification.py --default-path` (absolute °C, 6000 + 3000
 samples), its stages timed by wrapping the functions the command calls.
 
@@ -232,7 +232,7 @@ ORDER = ["startup", "import jax", "import library", "read data", "operating poin
 
 
 def markdown(rows: list[dict], imports: list, command: str) -> str:
-    lines = ["# Cold `jthermo fit` profile (issue 12)", "",
+    lines = ["# Cold `jthermo fit` profile", "",
              f"`{command}`: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` on W1 "
              "records (absolute °C, 6000 + 3000 samples), fresh process, empty compilation cache. "
              "Stage seconds are exclusive (nested stages subtracted); CPU = user + system of the "

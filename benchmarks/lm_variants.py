@@ -1,5 +1,5 @@
 """Damping, step and acceleration variants of the masked Levenberg–Marquardt replayed on the
-diagnosis's own per-zone problems (issue 13: the same minima in fewer iterations?).
+diagnosis's own per-zone problems (the same minima in fewer iterations?).
 
 `--capture REC`: runs `select.diagnose` on a record (`latency` or `heldout:S:I`, as
 `diagnose_zone_convergence.py`) and stores every `fitting.fit_zones` call's arguments and its

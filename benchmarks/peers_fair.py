@@ -1,4 +1,4 @@
-"""Issue 12 item 5: state space against jax-sysid, cold with cold and warm with warm.
+"""State space against jax-sysid, cold with cold and warm with warm.
 
 Same W1 records as `benchmarks/identification.py` (`../shared/bench/workloads.py`, T = 6000
 estimation + 6000 validation samples, N = 4 and 16 zones, fit % = validation simulation fit
@@ -7,7 +7,7 @@ process: `cold` = the first fit call (JAX compilation included; imports and data
 both tools), `warm` = a second fit call in the same process on the same data.
 
 jthermo: `fit(data, "ss", (N,))` with its defaults (what `jthermo fit --model ss` does with the
-order given; simulation focus since issue 12; operating point chosen automatically).
+order given; simulation focus by default; operating point chosen automatically).
 
 jax-sysid (`LinearModel(N, N, N)`, L-BFGS on the simulation error), configured as its README and
 `examples/dynamic/example_linear.py` recommend: inputs and outputs standard-scaled
@@ -108,7 +108,7 @@ def run_child(python: str, tool: str, config: str, N: int, timeout: float,
 
 def report(rows: list[dict], args, uptime: str) -> list[str]:
     f = (lambda v, nd=1: "—" if v is None else f"{v:.{nd}f}")
-    lines = ["# State space vs jax-sysid, cold with cold and warm with warm (issue 12 item 5)", "",
+    lines = ["# State space vs jax-sysid, cold with cold and warm with warm", "",
              (f"`python benchmarks/peers_fair.py --n {' '.join(map(str, args.n))} --configs "
              f"{' '.join(args.configs)}` (jax-sysid in its own environment: jax-sysid 1.1.0 pins "
              "jax <= 0.4.31; jthermo on jax 0.10). W1 records of `identification.py`, T = 6000 + "

@@ -1,4 +1,4 @@
-"""Why jthermo's fixed-order W1 fits end hundredths of a point below SIPPY's (issue 12): both
+"""Why jthermo's fixed-order W1 fits end hundredths of a point below SIPPY's: both
 models scored on the same two yardsticks, over several data seeds.
 
 For each seed, family (ARMAX, OE, BJ at the W1 orders of `benchmarks/identification.py`, and

@@ -1,6 +1,6 @@
 """Where the fixed-order W1 fit of `benchmarks/identification.py` spends its first call, with an
 empty persistent compilation cache (cold) and with the cache the cold process wrote (cached):
-the columns on which jthermo is compared with SIPPY (issue 12, "≥ 10× SIPPY").
+the columns on which jthermo is compared with SIPPY.
 
 Each (family, N) runs in two fresh processes sharing one new cache directory, exactly as
 `identification.run_jthermo` does; each times the first `identification.jthermo_fit` call (the
@@ -101,7 +101,7 @@ def run(N: int, families: list[str]) -> list[dict]:
 
 
 def markdown(rows: list[dict], command: str) -> str:
-    lines = ["# Fixed-order W1 fit: cold and cached first call, by stage (issue 12)", "",
+    lines = ["# Fixed-order W1 fit: cold and cached first call, by stage", "",
              (f"`{command}`; options of `benchmarks/identification.py` (fixed orders, rest level "
              "0, 4 starts). Cold = fresh process, empty persistent compilation cache; cached = a "
              "second fresh process reading the cache the first wrote. Stage seconds are exclusive "

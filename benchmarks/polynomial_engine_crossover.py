@@ -13,7 +13,7 @@ output row `p` and the validation fit. CPU seconds are the load-robust figure; w
 show what the compiled engine's second core buys.
 
     python benchmarks/polynomial_engine_crossover.py --n 1 2 4 9 16 --t 6000 \
-        [--engines jax numpy] [--families armax oe bj] [--tag _s26]
+        [--engines jax numpy] [--families armax oe bj]
     -> benchmarks/results/polynomial_engine_crossover<tag>.md (and .json)
 """
 

@@ -1,4 +1,4 @@
-"""Where `jthermo simulate` spends its time (issue 13 item 1): the command's stages timed one by
+"""Where `jthermo simulate` spends its time: the command's stages timed one by
 one in this process, each with its wall and CPU seconds and the JAX compile events it caused.
 
 Stages, as `jthermo.cli.control.cmd_simulate` runs them: import, `make_printer`, the design

@@ -1,4 +1,4 @@
-"""Where the execution of `jthermo simulate`'s run program goes, kernel by kernel (issue 13).
+"""Where the execution of `jthermo simulate`'s run program goes, kernel by kernel.
 
 The program `closedloop.run` compiles for the printer (`engine._scenario_metrics_fn` with
 `runtime.simulate_compile()` options, the command's one-thread backend and unrolled

@@ -1,4 +1,4 @@
-"""Sub-steps of the printer in the recoat-free scenarios (issue 13): the integration error of
+"""Sub-steps of the printer in the recoat-free scenarios: the integration error of
 `Printer.discretise(recoat=False)` (radiation alone, `SMOOTH_SUBSTEPS` sub-steps) and of the
 earlier path (`substeps` = 10, the recoat term evaluated though no recoat happens) against a
 fine-step reference (100 sub-steps), and what the run program costs with each.

@@ -1,4 +1,4 @@
-"""The warm `jthermo simulate` run program in its parts (issue 13): the exported program read
+"""The warm `jthermo simulate` run program in its parts: the exported program read
 from disk, `jit(exported.call)` lowered (JAX initialises the CPU LAPACK kernels there, which
 imports `scipy.linalg`: timed on its own), the executable loaded from the persistent
 compilation cache, and executed.

@@ -1,4 +1,4 @@
-"""Designed experiments against PRBS on the virtual printer (issue 14 item 3).
+"""Designed experiments against PRBS on the virtual printer.
 
 For each case the printer hides one mechanism of a rival pair that PRBS records tend to leave
 tied (heater lag / input delay, a slow chamber body / an unmeasured surroundings drift,
@@ -215,7 +215,7 @@ def write(rows, out, load, before=None):
     yes = lambda b: "yes" if b else "no"
     crit = rows[0]["design"].get("criterion", "span")
     arms = [a for a, _, _ in ARMS if f"designed_{a}" in rows[0]]
-    lines = ["# Designed experiments against PRBS (issue 14 item 3)", "",
+    lines = ["# Designed experiments against PRBS", "",
              (f"Made by `experiments/design_experiment_study.py` (criterion `{crit}`). Virtual printer, one "
               "zone, Ts = 1 s, white +"),
              "AR(1) sensor noise (same noise draw in both arms); PRBS estimation + validation records are",

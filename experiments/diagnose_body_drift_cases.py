@@ -1,4 +1,4 @@
-"""Why a slow stored-heat body is named an ambient drift (issue 14, `slow_body` class of
+"""Why a slow stored-heat body is named an ambient drift (`slow_body` class of
 `diagnose_heldout_hard.py`): per case, the estimation evidence (whitened likelihood ratio
 against the baseline, `decide.likelihood_ratio`) and the validation statistic of the *true*
 plant (its noise-free simulation against the noisy record, nothing re-estimated) beside those
@@ -125,7 +125,7 @@ def main(argv=None):
               f"body/truth {r.get('lr_body_over_truth')}", flush=True)
     made = (f"Made by `python experiments/diagnose_body_drift_cases.py {' '.join(args.cases)} --max-zones "
             f"{args.max_zones} --n-iter {args.n_iter}`")
-    lines = ["# Slow body against drift: the true plant's evidence beside the candidates' (issue 14)", "",
+    lines = ["# Slow body against drift: the true plant's evidence beside the candidates'", "",
              made + (" (tables rewritten from its JSON by `--render`)." if args.render else
                      f" (wall {time.perf_counter() - t0:.0f} s, load {os.getloadavg()[0]:.2f})."), "",
              "Estimation likelihood ratio against the baseline (truth: the noise-free true plant, nothing "

@@ -1,4 +1,4 @@
-"""Radiation, lamp exponent and the true convective form, each fitted to its optimum (issue 14).
+"""Radiation, lamp exponent and the true convective form, each fitted to its optimum.
 
 On held-out convection cases (`diagnose_heldout_hard.py` kind `convection_hT`: loss
 $a\\Delta + c\\Delta^{4/3}$) the diagnosis named `input_nonlinearity` ($u^p$) instead of

@@ -1,5 +1,5 @@
 """Which couplings a pruned joint model keeps (`joint.kept_couplings`) on the README tour's kind
-of record at N zones, against the printer's truth, for several shares (issue 13).
+of record at N zones, against the printer's truth, for several shares.
 
 Each N: the records of `diagnose_zone_scaling.py` (`jthermo generate --zones N --effects
 lateral_conduction,radiative_loss,heater_lag`, one hour `--seed 1`, 30 min `--seed 2`), then

@@ -1,5 +1,5 @@
 """One case of the harder held-out diagnosis study in detail: every candidate's tests, the
-dead-time scan and the periodic search (issue 14: why a case is missed).
+dead-time scan and the periodic search (why a case is missed).
 
     .venv/bin/python experiments/diagnose_heldout_case.py --case 12 --seed-set 5 [--max-zones 3]
 

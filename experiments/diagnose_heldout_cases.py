@@ -1,4 +1,4 @@
-"""Chosen cases of the harder held-out study, each diagnosed once, one line each (issue 14): a
+"""Chosen cases of the harder held-out study, each diagnosed once, one line each: a
 quick A/B of a change on the cases it is meant to move and on those it could break.
 
     .venv/bin/python experiments/diagnose_heldout_cases.py 14:9 9:8 ... [--max-zones 3]

@@ -1,5 +1,5 @@
 """The validation fit the *true* plant reaches on a held-out record (its noise-free simulation
-against the noisy record): the ceiling no diagnosis can beat (issue 14: is a miss at a low
+against the noisy record): the ceiling no diagnosis can beat (is a miss at a low
 baseline fit a failure of the diagnosis or a record whose effect is below the noise?).
 
     .venv/bin/python experiments/diagnose_heldout_ceiling.py 2:6 10:6 4:6 [--max-zones 3]

@@ -1,5 +1,5 @@
 """Every fresh held-out set scored so far, side by side, and its misses by kind and by how
-they missed (issue 14: where the 15/16 goal stands and why).
+they missed (where the 15/16 goal stands and why).
 
 Reads the stored JSON of `diagnose_heldout_hard.py` runs (no diagnosis is run). A *fresh* set
 was scored once, with the code of its day, and never tuned on afterwards; later code changed
@@ -70,7 +70,7 @@ def total_line(res: dict) -> str:
 
 
 def render(res: dict, argv: str) -> str:
-    out = ["# Fresh held-out sets scored so far (issue 14)", "",
+    out = ["# Fresh held-out sets scored so far", "",
            f"Made by `python experiments/diagnose_heldout_scoreboard.py{argv}` from the stored JSON of "
            "`diagnose_heldout_hard.py` (each set scored once, with the code of its day; see the "
            "script's docstring). Goal: top-1 >= 15/16 per set, nulls 3/3.", "",

@@ -1,5 +1,5 @@
 """Would a looser, still family-wise, decision rule name the held-out cases named nothing?
-(issue 14: misses that are power limits of the two tests.)
+ (misses that are power limits of the two tests.)
 
 Each candidate passes today when both its estimation likelihood ratio and its validation
 Diebold–Mariano z pass at the level alpha / K (`decide.thresholds`, K candidates). Under the null
@@ -73,7 +73,7 @@ def main() -> int:
     mech = [r for r in recs if r["kind"] != "null"]
     agree = sum(bool(passing(r, RULES["both at alpha/K (now)"])) == any(c["significant"] for c in r["candidates"])
                 for r in recs)
-    lines = ["# A looser two-test rule on the stored held-out records (issue 14)", "",
+    lines = ["# A looser two-test rule on the stored held-out records", "",
              "Made by `python experiments/diagnose_power_rule.py` from " + ", ".join(f"`{f}`" for f in FILES)
              + f": {len(nulls)} null and {len(mech)} mechanism records. The current rule recomputed "
              f"from the stored statistics agrees with the stored significance on {agree}/{len(recs)}.", "",

@@ -1,4 +1,4 @@
-"""Blind diagnosis study on the virtual printer (issue 5, item 4).
+"""Blind diagnosis study on the virtual printer.
 
 Each case builds a printer with one concealed mechanism (or two, or none), records one hour of
 estimation data and half an hour of validation data at Ts = 1 s (PRBS on every heater), runs

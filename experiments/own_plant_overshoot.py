@@ -1,4 +1,4 @@
-"""Issue 18: the hot-end's 200 °C start-up overshoot with a set-point-weighted (2-DOF) PID.
+"""The hot-end's 200 °C start-up overshoot with a set-point-weighted (2-DOF) PID.
 
 Fitted as `experiments/own_plant.py` does (design model from `heattest_200`, evaluation plant
 from `sample_trace`, `ss` order 2, 200 °C). `DiagonalPID`'s proportional part acts on

@@ -1,4 +1,4 @@
-"""Physical plausibility of fits to real heater recordings (issue 18): which model structures
+"""Physical plausibility of fits to real heater recordings: which model structures
 step the wrong way (`validate.plausibility`), and what that costs in validation fit.
 
 The Klipper hot-end's order-2 state-space fits of `experiments/own_plant.py` fall by several °C

@@ -1,5 +1,5 @@
 """Why SIPPY's seed-0 OE/BJ models validate a few thousandths of a point higher with a higher
-estimation cost (issue 12), and whether another initial-sample handling would be a better default.
+estimation cost, and whether another initial-sample handling would be a better default.
 
 SIPPY (`sippy_unipi.functionset_OPT.opt_id`) pins the simulated output to the measured one
 over the first `n_tr = max(na, nb + nk, nc, nd, nf)` samples (here 1: $\\hat y_0 = y_0$, the

@@ -1,5 +1,5 @@
 """Is the seed-0 gap of jthermo's fixed-order OE/BJ fits to SIPPY's a stopping, start or
-local-minimum effect? (issue 12: SIPPY's validation fits are 0.004-0.006 points higher there,
+local-minimum effect? (SIPPY's validation fits are 0.004-0.006 points higher there,
 `benchmarks/results/peers_fit_gap_n4.md`, while jthermo's estimation criterion V is the lower.)
 
 For each family and seed: the benchmark's fixed-order fit with the NumPy engine

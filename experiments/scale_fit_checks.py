@@ -1,4 +1,4 @@
-"""Issue 12 checks on the records of `benchmarks/identification_scale.py` (seed 0).
+"""Checks on the records of `benchmarks/identification_scale.py` (seed 0).
 
 `ss`: is the state-space gap at N = 16 (default: simulation focus; operating point "mean" as in
 `ss_focus_scale.py`) optimisation or variance? Full A (`coupling="full"`, the earlier default)

@@ -1,4 +1,4 @@
-"""Issue 12: the state-space gap to the true model at N = 4 .. 19 zones — structure, not steps.
+"""The state-space gap to the true model at N = 4 .. 19 zones — structure, not steps.
 
 On the records of `benchmarks/identification_scale.py`, `fit_statespace` with the default
 options (automatic order, simulation focus, operating point "auto") and `coupling` "auto"

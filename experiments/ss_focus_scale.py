@@ -1,4 +1,4 @@
-"""Issue 12 part 3: does the state-space PEM's focus explain its validation gap at scale?
+"""Does the state-space PEM's focus explain its validation gap at scale?
 
 On the records of `benchmarks/identification_scale.py` (seed 0), `fit_statespace` with
 `focus="prediction"` (K estimated) and `focus="simulation"` (K = 0, the default since this

@@ -1,4 +1,4 @@
-"""A sweep scripted as an engineer would (issue 18 item 6): an ARX order grid on a real
+"""A sweep scripted as an engineer would: an ARX order grid on a real
 recording (default the DaISy heating system, `../shared/data/real/daisy_heating_system`;
 `--record tclab_apm_mimo_steps` for the two-heater TCLab steps), run in process
 with `jthermo.sweep`, read back as a pandas DataFrame, and checked against `identify.fit` +
