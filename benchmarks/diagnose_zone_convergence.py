@@ -12,10 +12,11 @@ estimation sum of squares under each variant against the reference, as the likel
 shift m log(SSE / SSE_ref) (m = T n residuals), and the iterations each variant spends.
 
     python benchmarks/diagnose_zone_convergence.py --record latency [--ref 300]
-    python benchmarks/diagnose_zone_convergence.py --record heldout:12:8 --max-zones 9
+    python benchmarks/diagnose_zone_convergence.py --record dev:12:8 --max-zones 9
 
-`heldout:S:I`: case I of `experiments/diagnose_heldout_hard.py --seed-set S`. Writes
-`benchmarks/results/diagnose_zone_convergence_{record}.md` and `.json`.
+`dev:S:I`: case I of `experiments/diagnose_heldout_hard.py --seed-set S` (a development set:
+the records this study looks into are not held out any more). Writes
+`benchmarks/results/diagnose_zone_convergence.md` and `.json`.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ starts) is captured and run again (warm, after one compiling call each) as is an
 calls of problems grouped by their own width (4 ceil(free / 4)), comparing CPU s, costs and
 parameters.
 
-    python benchmarks/diagnose_zone_width.py [--record latency | heldout:S:I] [--repeats 2]
+    python benchmarks/diagnose_zone_width.py [--record latency | dev:S:I] [--repeats 2]
 
 Writes `benchmarks/results/diagnose_zone_width_{record}.md` and `.json`.
 """

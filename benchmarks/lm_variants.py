@@ -1,7 +1,7 @@
 """Damping, step and acceleration variants of the masked Levenberg–Marquardt replayed on the
 diagnosis's own per-zone problems (the same minima in fewer iterations?).
 
-`--capture REC`: runs `select.diagnose` on a record (`latency` or `heldout:S:I`, as
+`--capture REC`: runs `select.diagnose` on a record (`latency` or `dev:S:I`, as
 `diagnose_zone_convergence.py`) and stores every `fitting.fit_zones` call's arguments and its
 costs (production `identify.lm.masked_lm`) under `--store` (not committed: arrays).
 
@@ -13,7 +13,7 @@ cost, iterations and Jacobians. Per variant: the problems whose cost is above th
 statistic shift m log(SSE / SSE_base) (its zones' costs summed), total iterations and Jacobians, CPU s of the run.
 
     python benchmarks/lm_variants.py --capture latency
-    python benchmarks/lm_variants.py --records latency,heldout:12:08 --variants base,nielsen
+    python benchmarks/lm_variants.py --records latency,dev:12:08 --variants base,nielsen
 
 Writes `benchmarks/results/lm_variants.md` and `.json`.
 """
