@@ -208,9 +208,9 @@ def main() -> None:
         rows.append(row)
     out = {"diagnosis": diag, "calls": rows, "load_before": load0, "load_after": load1()}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"diagnose_anatomy.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
-    lines = [f"# Diagnosis anatomy", "",
-             f"`python benchmarks/diagnose_anatomy.py`: the latency "
+    (RESULTS / "diagnose_anatomy.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
+    lines = ["# Diagnosis anatomy", "",
+             "`python benchmarks/diagnose_anatomy.py`: the latency "
              "record's diagnosis (findings " + ", ".join(diag["findings"]) + f", augmented fit {diag['fit']:.2f} %), "
              f"load {load0:.2f} → {out['load_after']:.2f}. Each problem refitted alone (jitted, second call "
              "timed: run CPU s); iterations until the early stop, accepted steps; Jacobian CPU s at the call's "
@@ -225,7 +225,7 @@ def main() -> None:
                          f"{mdl['run_cpu_s']:.3f} | {mdl.get('residual_cpu_s', float('nan')):.4f} | "
                          f"{mdl.get('jacobian_n_active_cpu_s', float('nan')):.4f} / "
                          f"{mdl.get('jacobian_own_cpu_s', float('nan')):.4f} |")
-    (RESULTS / f"diagnose_anatomy.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / "diagnose_anatomy.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -117,8 +117,8 @@ def main() -> None:
             print(row, flush=True)
     out = {"rows": rows, "load_before": load0, "load_after": load1()}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"diagnose_fit_variants.json").write_text(json.dumps(out, indent=1) + "\n")
-    lines = [f"# Diagnosis fits compiled other ways", "",
+    (RESULTS / "diagnose_fit_variants.json").write_text(json.dumps(out, indent=1) + "\n")
+    lines = ["# Diagnosis fits compiled other ways", "",
              f"`python benchmarks/diagnose_fit_variants.py"
              f" --reps {args.reps}`: the latency record's calls, load {load0:.2f} → {out['load_after']:.2f}; "
              "first call = trace + compile + run, run = best later call (CPU s); differences relative to `as is`.", "",
@@ -126,7 +126,7 @@ def main() -> None:
     for r in rows:
         lines.append(f"| {r['call']} | {r['fit']} | {r['variant']} | {r['first_cpu_s']:.2f} | {r['run_cpu_s']:.2f} | "
                      f"{r['cost_rel_diff']:.1e} | {r['theta_rel_diff']:.1e} |")
-    (RESULTS / f"diagnose_fit_variants.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / "diagnose_fit_variants.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

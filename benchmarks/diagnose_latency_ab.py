@@ -56,7 +56,7 @@ def main(argv=None) -> int:
                 row = measure("diagnose", Path(d), False)
             runs.append({"round": r, "code": label, "jthermo_from": "the A tree" if root else "the checkout", **row})
     os.environ["PYTHONPATH"] = base_pp
-    L = [f"# `jthermo diagnose` latency, A/B", "",
+    L = ["# `jthermo diagnose` latency, A/B", "",
          (f"`python benchmarks/diagnose_latency_ab.py --a {args.a} --a-label {args.a_label} --rounds {args.rounds}"
          f"`: the latency record (`benchmarks/latency.py`), each code "
          "cold (empty cache) then warm (second process), the codes interleaved; wall s, CPU s (user + system "
@@ -69,8 +69,8 @@ def main(argv=None) -> int:
                  f"{c['load_before'].split()[0]} | {w['wall_s']:.1f} | {w.get('cpu_s', float('nan')):.1f} | "
                  f"{w['load_before'].split()[0]} | {w.get('verdict', w.get('error', ''))}, {w.get('top_finding')} |")
     out = HERE / "results"
-    atomic_write_text(out / f"diagnose_latency_ab.md", "\n".join(L) + "\n")
-    atomic_write_text(out / f"diagnose_latency_ab.json", json.dumps(runs, indent=1))
+    atomic_write_text(out / "diagnose_latency_ab.md", "\n".join(L) + "\n")
+    atomic_write_text(out / "diagnose_latency_ab.json", json.dumps(runs, indent=1))
     print("\n".join(L))
     return 0
 

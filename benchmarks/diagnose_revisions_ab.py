@@ -118,7 +118,7 @@ def main() -> None:
             else:
                 os.environ["PYTHONPATH"] = old
     base = args.base
-    lines = [f"# `jthermo diagnose` before / after on snapshots", "",
+    lines = ["# `jthermo diagnose` before / after on snapshots", "",
              f"`python benchmarks/diagnose_revisions_ab.py --base {args.base} --this {args.this} --repeats "
              f"{args.repeats}`: "
              + ", ".join(f"`{lab}` = `{rev}`" for lab, rev in revs.items()) + " (`git archive` snapshots). The latency record (1 h, 4 zones; 30 min validation) "
@@ -156,7 +156,7 @@ def main() -> None:
         lines.append(f"| {r['repeat']} | {r['phase']} | {r['tree']} | {c['same_names']} | {c['augmented_fit_rel']:.1e} | "
                      f"{c['combination_fits_rel']:.1e} | {c['parameters_rel']:.1e} | {c['findings_rel']:.1e} |")
     RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"diagnose_revisions_ab"
+    stem = RESULTS / "diagnose_revisions_ab"
     stem.with_suffix(".json").write_text(json.dumps({"runs": runs, "compare": cmp}, indent=1, default=float) + "\n")
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

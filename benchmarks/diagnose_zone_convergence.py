@@ -194,7 +194,6 @@ def main(argv=None) -> int:
             row["lr_shift"][m] = float(n * T * np.log(sse / ref_sse[m]))
         row["iterations"] = tot_it
         cand_rows.append(row)
-    name = args.record.replace(":", "_")
     out = {"record": args.record, "n": n, "T": T, "diagnosis": diag,
            "calls": [{k: v for k, v in c.items() if k not in ("args", "cost")} for c in calls],
            "problems": problems, "variants": cand_rows}

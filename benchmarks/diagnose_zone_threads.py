@@ -108,7 +108,7 @@ def main(argv=None) -> None:
              "| problems | with iterations | one call s | shares in threads s | ratio | largest difference |",
              "|---|---|---|---|---|---|"]
     lines += [f"| {B} | {w} | {a:.2f} | {b:.2f} | {b / a:.2f} | {dd:.3g} |" for B, w, a, b, dd in rows]
-    out = HERE / "results" / f"diagnose_zone_threads.md"
+    out = HERE / "results" / "diagnose_zone_threads.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

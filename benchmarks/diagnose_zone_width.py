@@ -9,7 +9,7 @@ parameters.
 
     python benchmarks/diagnose_zone_width.py [--record latency | dev:S:I] [--repeats 2]
 
-Writes `benchmarks/results/diagnose_zone_width_{record}.md` and `.json`.
+Writes `benchmarks/results/diagnose_zone_width.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -110,7 +110,6 @@ def main(argv=None) -> int:
                                                 f"{w['theta_diff']:.2g}, cost rel. {w['rel_cost_diff']:.1e}"
                                                 for w in r["worst"])]
     RESULTS.mkdir(exist_ok=True)
-    name = args.record.replace(":", "_")
     atomic_write_text(RESULTS / "diagnose_zone_width.md", "\n".join(L) + "\n")
     atomic_write_text(RESULTS / "diagnose_zone_width.json", json.dumps(rows, indent=1))
     print("\n".join(L))

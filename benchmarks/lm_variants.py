@@ -238,7 +238,7 @@ def main(argv=None) -> int:
         for s in args.capture.split(","):
             capture(s, args.max_zones)
         return 0
-    rows, L = [], [f"# Masked LM variants on the diagnosis's per-zone problems", "",
+    rows, L = [], ["# Masked LM variants on the diagnosis's per-zone problems", "",
                    f"`python benchmarks/lm_variants.py --records {args.records} --variants {args.variants}"
                    f"` (load {os.getloadavg()[0]:.1f}). Excess: problems "
                    "whose final cost is above the baseline's by more than 1e-9 relative; LR shift: each (candidate set x start) "
@@ -283,8 +283,8 @@ def main(argv=None) -> int:
             print(line, flush=True)
     L += ["", "LR shift here is per (candidate set x start) block summed over zones (not the zone-best "
           "combination): positive = that block's fits cost more than the baseline's."]
-    atomic_write_text(HERE / "results" / f"lm_variants.md", "\n".join(L) + "\n")
-    atomic_write_text(HERE / "results" / f"lm_variants.json", json.dumps(rows))
+    atomic_write_text(HERE / "results" / "lm_variants.md", "\n".join(L) + "\n")
+    atomic_write_text(HERE / "results" / "lm_variants.json", json.dumps(rows))
     return 0
 
 

@@ -107,7 +107,7 @@ def main() -> None:
                      f"{r['run_cpu']:.2f} | {r['run_wall']:.2f} | {r['mse']!r} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    (HERE / "results" / f"simulate_compile_options.md").write_text(text)
+    (HERE / "results" / "simulate_compile_options.md").write_text(text)
 
 
 if __name__ == "__main__":

@@ -179,8 +179,8 @@ def main(argv=None):
     for r in bad:
         lines.append(f"| {r['option']} | {r['rc']} | {r['lines']} | {r['seconds']} | `{r['stderr']}` | {yes(r['ok'])} |")
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"design_experiment_cli.md").write_text("\n".join(lines) + "\n")
-    (out / f"design_experiment_cli.json").write_text(json.dumps({"runs": rows, "bad_options": bad},
+    (out / "design_experiment_cli.md").write_text("\n".join(lines) + "\n")
+    (out / "design_experiment_cli.json").write_text(json.dumps({"runs": rows, "bad_options": bad},
                                                                           indent=1))
     return 0 if all(r["ok"] for r in bad) and all(r["rc"] == 0 for r in rows) else 1
 

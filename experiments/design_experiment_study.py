@@ -314,8 +314,8 @@ def write(rows, out, load, before=None):
                          f"{ba('designed_as_validation')} | {ba('prbs_as_validation')} | "
                          f"{ba('designed_as_estimation')} | {ba('prbs_as_estimation')} | "
                          f"{ba('designed_twice')} | {ba('prbs_twice')} |")
-        lines += ["", f"![named truth before and after](design_experiment_study_counts.png)"]
-    lines += ["", f"![inputs and rival prediction gaps](design_experiment_study.png)", ""]
+        lines += ["", "![named truth before and after](design_experiment_study_counts.png)"]
+    lines += ["", "![inputs and rival prediction gaps](design_experiment_study.png)", ""]
     atomic_write_text(out / "design_experiment_study.md", "\n".join(lines))
     atomic_write_text(out / "design_experiment_study.json", json.dumps(rows, indent=1, default=float))
 

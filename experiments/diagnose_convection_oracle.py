@@ -189,7 +189,7 @@ def main(argv=None):
         raise SystemExit("seed sets >= 12 are kept for scoring")
     cmd = "python experiments/diagnose_convection_oracle.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
-    lines = [f"# Each form at its optimum on held-out cases ()", "",
+    lines = ["# Each form at its optimum on held-out cases ()", "",
              f"Made by `{cmd}` (NumPy/SciPy/JAX, independent of the diagnosis' fitting code).",
              "`z b>a`: Diebold-Mariano z that b predicts the validation record better than a.", "",
              "| case:set | kind | N | val MSE base | val MSE red. rad / conv (oracle) / pow | rad share | conv share | exponent | "

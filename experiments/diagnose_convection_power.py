@@ -141,7 +141,7 @@ def main(argv=None):
         raise SystemExit("seed sets 15-19 are reserved for final scoring")
     cmd = "python experiments/diagnose_convection_power.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
-    lines = [f"# Convection: the diagnosis' tests on the true form and on T⁴ ()", "",
+    lines = ["# Convection: the diagnosis' tests on the true form and on T⁴ ()", "",
              f"Made by `{cmd}`. Each cell: estimation likelihood ratio / its critical value, validation "
              "z / its critical value (Bonferroni level ALPHA / K, one parameter per zone), validation MSE "
              "reduction, and whether both tests and `not_worse` pass. `library rad`: the diagnosis' own "

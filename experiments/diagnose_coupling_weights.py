@@ -85,7 +85,7 @@ def main(argv=None) -> None:
     ap.add_argument("--zones", default="6,9,16")
     ap.add_argument("--cache", default=None, help="folder to keep / reuse each N's inputs in (.npz)")
     args = ap.parse_args(argv)
-    lines = [f"# Couplings a pruned joint model keeps", "",
+    lines = ["# Couplings a pruned joint model keeps", "",
              (f"Made by `python experiments/diagnose_coupling_weights.py --zones {args.zones}"
              f"` (see its docstring). Gains weigh "
              "grid gain × rms(input), exchanges per-zone fitted rate × rms(temperature difference); "

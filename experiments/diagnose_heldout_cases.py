@@ -61,7 +61,7 @@ def main(argv=None):
         print(rows[-1], flush=True)
     fmt = lambda v: "-" if v in (None, []) else (", ".join(v) if isinstance(v, list) and v and isinstance(v[0], str)
                                                  else str(v))
-    lines = [f"# Held-out cases, one line each — ", "",
+    lines = ["# Held-out cases, one line each", "",
              (f"Made by `python experiments/diagnose_heldout_cases.py {' '.join(args.cases)} --max-zones "
              f"{args.max_zones}`: {sum(r['right'] for r in rows)}/{len(rows)} right; "
              f"wall {time.perf_counter() - t0:.0f} s, 1-min load {os.getloadavg()[0]:.1f} at the end."), "",

@@ -90,7 +90,7 @@ def _named(r) -> str:
 
 
 def write(rows, args, path: Path) -> None:
-    lines = [f"# `jthermo diagnose` against the number of zones", "",
+    lines = ["# `jthermo diagnose` against the number of zones", "",
              f"Made by `python experiments/diagnose_zone_scaling.py --zones {args.zones} --timeout "
              f"{args.timeout:g}{' --cold' if args.cold else ''}`."
              " Records: `jthermo generate --zones N --effects " + EFFECTS + " --duration 3600 "
