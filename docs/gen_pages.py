@@ -43,6 +43,10 @@ def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
+def _cap(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
 def _option_row(action: argparse.Action) -> str | None:
     if action.help == argparse.SUPPRESS or isinstance(action, argparse._HelpAction):
         return None
@@ -99,7 +103,7 @@ def cli_page() -> str:
     for name, sp in sub.choices.items():
         usage = " ".join(sp.format_usage().split())
         usage = usage.removeprefix("usage: ")
-        lines += ["", f"## jthermo {name}", "", _cell(helps.get(name, "")).capitalize() + ".",
+        lines += ["", f"## jthermo {name}", "", _cap(_cell(helps.get(name, ""))) + ".",
                   "", "```text", usage, "```", "", "| argument | meaning |", "|---|---|"]
         lines += [row for a in sp._actions if (row := _option_row(a)) is not None]
     return "\n".join(lines) + "\n"
@@ -225,33 +229,33 @@ def results_page() -> str:
         ("Every figure of the README and of these pages comes from a study script in "
         "`experiments/` or `benchmarks/`. Each script keeps one results file named after it "
         "(`experiments/x.py` writes `experiments/results/x.md`), overwritten when it is "
-        "rerun; git keeps the history. This page lists, for every script that has a results "
-        "file, the question it answers, the command that reproduces it and the file's first "
-        "table. Wall times in the files were measured on a small shared CPU machine and scale "
-        "with its load (the files give the load beside them); CPU seconds and the numerical "
+        "rerun; git keeps the history. This page lists, for every script, the question it "
+        "answers, the command that reproduces it and the first table of its results file. "
+        "Wall times in the files were measured on a small shared CPU machine and scale with "
+        "its load (the files give the load beside them); CPU seconds and the numerical "
         "results do not."),
         "",
     ]
     for folder in STUDY_DIRS:
         scripts = sorted(p for p in (ROOT / folder).iterdir()
                          if p.suffix in (".py", ".sh") and not p.name.startswith("_"))
-        found = [(s, ROOT / folder / "results" / f"{s.stem}.md") for s in scripts]
-        found = [(s, r) for s, r in found if r.exists()]
+        have = sum((ROOT / folder / "results" / f"{p.stem}.md").exists() for p in scripts)
         lines += [f"## {folder}/", "",
-                  f"{len(found)} scripts with a results file.", ""]
-        for script, res in found:
-            title, table = headline(res.read_text(encoding="utf-8"))
+                  f"{len(scripts)} scripts, {have} with a results file.", ""]
+        for script in scripts:
+            res = ROOT / folder / "results" / f"{script.stem}.md"
+            md = res.read_text(encoding="utf-8") if res.exists() else ""
+            title, table = headline(md)
             run = "bash" if script.suffix == ".sh" else "python"
-            command = recorded_command(res.read_text(encoding="utf-8"), folder, script.name) \
-                or f"{run} {folder}/{script.name}"
+            command = recorded_command(md, folder, script.name) or f"{run} {folder}/{script.name}"
             question = script_question(script)
             lines += [f"### {script.stem}", ""]
             if title and not NOT_A_FINDING.search(title):
                 lines += [f"**{title}**", ""]
             if question and not NOT_A_FINDING.search(question):
                 lines += [question, ""]
-            lines += [(f"Command: `{command}` · results: "
-                      f"`{folder}/results/{res.name}`"), ""]
+            where = f"results: `{folder}/results/{res.name}`" if res.exists() else "no results file"
+            lines += [f"Command: `{command}` · {where}", ""]
             if table:
                 lines += table + [""]
     return "\n".join(lines)
