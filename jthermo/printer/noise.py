@@ -1,6 +1,6 @@
 """The printer's measurement noise drawn one sample at a time inside a closed-loop scan: the
 distribution of the whole-run draw (`Printer.sample_noise`) at about a quarter of its cost
-(0.53 against 1.90 CPU s for N = 16, B = 256, T = 3600: benchmarks/results/simulate_noise_options.md).
+(measured at N = 16, B = 256, T = 3600 by `python benchmarks/simulate_noise_options.py`).
 
 `Printer.sample_noise` draws three float64 normal arrays: the scenario's white noise, the
 `sensor_noise` effect's white part (both on every output) and the innovations of its AR(1)

@@ -1,5 +1,5 @@
-"""Zone fits still falling at their iteration cap are continued (issue 14, held-out set 21 case
-84: a 7-zone saturating lamp named `radiative_loss` at 0.999 against a lamp fit whose heater
+"""Zone fits still falling at their iteration cap are continued (held-out set 21 case 84:
+a 7-zone saturating lamp named `radiative_loss` at 0.999 against a lamp fit whose heater
 gains revive only after 200-800 iterations)."""
 
 import numpy as np

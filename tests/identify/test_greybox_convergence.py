@@ -1,4 +1,4 @@
-"""Issue 12: the grey-box fit says which zones did not converge and by how much a further
+"""The grey-box fit says which zones did not converge and by how much a further
 Gauss–Newton step would still lower their cost."""
 
 import numpy as np
