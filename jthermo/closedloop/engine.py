@@ -87,7 +87,7 @@ class _LinearPlant(eqx.Module):
 
 
 #: the printer scenarios `make_scenario` draws without any recoat (tests/closedloop/
-#: test_substeps.py checks it): `run` integrates the printer in them without the recoat
+#: test_engine_substeps.py checks it): `run` integrates the printer in them without the recoat
 #: sweep, in fewer sub-steps (`Printer.discretise(recoat=False)`)
 RECOAT_FREE_KINDS = ("tracking", "preheat")
 

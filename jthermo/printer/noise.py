@@ -15,7 +15,7 @@ the two white parts as one draw of their summed variance (the same distribution)
 draw in float32 (24-bit normals, far finer than the noise's 0.05 °C steps). Per channel the
 same standard deviation and autocorrelation as `sample_noise`, other draws: a run of
 `closedloop.run` on the printer is a statistically equal, not an identical, realisation of
-`make_scenario`'s noise (`tests/closedloop/test_noise_in_scan.py` checks the statistics;
+`make_scenario`'s noise (`tests/closedloop/test_engine_noise.py` checks the statistics;
 `python benchmarks/simulate_noise_options.py` times both and reports the statistics).
 Deterministic: the same key gives the same stream.
 """

@@ -6,7 +6,7 @@ import numpy as np
 from jthermo.identify.greybox import fit_greybox
 from jthermo.identify.pem import EXPECTED_IMPROVEMENT_TOL
 
-from .test_scale import _bed
+from .test_greybox_scale import _bed
 
 
 def test_converged_flag_matches_zone_report():

@@ -7,7 +7,7 @@ import numpy as np
 import jthermo.diagnose.select as S
 from jthermo.diagnose import diagnose
 from jthermo.diagnose.fitting import FALL_LR, FALL_WINDOW, fit_zones, still_falling
-from tests.diagnose.test_live_gains import lamp_record
+from tests.diagnose.test_mechanisms_gain_starts import lamp_record
 
 
 def test_still_falling_reads_the_fall_in_likelihood_ratio_units():
