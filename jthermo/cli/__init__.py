@@ -84,8 +84,8 @@ BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"
 def one_blas_thread() -> bool:
     """One BLAS thread for the command, unless the user set a thread variable or NumPy is
     already loaded (an in-process caller: too late to matter). OpenBLAS's spinning worker
-    threads made `jthermo fit` 1.3-4.8x slower in wall time and 1.3-5.5x in CPU s at load 7-8
-    on 2 cores (`benchmarks/results/identification_blas.md`). Returns whether it set them."""
+    threads made `jthermo fit` several times slower in wall and CPU time on a busy 2-core
+    machine. Returns whether it set them."""
     if "numpy" in sys.modules or any(v in os.environ for v in BLAS_THREAD_VARS):
         return False
     for v in BLAS_THREAD_VARS:

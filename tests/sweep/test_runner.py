@@ -385,7 +385,7 @@ def test_cli_sweep_writes_a_csv_table(tmp_path):
     assert pd.read_csv(table).id.tolist() == df.id.tolist()
 
 
-# ---------------------------------------------------------------- version salt (issue 18)
+# ---------------------------------------------------------------- version salt
 
 
 def test_trial_ids_depend_on_the_salt_and_the_parameters(monkeypatch):

@@ -16,7 +16,7 @@ from jthermo.errors import ControlError
 from jthermo.tune import group_batch, optimiser, robust_objective, tune
 from jthermo.tune.training import _caster, _robust_objective_jit, best_reference_terms
 from tests.control.loop import bed_plant
-from tests.test_tune import _scenarios
+from tests.tune.test_optimiser import _scenarios
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""Zone fits still falling at their iteration cap are continued (issue 14, held-out set 21 case
-84: a 7-zone saturating lamp named `radiative_loss` at 0.999 against a lamp fit whose heater
+"""Zone fits still falling at their iteration cap are continued (held-out set 21 case 84:
+a 7-zone saturating lamp named `radiative_loss` at 0.999 against a lamp fit whose heater
 gains revive only after 200-800 iterations)."""
 
 import numpy as np
@@ -7,7 +7,7 @@ import numpy as np
 import jthermo.diagnose.select as S
 from jthermo.diagnose import diagnose
 from jthermo.diagnose.fitting import FALL_LR, FALL_WINDOW, fit_zones, still_falling
-from tests.diagnose.test_live_gains import lamp_record
+from tests.diagnose.test_mechanisms_gain_starts import lamp_record
 
 
 def test_still_falling_reads_the_fall_in_likelihood_ratio_units():

@@ -1,4 +1,4 @@
-"""Issue 14: an unmeasured surroundings drift is one signal, fitted over all zones at once."""
+"""An unmeasured surroundings drift is one signal, fitted over all zones at once."""
 
 import jax
 import jax.numpy as jnp

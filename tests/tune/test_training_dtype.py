@@ -15,7 +15,7 @@ from jthermo.tune import batch_terms, group_batch, robust_objective, tune
 from jthermo.tune.training import _caster
 from tests.control.loop import bed_plant
 from tests.helpers import central_difference
-from tests.test_tune import _scenarios
+from tests.tune.test_optimiser import _scenarios
 
 
 def test_float32_objective_gradient_matches_float64_central_differences():

@@ -1,4 +1,4 @@
-"""Candidate fits start with every heater gain alive (issue 14, held-out set 12 case 08: a 5-zone
+"""Candidate fits start with every heater gain alive (held-out set 12 case 08: a 5-zone
 saturating lamp named `radiative_loss` with confidence 0.999).
 
 The linear baseline's non-negative least squares leaves a gain it cannot use at its bound,

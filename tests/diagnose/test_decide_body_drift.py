@@ -1,4 +1,4 @@
-"""Issue 14: a stored-heat body is told from an exogenous drift by its input dependence."""
+"""A stored-heat body is told from an exogenous drift by its input dependence."""
 
 import numpy as np
 

@@ -1,4 +1,4 @@
-"""Issue 12 part 3 (scale): the grey-box bed fitted zone by zone, and the state-space PEM that
+"""Scale: the grey-box bed fitted zone by zone, and the state-space PEM that
 never forms a dense Jacobian over all outputs when it would not fit in memory."""
 
 import jax.numpy as jnp

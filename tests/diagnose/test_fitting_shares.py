@@ -9,7 +9,7 @@ import numpy as np
 from jthermo.diagnose import fitting as F
 from jthermo.diagnose import mechanisms as M
 
-from .test_fitting_speed import _problem
+from .test_fitting_answers import _problem
 
 jax.config.update("jax_enable_x64", True)
 

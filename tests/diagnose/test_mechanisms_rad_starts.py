@@ -1,4 +1,4 @@
-"""Radiation's per-zone fit also starts from steep shares (issue 14, held-out set 11 case 02: from
+"""Radiation's per-zone fit also starts from steep shares (held-out set 11 case 02: from
 the neutral share 0.5 a zone's fit stopped at the iteration cap at 1.18 on its way to 1.75, and
 the lamp exponent was named with confidence 0.999 for natural convection)."""
 

@@ -1,4 +1,4 @@
-"""Issue 14: a finding's effect is read against the sensor noise (`decide.sensor_noise`)."""
+"""A finding's effect is read against the sensor noise (`decide.sensor_noise`)."""
 
 import numpy as np
 

@@ -1,4 +1,4 @@
-"""Issue 12: the ARX screening solves every output and candidate from one QR of the lagged
+"""The ARX screening solves every output and candidate from one QR of the lagged
 columns; its criterion equals the one of separate least-squares fits on explicit regressors."""
 
 import numpy as np

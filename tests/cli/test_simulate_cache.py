@@ -1,7 +1,7 @@
 """`jthermo simulate` with its traced programs kept in the cache directory
 (`stored.exported_call`): the first process writes them, a second reads them and reports the
 same figures, and corrupt files give the same figures again (and are rewritten). A cache
-switched off writes none: tests/test_runtime_export.py."""
+switched off writes none: tests/test_stored_export.py."""
 
 from __future__ import annotations
 

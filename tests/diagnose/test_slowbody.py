@@ -1,4 +1,4 @@
-"""Issue 14: a slow stored-heat body is started from the fitted drift restricted to a body's
+"""A slow stored-heat body is started from the fitted drift restricted to a body's
 form (`slowbody.body_from_drift`), and a drift that does not out-predict a body with fewer
 re-estimated parameters does not go ahead of it (`decide.prefer_fewer_slow`)."""
 

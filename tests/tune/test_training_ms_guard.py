@@ -1,4 +1,4 @@
-"""The guard's peak-sensitivity constraint (issue 16 item 3): among the iterates that pass
+"""The guard's peak-sensitivity constraint: among the iterates that pass
 validation, only those with $M_s \\le$ `ms_max` on the design model may be returned. The
 candidates are built by hand with known $M_s$ and their validation costs replaced by recorded
 numbers (fast: the selection logic, with the real `peak_sensitivity`)."""

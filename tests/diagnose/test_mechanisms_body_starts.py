@@ -1,4 +1,4 @@
-"""A stored-heat body's per-zone fit also starts slow (issue 14, hard set 6 case 04: the neutral
+"""A stored-heat body's per-zone fit also starts slow (hard set 6 case 04: the neutral
 start's fit ended at the shortest time constant allowed, 40 s, for a 1900 s body)."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Issue 14: one-zone records, fractional dead time, slow body vs drift, the decision's null
+"""One-zone records, fractional dead time, slow body vs drift, the decision's null
 behaviour, actuator flags, and real recordings that must not crash."""
 
 from pathlib import Path

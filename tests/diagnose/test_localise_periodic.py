@@ -1,4 +1,4 @@
-"""Periodic drops in coloured residuals (issue 14, hard set 6 case 10: a 185.48 s sweep over three
+"""Periodic drops in coloured residuals (hard set 6 case 10: a 185.48 s sweep over three
 zones at Ts 0.45 s, found at the right period with statistic 6.08 < 7 on plain differences,
 9.58 prewhitened; its validation record, 2.9 periods long, got every phase 0)."""
 

@@ -11,7 +11,7 @@ from jthermo.errors import ControlError
 from jthermo.tune import minimise, tune
 from jthermo.tune.optimiser import lbfgs_direction, wolfe_search
 from tests.control.loop import bed_plant
-from tests.test_tune import _scenarios
+from tests.tune.test_optimiser import _scenarios
 
 
 class Toy(eqx.Module):

@@ -1,5 +1,5 @@
 """`decide.prefer_evidence`: of the candidates tied with the top on the validation record, the one
-with the strongest estimation evidence is named (issue 14)."""
+with the strongest estimation evidence is named."""
 
 from jthermo.diagnose import decide as D
 
