@@ -61,7 +61,7 @@ def main() -> None:
              (f"{args.rollouts} rollouts, stored trajectories (`rollouts`: the full "
               "integration, recoat term kept); the recoat-free integration is that of a printer "
               f"with {SMOOTH_SUBSTEPS} sub-step(s), the recoat term being exactly zero without "
-              "a recoat (equal to `recoat=False` to 1e-10: tests/closedloop/test_substeps.py)."),
+              "a recoat (equal to `recoat=False` to 1e-10: tests/closedloop/test_engine_substeps.py)."),
              "",
              "| scenario | integration | sub-steps | max abs dT °C | rms dT °C | mse | rel. mse change |",
              "|---|---|---|---|---|---|---|"]

@@ -104,9 +104,9 @@ def _in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
 @functools.cache
 def _quick_simulate():
     """`closedloop.simulate` as one program with `runtime.simulate_compile()` options (the
-    scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): the three
-    ran in 4.7-5.2 instead of 19.4-21.0 CPU s cold, eager with default options
-    (`python benchmarks/evaluate_compile.py`, benchmarks/results/evaluate_compile.md)."""
+    scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): cold,
+    the three take a fraction of their CPU time eager with default options (measured by
+    `python benchmarks/evaluate_compile.py`)."""
     import equinox as eqx
 
     from .closedloop import simulate
@@ -366,7 +366,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         fig("validation", figs / "residuals.png", f"Residual tests of the best model ({best})")
         spec = spectral_estimate(val)
         # each heater's own zone and one neighbour coupling: all ny x nu channels of a 4-zone
-        # bed are 32 log axes: 5.8-6.2 against 1.5-1.6 CPU s of drawing (python benchmarks/demo_bode.py)
+        # bed are 32 log axes, several times the drawing time (python benchmarks/demo_bode.py)
         m = models[best]
         chans = [(i, i) for i in range(min(m.n_outputs, m.n_inputs))]
         chans += [(1, 0)] if m.n_outputs > 1 else []

@@ -30,20 +30,21 @@ from .common import (
 
 #: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
 #: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
-#: for pi and 30 for lqg; with 60, pi returns the same controller (benchmarks/results/
-#: tuning_profile_default*.md, tuning_optimisers.json); lqg at 30 steps of learning rate 0.1
-#: (`SHORT_LR`) gives 47.7 % below lambda PI, against 47.5 % at 60 steps of 0.05 and 46.8 %
-#: at 150 (benchmarks/results/tuning_rollouts.jsonl); pi at 40 steps of 0.075 only 13.0 %
+#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by `python
+#: benchmarks/tuning_profile_default.py` and `python benchmarks/tuning_optimisers.py`); lqg at
+#: 30 steps of learning rate 0.1 (`SHORT_LR`) does as well below lambda PI as at 60 steps of
+#: 0.05 or at 150 (measured by `python benchmarks/tuning_rollouts.py`); pi at 40 steps of 0.075
+#: falls short
 SHORT_STEPS = {"pi_lambda": 60, "lqg": 30}
 #: ... and their Adam learning rate where it is not `tune_report`'s 0.05
 SHORT_LR = {"lqg": 0.1}
 #: families whose training rollouts on the virtual printer run in float32 (`tune_report(
-#: train_dtype=...)`; the guard and every held-out figure stay float64): pi 22.33 % below
-#: lambda PI against 22.35 % in float64, for ~15 % less CPU per Adam step; lqg lost 2.2 points
-#: (45.5 %) and stays float64 (benchmarks/results/tuning_rollouts.jsonl)
+#: train_dtype=...)`; the guard and every held-out figure stay float64): pi does as well below
+#: lambda PI as in float64, for less CPU per Adam step; lqg loses points and stays float64
+#: (measured by `python benchmarks/tuning_rollouts.py`)
 TRAIN_DTYPE = {"pi_lambda": "float32"}
 #: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
-#: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
+#: lqg_ff lose 7 and 11 points against the best classical design at 60
 DEFAULT_STEPS = 150
 #: the virtual printer `simulate` and `tune` use when no --zones / --powder is given
 PRINTER_ZONES, PRINTER_POWDER = 4, "PA12"

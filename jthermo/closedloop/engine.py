@@ -87,7 +87,7 @@ class _LinearPlant(eqx.Module):
 
 
 #: the printer scenarios `make_scenario` draws without any recoat (tests/closedloop/
-#: test_substeps.py checks it): `run` integrates the printer in them without the recoat
+#: test_engine_substeps.py checks it): `run` integrates the printer in them without the recoat
 #: sweep, in fewer sub-steps (`Printer.discretise(recoat=False)`)
 RECOAT_FREE_KINDS = ("tracking", "preheat")
 
@@ -219,7 +219,7 @@ def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
 
     `recoat=False` (a printer scenario without any recoat, `RECOAT_FREE_KINDS`): the printer
     is integrated without the recoat sweep (`Printer.discretise(recoat=False)`), within 1e-3 °C
-    of the full integration (benchmarks/results/simulate_substeps.md).
+    of the full integration (measured by `python benchmarks/simulate_substeps.py`).
 
     `noise` (`Printer.noise_stream`): the measurement noise drawn inside the scan instead of
     read from `scenario.v` (`run` does this: the distribution of `scenario.v`, other draws).
@@ -253,7 +253,7 @@ def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
 
 def rollouts(plant, controller: AbstractController, scenarios: Scenario, x0s=None, *,
              plant_axis: int | None = None) -> Trajectory:
-    """A batch of closed-loop runs: vmap over the leading axis of `scenarios` (and `x0s`), and
+    """A batch of closed-loop runs: vmap over the first axis of `scenarios` (and `x0s`), and
     over a stacked batch of plants with `plant_axis=0` (one plant per rollout)."""
     if scenarios.r.ndim != 3:
         raise ConfigError("rollouts: scenarios need a leading rollout axis (make_scenario(..., n_rollouts=B))")
@@ -452,7 +452,8 @@ def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
     traced: one compile for every seed). The measurement noise is drawn inside the scan,
     sample by sample (`rollout_noise`: the scenario's noise distribution, about a quarter of
     its cost): the scenario's `(B, T, ny)` noise is never formed (XLA drops it unread):
-    `jthermo simulate`'s run program before and after in benchmarks/results/simulate_stages*.md."""
+    `jthermo simulate`'s run program's stages are measured by
+    `python benchmarks/simulate_stages.py`."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
     return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,

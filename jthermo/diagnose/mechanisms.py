@@ -399,8 +399,7 @@ GAIN_START_SHARE = 0.02
 def live_gains(log_b) -> np.ndarray:
     """One zone's log heater gains `(nu,)`, each at least `GAIN_START_SHARE` of the largest: a gain
     the baseline left at its bound ($10^{-12}$ of the largest) has no gradient in the log
-    parametrisation (held-out set 12 case 08: three such gains held a zone's lamp fit on a plateau
-    for 100 iterations, unconverged at `N_ITER`: `experiments/results/diagnose_lamp_live_gains.md`)."""
+    parametrisation: such gains hold a zone's lamp fit on a plateau, unconverged at `N_ITER`."""
     lb = np.asarray(log_b, float).ravel()
     return np.maximum(lb, np.max(lb) + math.log(GAIN_START_SHARE))
 
@@ -449,7 +448,7 @@ def body_starts(theta: np.ndarray, lay: Layout, taus=BODY_START_TAUS) -> list:
 
 #: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the neutral
 #: 0.5 a steep loss (ρ > 1, convection) is reached slowly, and a fit stopped at the iteration cap
-#: misjudges the mechanism (held-out set 11 case 02: ρ 1.18 at the cap, 1.75 from these starts)
+#: misjudges the mechanism (a steep loss is read as too shallow at the cap)
 RAD_SHARE_STARTS = (1.5, 3.0)
 
 

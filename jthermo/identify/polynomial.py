@@ -44,13 +44,10 @@ ENGINES = ("auto", "jax", "numpy")
 #: `choose_engine`: the largest work $w = n_y T p$ (output rows x samples x parameters per row)
 #: the NumPy engine takes when two or more cores are free for the compiled one, for rows without
 #: a noise model (OE) and with one (ARMAX, BJ: `nc + nd > 0`, whose compiled Jacobian costs
-#: more). Measured cold in fresh processes on W1 (`benchmarks/polynomial_engine_crossover.py`,
-#: `benchmarks/results/polynomial_engine_crossover_s26.md`): NumPy used less CPU at every row
-#: up to N = 16 and ARMAX at N = 16 (w = 1.8e6) 7.5 against 13.2 CPU s; OE at N = 16 (3.1e6)
-#: 12.5 against 19.6 CPU s, but the compiled engine runs on both cores, and on two idle cores it
-#: was the faster in wall time there (14.0 against 18.2 s, before the NumPy Jacobian's 25 %
-#: speed-up: `identification_default_n16_armax_oe_bj{,_numpy}.md`), so OE keeps it above
-#: 2.5e6; BJ at N = 16 (3.4e6) took 16.5 CPU s with NumPy against 29.3. Beyond: compiled
+#: more). NumPy uses less CPU up to these sizes; the compiled engine runs on both cores, and on
+#: two idle cores it is the faster in wall time for OE above 2.5e6, so OE keeps it there; with a
+#: noise model NumPy stays cheaper further (measured cold in fresh processes by
+#: `python benchmarks/polynomial_engine_crossover.py`). Beyond: compiled
 AUTO_NUMPY_MAX_WORK = 2_500_000
 AUTO_NUMPY_MAX_WORK_NOISE = 3_500_000
 
@@ -166,8 +163,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     solves the output rows and their start points one after another inside one compiled call
     (`lax.map`): one MISO problem's Jacobian $(T, p)$ is held at a time and each row stops at
     its own step count; `"vmap"` solves all $n_y K$ problems together, which on CPU holds them
-    all at once and runs every row to the slowest one's step count (N = 16: peak RSS and time in
-    `benchmarks/results/identification_default_batch_n16_true.md`; same fits). `common_f`:
+    all at once and runs every row to the slowest one's step count (more peak memory and time at
+    N = 16, the same fits; measured by `python benchmarks/identification.py`). `common_f`:
     OE/BJ with one denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
     (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
     MATLAB's $F_{ij}$ per input–output pair. `shape_orders`: orders (`na`, `nb`, `nc`, `nd`,

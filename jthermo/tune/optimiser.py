@@ -31,10 +31,8 @@ from ..runtime import QUICK_COMPILE, accepted
 
 #: XLA compile options of Adam's training-step program (`runtime.accepted`; empty: XLA's
 #: defaults): `runtime.QUICK_COMPILE` (XLA's older CPU fusion emitters) compiles the default
-#: `jthermo tune` step in 8.1-8.4 instead of 13.5-14.9 CPU s for lqg and 4.7-5.8 instead of
-#: 6.9-7.7 for pi, at the same CPU s per step (lqg 0.43 against 0.44-0.49, pi 0.30 against
-#: 0.31; `python benchmarks/tune_program_options.py --program step --controller lqg|pi`,
-#: benchmarks/results/tune_step_options_*_s31_a.md)
+#: `jthermo tune` step in less CPU time for lqg and pi, at the same CPU time per step (measured
+#: by `python benchmarks/tune_program_options.py --program step --controller lqg|pi`)
 STEP_COMPILE: dict = dict(QUICK_COMPILE)
 
 

@@ -58,9 +58,9 @@ def _quick_evaluate():
     """`_evaluate_fn` compiled with `runtime.simulate_compile()` options, and the scenario
     builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
     `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
-    and scenario kind and run once, they took `jthermo demo`'s held-out scenarios of eleven
-    classical designs from 43.6-47.3 to 29.3-33.5 CPU s cold, the same figures to 1e-14 (`python
-    benchmarks/evaluate_compile.py`, benchmarks/results/evaluate_compile.md)."""
+    and scenario kind and run once, they cut the cold CPU time of `jthermo demo`'s held-out
+    scenarios of eleven classical designs by about a third, the same figures to 1e-14 (measured
+    by `python benchmarks/evaluate_compile.py`)."""
     return (eqx.filter_jit(_evaluate_fn, compiler_options=simulate_compile()),
             compiled_make_scenario())
 

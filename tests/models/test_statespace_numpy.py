@@ -1,4 +1,4 @@
-"""Issue 12: the host-side simulation and least-squares initial state of linear models
+"""The host-side simulation and least-squares initial state of linear models
 (`models.statespace_numpy`) equal the JAX path of `validate.compare` they replace."""
 
 import jax.numpy as jnp
