@@ -57,16 +57,29 @@ def _plain(E, P, a, r, F, sig, s0):
     return jax.lax.scan(body, s0, (F, sig))[1]
 
 
-def _zoh_dense(A, Bc, ts):
-    """`mechanisms._zoh` before: `_expm` of the dense $2m \\times 2m$ block matrix."""
+def _taylor_expm(Mt, squarings: int = 10, order: int = 10):
+    """$e^{M}$ by a fixed Taylor series and squaring (branch-free), as `_zoh` computed it before."""
     import jax.numpy as jnp
 
-    import jthermo.diagnose.mechanisms as M
+    X = Mt / (2.0 ** squarings)
+    eye = jnp.eye(Mt.shape[-1], dtype=Mt.dtype)
+    term, out = eye, eye
+    for k in range(1, order + 1):
+        term = term @ X / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def _zoh_dense(A, Bc, ts):
+    """`mechanisms._zoh` before: the Taylor exponential of the dense $2m \\times 2m$ block matrix."""
+    import jax.numpy as jnp
 
     m = A.shape[0]
     dt = A.dtype
     Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
-    F = M._expm(Mt * ts)
+    F = _taylor_expm(Mt * ts)
     return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]
 
 

@@ -25,7 +25,7 @@ HERE = Path(__file__).resolve().parent
 
 
 def child(args) -> None:
-    from jthermo import runtime
+    from jthermo import runtime, stored
 
     runtime.enable_cache()
     runtime.unroll_threefry()
@@ -52,13 +52,13 @@ def child(args) -> None:
     ctrl = jax.block_until_ready(design("pi_lambda", control._printer_model(plant)))
     mark("printer, design model, pi_lambda")
     fn_args = ("tracking", plant, ctrl, args.duration, jax.random.key(0), args.rollouts)
-    exp, arrays = runtime._exported_program(engine._scenario_metrics_fn, fn_args)
+    exp, arrays = stored._exported_program(engine._scenario_metrics_fn, fn_args)
     mark("exported program read")
     had_scipy = "scipy.linalg" in sys.modules
     if not had_scipy:
         import scipy.linalg  # noqa: F401  (what the lowering's LAPACK initialisation imports)
     mark("import scipy.linalg (LAPACK initialisation)" + (" (already loaded)" if had_scipy else ""))
-    lowered = runtime._caller(exp, runtime.simulate_compile()).lower(*arrays)
+    lowered = stored._caller(exp, runtime.simulate_compile()).lower(*arrays)
     mark("lower jit(exported.call)")
     compiled = lowered.compile()
     mark("executable from the persistent cache")
