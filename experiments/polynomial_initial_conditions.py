@@ -19,7 +19,7 @@ seed, jthermo's estimator with the criterion changed in three principled ways:
 
 Columns: validation fit % from rest (the benchmark's figure), its change from `rest`, V from
 rest on the estimation record, and SIPPY's fit on that seed (from the committed
-`benchmarks/results/peers_fit_gap_n4.json` and `peers_fit_gap_n4_seeds3_5.json`).
+`benchmarks/results/peers_fit_gap.json` and `peers_fit_gap_n4_seeds3_5.json`).
 
     python experiments/polynomial_initial_conditions.py --seeds 0 1 2 3 4 5
     -> experiments/results/polynomial_initial_conditions.md
@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 VARIANTS = ("rest", "drop 20", "drop 100", "pinned y0")
-PEER_FILES = ("peers_fit_gap_n4.json", "peers_fit_gap_n4_seeds3_5.json")
+PEER_FILES = ("peers_fit_gap.json",)
 
 
 def criterion(variant: str, base):
