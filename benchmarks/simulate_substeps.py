@@ -83,13 +83,13 @@ def main() -> None:
     B = args.time_rollouts
     lines += ["", f"## The run program at B = {B} (second call, compiled)", "",
               "| path | sub-steps | wall s | CPU s | load | mse |", "|---|---|---|---|---|---|"]
-    full = eqx.filter_jit(lambda p, c, k: engine._run_metrics(p, c, cl.make_scenario(
+    full = eqx.filter_jit(lambda p, c, k: engine.run_metrics(p, c, cl.make_scenario(
         "tracking", p, args.duration, k, n_rollouts=B), True))
     key = jax.random.key(0)
     for label, fn, m in (
             ("earlier (recoat term, 10 sub-steps)", lambda: full(base, ctrl, key),
              base.substeps),
-            ("now (recoat=False)", lambda: engine._scenario_metrics(
+            ("now (recoat=False)", lambda: engine.scenario_metrics(
                 "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
         load_now = load()
         out, wall, cpu = timed(fn)
