@@ -10,7 +10,7 @@ temperatures), the fit % `jthermo fit` reports (simulation fit on the estimation
 orders and the selection path of the physics constraint (`--json`'s `physics`).
 
 Usage:  python experiments/own_device_plausibility.py [--records all|issue|NAME,...]
-            [--families arx,oe,...] [--physics heat|none]
+            [--families arx,oe,...] [--physics heat|none] [--data-dir DIR]
 Writes `experiments/results/own_device_plausibility.md` (overwritten).
 """
 
@@ -121,12 +121,18 @@ def render(rows: list[dict], argv: list[str]) -> str:
 
 
 def main(argv=None) -> None:
+    global REAL
     argv = sys.argv[1:] if argv is None else argv
     ap = argparse.ArgumentParser()
     ap.add_argument("--records", default="issue", help="all, issue, or comma-separated names")
     ap.add_argument("--families", default=",".join(MODEL_FAMILIES))
     ap.add_argument("--physics", default="heat", choices=("heat", "none"))
+    ap.add_argument("--data-dir", default=None,
+                    help="the real recordings (default ../shared/data/real beside the repo)")
     args = ap.parse_args(argv)
+    REAL = Path(args.data_dir) if args.data_dir else REAL
+    shown = [a for k, a in enumerate(argv) if a != "--data-dir" and
+             (k == 0 or argv[k - 1] != "--data-dir")]
     recs = (all_records() if args.records == "all" else ISSUE if args.records == "issue"
             else args.records.split(","))
     rows = []
@@ -138,7 +144,7 @@ def main(argv=None) -> None:
                       flush=True)
                 rows.append(r)
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(render(rows, argv))
+    OUT.write_text(render(rows, shown))
     print(OUT.read_text().splitlines()[4])
 
 
