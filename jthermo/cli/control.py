@@ -158,10 +158,8 @@ def setpoints(text: str) -> list[float]:
 
 
 def _own_plant(args, plant, model_file):
-    """The envelope and operating point of a fitted plant (`models.operating`): the recording
-    stored with the plant's file (else with `model_file`; a stand-in for files without one) and
-    `--setpoint` checked against what the heaters can reach (exit 2 with one line otherwise).
-    The operating point is printed."""
+    """The envelope and (printed) operating point of a fitted plant (`models.operating`): the
+    recording stored with the plant's file (else `model_file`'s; a stand-in without one)."""
     from .. import io
     from ..models.envelope import Envelope
     from ..models.operating import operating_point
@@ -180,9 +178,7 @@ def _own_plant(args, plant, model_file):
     op = operating_point(plant, env, sp)
     info(args, op.line())
     args.operating_point = op
-    import numpy as np
-
-    return env, np.asarray(op.setpoint)
+    return env, op.r
 
 
 def _controller_family(name: str) -> str:

@@ -151,7 +151,7 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
                         **kw) -> tuple[FitResult, list, list | None]:
     """Plausible candidates only (module docstring): `(result, path, order table)`;
     `screen(data, family)` returns the screened `(candidates, table)`."""
-    from .fit import n_params_per_output
+    from .polynomial import n_params_per_output
 
     path, table = [], None
     try:

@@ -31,6 +31,11 @@ class OperatingPoint:
     signals: tuple[float, ...]
     given: bool = False
 
+    @property
+    def r(self) -> np.ndarray:
+        """The set point as an array, °C."""
+        return np.asarray(self.setpoint, np.float64)
+
     def to_dict(self) -> dict:
         return {"setpoint": list(self.setpoint), "signals": list(self.signals),
                 "source": "given" if self.given else "plant default"}
