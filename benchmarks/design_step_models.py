@@ -1,6 +1,6 @@
 """`control.rules.step_models` with its early stop (the step responses end once every diagonal
 one crossed 63.2 % of its gain) against the whole horizon, on the printer's design models
-(`cli.control._printer_model`, 1-16 zones, printer seeds 0 and 3, with and without a coupled
+(`cli.control.stored_printer_model`, 1-16 zones, printer seeds 0 and 3, with and without a coupled
 input transform W): equal K, L, T bit for bit, and the seconds each takes.
 
     python benchmarks/design_step_models.py      # -> results/design_step_models.md
@@ -23,8 +23,8 @@ def _full_horizon(R, ss, W):
     A, B, C, D = (np.asarray(q, np.float64) for q in (ss.A, ss.B, ss.C, ss.D))
     if W is not None:
         B, D = B @ W, D @ W
-    n = R._horizon(ss)
-    S = R._np_step(A, B, C, D, n)
+    n = R.step_horizon(ss)
+    S = R.step_responses(A, B, C, D, n)
     G0 = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
     out = [R.fit_step_model(S[:, i, i], ss.ts, G0[i, i]) for i in range(S.shape[1])]
     return [np.array(v) for v in zip(*out)], n
@@ -37,7 +37,7 @@ def main() -> None:
 
     jax.config.update("jax_enable_x64", True)
     import jthermo.closedloop  # noqa: F401  (REALISTIC_EFFECTS)
-    from jthermo.cli.control import _printer_model
+    from jthermo.cli.control import stored_printer_model
     from jthermo.closedloop import REALISTIC_EFFECTS
     from jthermo.printer import make_printer
 
@@ -46,7 +46,7 @@ def main() -> None:
             "|---|---|---|---|---|---|---|"]
     for z in (1, 4, 9, 16):
         for seed in (0, 3):
-            m = _printer_model(make_printer(z, REALISTIC_EFFECTS, powder="PA12", seed=seed))
+            m = stored_printer_model(make_printer(z, REALISTIC_EFFECTS, powder="PA12", seed=seed))
             ss = R.as_state_space(m)
             rng = np.random.default_rng(z)
             for W in (None, np.eye(z) + 0.1 * rng.standard_normal((z, z))):

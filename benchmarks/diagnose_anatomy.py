@@ -185,7 +185,7 @@ def main() -> None:
             continue
         fit, residual, jac, pick, n_iter, n_active = problems(name, a)
         if name == "fit_joint":
-            src = fitting._first_copies(*a[:4], a[6])
+            src = fitting.first_copies(*a[:4], a[6])
             todo = sorted(set(src.tolist()))
             row = {"call": ci, "name": name, "slots": len(src), "distinct": len(todo),
                    "n_iter": n_iter, "n_active": n_active, "models": []}

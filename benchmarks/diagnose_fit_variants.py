@@ -91,7 +91,7 @@ def main() -> None:
             call = tuple(a[:8]) + (jnp.asarray(budget, jnp.int32),)
             variants = {"as is": (quick, call), "default options": (None, call)}
         else:
-            src = fitting._first_copies(*a[:4], a[6])
+            src = fitting.first_copies(*a[:4], a[6])
             if len(set(src.tolist())) == 1:
                 continue
             budget = np.where(src == np.arange(src.size), a[9], 0).astype(np.int32)

@@ -4,7 +4,7 @@ The first joint fit of `benchmarks/diagnose_profile.py`'s record vmaps 7 models 
 states, T = 3600 samples) and 68 tangents (`benchmarks/diagnose_joint_jacobian.py` times the whole
 Jacobian, 0.81 CPU s). Here, each compiled and run alone (best of 5, CPU s = user + system):
 
-- the zero-order hold's tangents (`mechanisms._zoh` on m × m blocks, and the dense 2m × 2m
+- the zero-order hold's tangents (`mechanisms.zoh_blocks` on m × m blocks, and the dense 2m × 2m
   exponential it replaced);
 - `recurrence.radiative`'s tangent loop $\\dot S_{k+1} = A_k \\dot S_k + G_k$;
 - one of its input terms, $S \\dot E^T$ for every tangent: as `jax.vmap` over the tangents forms
@@ -77,7 +77,7 @@ def main() -> None:
         return (S @ jnp.transpose(dE, (2, 1, 0)).reshape(M, M * K)).reshape(T, M, K)
 
     rows = []
-    for name, fn, args in (("hold tangents, m x m blocks (`_zoh`)", hold(M_._zoh), (A, Bc, dA)),
+    for name, fn, args in (("hold tangents, m x m blocks (`zoh_blocks`)", hold(M_.zoh_blocks), (A, Bc, dA)),
                            ("hold tangents, dense 2m x 2m (before)", hold(_zoh_dense), (A, Bc, dA)),
                            ("tangent loop", loop, (Ak, G)),
                            ("S dE^T, vmap over tangents", g_vmap, (S, dA)),

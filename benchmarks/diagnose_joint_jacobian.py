@@ -10,7 +10,7 @@ call's models), with the coupled simulation's recurrence differentiated three wa
   computed outside the loop);
 - `plain`: the same scan body differentiated by JAX (the code before 71aa95f);
 - `rule, dense hold`: the rule, with the zero-order hold as before (`_zoh_dense`: the dense
-  $2m \\times 2m$ exponential, instead of `mechanisms._zoh`'s $m \\times m$ blocks).
+  $2m \\times 2m$ exponential, instead of `mechanisms.zoh_blocks`'s $m \\times m$ blocks).
 
 CPU s = user + system of the process (load-robust); wall s and the 1-minute load beside.
 
@@ -60,7 +60,7 @@ def _plain(E, P, a, r, F, sig, s0):
 
 
 def _zoh_dense(A, Bc, ts):
-    """`mechanisms._zoh` before: `_expm` of the dense $2m \\times 2m$ block matrix."""
+    """`mechanisms.zoh_blocks` before: `_expm` of the dense $2m \\times 2m$ block matrix."""
     import jax.numpy as jnp
 
     import jthermo.diagnose.mechanisms as M
@@ -129,10 +129,10 @@ def main() -> None:
         return jax.vmap(f, out_axes=1)(tang)
 
     rows, Js = [], {}
-    zoh = M._zoh
+    zoh = M.zoh_blocks
     for name, fn, hold in (("rule", radiative, zoh), ("plain", _plain, zoh),
                            ("rule, dense hold", radiative, _zoh_dense)):
-        M.radiative, M._zoh = fn, hold
+        M.radiative, M.zoh_blocks = fn, hold
         J = jax.jit(jax.vmap(jac))
         c0 = _cpu()
         comp = J.lower(V, on, fper).compile()
@@ -144,7 +144,7 @@ def main() -> None:
             jax.block_until_ready(comp(V, on, fper))
             t.append((time.perf_counter() - w0, _cpu() - c0, ld))
         rows.append((name, c_comp, min(c for _, c, _ in t), min(w for w, _, _ in t), t[0][2]))
-    M.radiative, M._zoh = radiative, zoh
+    M.radiative, M.zoh_blocks = radiative, zoh
     rel = lambda J: float(np.abs(Js["rule"] - J).max() / np.abs(J).max())
     lines = ["# The joint fit's Jacobian: tangent rule against JAX's derivative of the scan", "",
              f"`python benchmarks/diagnose_joint_jacobian.py`: the latency record's first joint fit "

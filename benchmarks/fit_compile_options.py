@@ -1,4 +1,4 @@
-"""Compile options of the PEM solve (`identify.pem`'s `_minimize_jit`, `_minimize_many_jit`):
+"""Compile options of the PEM solve (`identify.pem`'s `_minimize_jit`, `minimize_many_jit`):
 XLA's defaults against `runtime.quick_compile()` (XLA's older CPU fusion emitters) and
 `runtime.simulate_compile()` (those at LLVM -O1), on `jthermo demo`'s fits (4 zones, 3600 s
 PRBS record, the demo's orders and starts, each family in turn) — each mode in a fresh
@@ -37,7 +37,7 @@ def child(mode: str) -> list:
     runtime.unroll_threefry()
     opts = {"default": None, "quick": runtime.quick_compile(), "simulate": runtime.simulate_compile()}[mode]
     pem._minimize_jit = eqx.filter_jit(pem._minimize_impl, compiler_options=opts)
-    pem._minimize_many_jit = eqx.filter_jit(pem._minimize_many_jit.__wrapped__, compiler_options=opts)
+    pem.minimize_many_jit = eqx.filter_jit(pem.minimize_many_jit.__wrapped__, compiler_options=opts)
     p = make_printer(4, demo.ID_EFFECTS, seed=0)
     est = generate(p, "prbs", 3600.0, seed=0)
     val = generate(p, "prbs", 1800.0, seed=1)

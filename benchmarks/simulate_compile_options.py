@@ -2,7 +2,7 @@
 
 Each row is a fresh process with no compilation cache: it builds the N-zone printer, designs
 lambda PI as the command does, then traces, compiles (with the row's options) and runs
-`closedloop.engine._scenario_metrics` (the command's run program: scenarios drawn inside, noise
+`closedloop.engine.scenario_metrics` (the command's run program: scenarios drawn inside, noise
 in the scan, lean metrics) three times. Reported per row, median over `--repeats` processes:
 CPU s (user + system, all threads) and wall s of the compile and of one execution (the median
 of the three), and the mse. A program compiled once per cache but run on every call pays its
@@ -49,7 +49,7 @@ args = ("tracking", plant, ctrl, dur, key, B)
 def clock():
     return time.perf_counter(), time.process_time()
 w, c = clock()
-lowered = engine._scenario_metrics.lower(*args)
+lowered = engine.scenario_metrics.lower(*args)
 w1, c1 = clock()
 compiled = lowered.compile(compiler_options=opts)
 w2, c2 = clock()

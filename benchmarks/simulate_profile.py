@@ -175,7 +175,7 @@ def main() -> None:
     lean = None
     for rep in ("first", "second"):
         lean = stage(rows, f"scenarios + lean metrics, one program as in `run` ({rep} call)",
-                     lambda: engine._scenario_metrics("tracking", plant, ctrl, args.duration,
+                     lambda: engine.scenario_metrics("tracking", plant, ctrl, args.duration,
                                                       key, args.rollouts))
     noise = eqx.filter_jit(lambda k: jax.vmap(lambda kk: plant.sample_noise(
         kk, round(args.duration / plant.ts), 0.05))(jax.random.split(k, args.rollouts)))
@@ -212,7 +212,7 @@ def main() -> None:
         lines.append(f"| {r['stage']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {r['trace']} | "
                      f"{r['lower']} | {r['compile']} | {r['compile_events_s']:.2f} |")
     if args.hlo:
-        lines += ["", *hlo_ops(engine._scenario_metrics, "tracking", plant, ctrl, args.duration,
+        lines += ["", *hlo_ops(engine.scenario_metrics, "tracking", plant, ctrl, args.duration,
                                key, args.rollouts)]
     text = "\n".join(lines) + "\n"
     print(text)

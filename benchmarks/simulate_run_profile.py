@@ -63,7 +63,7 @@ def main() -> None:
     from jthermo.printer import make_printer
 
     plant = make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
-    ctrl = design(args.controller, control._printer_model(plant))
+    ctrl = design(args.controller, control.stored_printer_model(plant))
     key = jax.random.key(0)
     call = (args.kind, plant, ctrl, args.duration, key, args.rollouts)
     options = dict(runtime.simulate_compile())

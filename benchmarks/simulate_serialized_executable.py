@@ -29,12 +29,12 @@ import jax; jax.config.update("jax_enable_x64", True)
 import numpy as np
 from jthermo.closedloop import engine as E
 from jthermo.printer import make_printer
-from jthermo.cli.control import _printer_model
+from jthermo.cli.control import stored_printer_model
 from jthermo import stored
 design = sys.modules["jthermo.control.design"].design
 stamp("imports")
 plant = make_printer(16, E.REALISTIC_EFFECTS, powder="PA12", seed=0)
-ctrl = design("pi_lambda", _printer_model(plant))
+ctrl = design("pi_lambda", stored_printer_model(plant))
 args = ("tracking", plant, ctrl, 3600.0, np.asarray(0, np.int64), 256)
 exp, arrays = stored._exported_program(E._seeded_metrics_fn, args)
 stamp("set-up, export read")

@@ -92,7 +92,7 @@ def command_child(args) -> None:
     plant = jax.block_until_ready(make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12",
                                                seed=0))
     clock.mark("make_printer")
-    model = jax.block_until_ready(control._printer_model(plant))
+    model = jax.block_until_ready(control.stored_printer_model(plant))
     clock.mark("design model (exported program)")
     ctrl = jax.block_until_ready(design("pi_lambda", model))
     clock.mark("design pi_lambda (small programs, eager)")

@@ -61,7 +61,7 @@ def main() -> None:
              (f"{args.rollouts} rollouts, stored trajectories (`rollouts`: the full "
               "integration, recoat term kept); the recoat-free integration is that of a printer "
               f"with {SMOOTH_SUBSTEPS} sub-step(s), the recoat term being exactly zero without "
-              "a recoat (equal to `recoat=False` to 1e-10: tests/closedloop/test_substeps.py)."),
+              "a recoat (equal to `recoat=False` to 1e-10: tests/closedloop/test_engine_substeps.py)."),
              "",
              "| scenario | integration | sub-steps | max abs dT °C | rms dT °C | mse | rel. mse change |",
              "|---|---|---|---|---|---|---|"]
@@ -83,13 +83,13 @@ def main() -> None:
     B = args.time_rollouts
     lines += ["", f"## The run program at B = {B} (second call, compiled)", "",
               "| path | sub-steps | wall s | CPU s | load | mse |", "|---|---|---|---|---|---|"]
-    full = eqx.filter_jit(lambda p, c, k: engine._run_metrics(p, c, cl.make_scenario(
+    full = eqx.filter_jit(lambda p, c, k: engine.run_metrics(p, c, cl.make_scenario(
         "tracking", p, args.duration, k, n_rollouts=B), True))
     key = jax.random.key(0)
     for label, fn, m in (
             ("earlier (recoat term, 10 sub-steps)", lambda: full(base, ctrl, key),
              base.substeps),
-            ("now (recoat=False)", lambda: engine._scenario_metrics(
+            ("now (recoat=False)", lambda: engine.scenario_metrics(
                 "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
         load_now = load()
         out, wall, cpu = timed(fn)

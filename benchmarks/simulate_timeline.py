@@ -77,7 +77,7 @@ def wrap(mod, attr, name):
         return out
     setattr(mod, attr, inner)
 wrap(jp, "make_printer", "make_printer")
-wrap(cc, "_printer_model", "design model (cached arrays)")
+wrap(cc, "stored_printer_model", "design model (cached arrays)")
 wrap(jd, "design", "design pi_lambda")
 wrap(jcl, "run", "closedloop.run (run program: load + execute)")
 from jthermo.cli import main

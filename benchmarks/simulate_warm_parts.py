@@ -49,7 +49,7 @@ def child(args) -> None:
     rows.append(("interpreter start to imports done", time.perf_counter() - T_START,
                  time.process_time()))
     plant = make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
-    ctrl = jax.block_until_ready(design("pi_lambda", control._printer_model(plant)))
+    ctrl = jax.block_until_ready(design("pi_lambda", control.stored_printer_model(plant)))
     mark("printer, design model, pi_lambda")
     fn_args = ("tracking", plant, ctrl, args.duration, jax.random.key(0), args.rollouts)
     exp, arrays = runtime._exported_program(engine._scenario_metrics_fn, fn_args)

@@ -4,7 +4,7 @@
 #   bash benchmarks/test_cache.sh [OUTDIR] [TEST FILES...]
 # (issue 13; the run quoted in the README wrote benchmarks/results/test_cache/).
 out=${1:-benchmarks/results/test_cache}; shift || true
-files=${*:-tests/test_closedloop.py tests/test_tune.py}
+files=${*:-tests/closedloop/test_engine.py tests/tune/test_optimiser.py}
 mkdir -p "$out"; cache=$(mktemp -d)
 for run in nocache cold warm; do
   if [ $run = nocache ]; then E="JTHERMO_NO_CACHE=1"; else E="JTHERMO_CACHE_DIR=$cache"; fi

@@ -5,7 +5,7 @@
 #     bash benchmarks/test_subset_xla_o0.sh > benchmarks/results/test_subset_xla_o0.md
 set -u
 cd "$(dirname "$0")/.."
-TESTS="tests/test_closedloop.py tests/closedloop tests/test_printer.py tests/test_closedloop_compact.py"
+TESTS="tests/closedloop tests/printer/test_plant.py"
 echo "# Test subset, cold compilation cache: XLA default vs --xla_backend_optimization_level=0"
 echo
 echo "\`bash benchmarks/test_subset_xla_o0.sh\`: \`pytest -m 'not slow' $TESTS\`, one process, each run"

@@ -88,7 +88,7 @@ def child(args) -> int:
                               "thread_cpu": time.thread_time()})
         setattr(mod, name, wrapper)
 
-    for mod, name in ((training, "minimise"), (training, "_guard"), (report, "tune"),
+    for mod, name in ((training, "minimise"), (training, "guarded_choice"), (report, "tune"),
                       (report, "_fixed_held_out"), (report, "_training_sets"),
                       (report, "_printer_model"), (report, "robustness")):
         timed(mod, name)

@@ -56,7 +56,7 @@ def child(options: dict, out: str, repeats: int) -> int:
     plants.update(report._gain_plants(pl, 0.2))
     _, batches = report.held_out_study(plants, (training.HELD_OUT,), rollouts=16,
                                        duration=600.0, chunk=len(ens) * 3)
-    ctrls = {"lqg": report._rescaled(design("lqg", model)), **report.classical_designs(model)}
+    ctrls = {"lqg": report.rescaled_start(design("lqg", model)), **report.classical_designs(model)}
     seen, todo = [], {}
     for name, c in ctrls.items():
         s = jax.tree_util.tree_structure(c)
@@ -98,7 +98,7 @@ def child_step(options: dict, out: str, controller: str) -> int:
     pl = report._plant_from("printer", zones=4, powder="PA12", plant_seed=0)
     ens = training.plant_ensemble(pl, 2, seed=0)
     model = report._printer_model(pl)
-    start = report._rescaled(design(fam, model))
+    start = report.rescaled_start(design(fam, model))
     refs = [design(f, model) for f in ("pi_lambda",) if f != fam]
     train, _ = report._training_sets(ens, 16, 600.0, 0)
     optimiser.STEP_COMPILE = options

@@ -36,7 +36,7 @@ def main(argv=None):
     L, P = ctrl.taps, round(PREVIEW_S / pr.ts)
     R = ff_init.event_responses(pr, L, preview=P)
     h_rec, h_las = (np.asarray(h) for h in ff_init.init_schedule_ff(ctrl, pr).effective_taps())
-    cols = [ff_init._shifted(R["G"][m], L) for m in range(pr.n_inputs)]
+    cols = [ff_init.shifted_responses(R["G"][m], L) for m in range(pr.n_inputs)]
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))
     rec = R["recoat"].reshape(-1) + np.concatenate(cols, axis=1) @ h_rec.T.reshape(-1)
     out = {"taps": L, "preview": P, "horizon": int(R["G"].shape[1]),
