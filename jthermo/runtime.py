@@ -23,8 +23,8 @@ process: the command runs as without it.
 factorisation or solve to a loop over single matrices, so that no LAPACK kernel waits on XLA's
 CPU thread pool: two programs running at once (threads) can then never deadlock there. The
 command, the test suite and every library function that runs programs on two threads switch it
-on; on `jthermo tune`'s 16-zone path it also measured faster than running the two threads'
-work one after the other (module docstring of `tune.report`).
+on (`python experiments/printer_scale.py --ab` compares it with running `tune_report`'s two
+threads' work one after the other).
 
 **Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
 compilation and sums the union of their time spans (nested traces count once); `run_s` is the
@@ -75,7 +75,8 @@ COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/backend_compile_duration")
 
 #: the process's compilation cache: its directory (`dir`, None when off) and why it is off
-#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering, `lapack` once
+#: `one_matrix_at_a_time` did, `looped` the batched LAPACK calls it has lowered to loops
 state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
@@ -280,10 +281,10 @@ def one_matrix_at_a_time() -> bool:
     and cheap after the first call: the CLI calls it at start-up, and every library function
     that runs compiled programs on more than one thread calls it before it starts them.
     Returns False, changing nothing, where this JAX lacks the internals it relies on."""
-    if _state.get("lapack") == "one matrix at a time":
+    if state.get("lapack") == "one matrix at a time":
         return True
     with _install_lock:
-        if _state.get("lapack") == "one matrix at a time":
+        if state.get("lapack") == "one matrix at a time":
             return True
         try:
             from jax._src.interpreters import mlir
@@ -297,7 +298,7 @@ def one_matrix_at_a_time() -> bool:
             return False
         for prim, (ranks, rule) in rules.items():
             mlir.register_lowering(prim, _looped_lowering(prim, ranks, rule), platform="cpu")
-        _state["lapack"] = "one matrix at a time"
+        state["lapack"] = "one matrix at a time"
     import jax
 
     jax.clear_caches()   # nothing compiled before the rule runs again
@@ -319,7 +320,7 @@ def _looped_lowering(prim, ranks, rule):
         count = math.prod(batch)
         if count <= 1 or not all(isinstance(d, int) for d in batch):
             return rule(ctx, *args, **params)
-        _state["looped"] = _state.get("looped", 0) + 1
+        state["looped"] = state.get("looped", 0) + 1
 
         def looped(*ops):
             flat = [o.reshape((count, *o.shape[len(batch):])) for o in ops]
@@ -336,13 +337,13 @@ def _looped_lowering(prim, ranks, rule):
 def looped_calls() -> int:
     """How many batched LAPACK calls `one_matrix_at_a_time` has lowered to a loop so far in
     this process (a lowering loaded from the persistent cache is not counted)."""
-    return int(_state.get("looped", 0))
+    return int(state.get("looped", 0))
 
 
 def lowering_tags() -> str:
     """The lowering swaps of this process (`unroll_threefry`, `one_matrix_at_a_time`), as
     one string: part of `stored.exported_call`'s key."""
-    return f"threefry={_state.get('threefry')} lapack={_state.get('lapack')}"
+    return f"threefry={state.get('threefry')} lapack={state.get('lapack')}"
 
 
 # ---------------------------------------------------------------- the CPU backend's threads

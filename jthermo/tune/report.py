@@ -369,10 +369,9 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     plants' steady states, 9 x 33 x 33), which jaxlib's batched LAPACK kernels deal to XLA's
     CPU pool and wait for: two at once deadlocked a two-core machine (every thread asleep),
     so they are lowered one matrix at a time first (`runtime.one_matrix_at_a_time`, the same
-    figures bit for bit). Measured against no second thread (its work in turn on this one,
-    batched kernels) on `lqg` at 16 zones, 10 steps, 16 rollouts, load about 13 on 2 cores:
-    cold 325 against 571 s wall (105 against 138 CPU s), warm 312 against 300 s wall (84
-    against 90 CPU s), the same report (`python experiments/printer_scale.py --zones '' --ab`).
+    figures bit for bit). Against no second thread (its work in turn on this one, with the
+    batched kernels) this measured faster on `lqg` at 16 zones cold and about equal warm, with
+    the same report (`python experiments/printer_scale.py --zones '' --ab`).
     The main thread names its stages for the watchdog (`progress.stage`), the second one
     each task it runs.
 
