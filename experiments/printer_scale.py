@@ -103,7 +103,8 @@ def _f(v, nd=1):
 
 
 def render(rows, ab, load) -> str:
-    lines = ["# `jthermo tune` on the virtual printer at 9, 16 and 19 zones", "",
+    zones = ", ".join(str(z) for z in sorted({r["zones"] for r in rows})) or "no"
+    lines = [f"# `jthermo tune` on the virtual printer at its scale ({zones} zones measured)", "",
              "Measured on a shared, loaded 2-core machine (other jobs ran meanwhile; 1-minute "
              f"load average {load}): wall times are upper bounds, CPU s (user+sys of the child) "
              "the steadier figure. Seed 11, CLI defaults otherwise; `cold` on an empty "
@@ -125,7 +126,7 @@ def render(rows, ab, load) -> str:
                      f"last stderr line: `{r['stderr'][:300]}`")
     if ab:
         lines += ["", "## Two threads with LAPACK one matrix at a time, or one thread", "",
-                  "`tune_report('lqg', zones=16, rollouts=16, steps=S, seed=11, lr=0.1)` in its "
+                  "`tune_report('lqg', zones=16, rollouts=16, steps=10, seed=11, lr=0.1)` (`--ab-steps`) in its "
                   "own process: `threads` as shipped (`runtime.one_matrix_at_a_time`), `serial` "
                   "the second thread's work run in turn on the main thread with the batched "
                   "kernels. Same improvement in every run (bit-equal reports).", "",
