@@ -245,8 +245,7 @@ ONE_THREAD_MAX_CPUS = 2
 
 #: 1-minute load average, per schedulable CPU beyond the first, from which a machine counts
 #: as busy (`busy`): on an idle machine two threads run `jthermo simulate` slightly faster in
-#: wall time for more CPU time, on a busy one a single thread is faster (measured by
-#: `python benchmarks/simulate_threads.py`)
+#: wall time for more CPU time, on a busy one a single thread is faster
 BUSY_LOAD_PER_CPU = 1.0
 
 
@@ -267,8 +266,7 @@ def one_thread_backend() -> bool:
     made, then every thread of the process is given all its CPUs back. `jthermo simulate`'s
     programs are loops of small operations (B x n = 256 x 33) that a second thread only
     slows: on 2 shared cores both the run program and its first call (trace, compile, run)
-    take less CPU time with one thread, the same figures bit for bit (measured by `python
-    benchmarks/simulate_threads.py`).
+    take less CPU time with one thread, the same figures bit for bit.
 
     Returns False, changing nothing, where the backend exists already, the platform cannot
     set CPU affinities, or the process may use more than `ONE_THREAD_MAX_CPUS` CPUs."""

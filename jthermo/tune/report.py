@@ -59,8 +59,7 @@ def quick_evaluate():
     builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
     `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
     and scenario kind and run once, they cut the cold CPU time of `jthermo demo`'s held-out
-    scenarios of eleven classical designs by about a third, the same figures to 1e-14 (measured
-    by `python benchmarks/evaluate_compile.py`)."""
+    scenarios of the classical designs, with the same figures."""
     return (eqx.filter_jit(_evaluate_fn, compiler_options=simulate_compile()),
             compiled_make_scenario())
 
