@@ -22,9 +22,9 @@ nuisances, linearised (weighted least squares); a transient from an unknown star
 nothing. Criterion `"nuisance_drift"` lets every model re-estimate a drift
 in every case: with the drift among the rivals, a slow body's input-driven warming then
 separated nothing from the baseline either, and the design avoided exactly the slow power swings
-that make a body significant (`experiments/results/design_experiment.md`, body case); with the
-drift not among them, letting it follow nothing made the design's slow swings go to a drift
-(radiation case, `design_experiment_own_drift.md`). (The first criterion, `"span"`, projected
+that make a body significant (`experiments/results/design_experiment_study.md`, body case);
+with the drift not among them, letting it follow nothing made the design's slow swings go to a
+drift (radiation case). (The first criterion, `"span"`, projected
 onto a constant per zone and the raw drift hats only: it counted the decay of an unknown initial
 state as separation.) With three models (the top finding and two rivals, or with no rival the
 runner-up and the baseline) the design maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair

@@ -144,8 +144,7 @@ def rescaled_start(ctrl):
     units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
     moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
     against integral gains per sample far below that destabilised the loop in one step (on the
-    4-zone printer: training objective 0 -> 19 after the first Adam step,
-    experiments/results/schedule_ff_study_ff_init.json)."""
+    4-zone printer, the first Adam step)."""
     if isinstance(ctrl, MIMOPI):
         return ctrl.rescaled()
     if isinstance(ctrl, ScheduleFF) and isinstance(ctrl.feedback, MIMOPI):
