@@ -16,7 +16,8 @@ from ..data import IOData, from_arrays
 from ..errors import ConfigError
 from ..runtime import one_shot
 from .geometry import AREA_NAMES
-from .plant import Printer, PrinterDisturbance, PrinterState, steady_state
+from .plant import Printer, steady_state
+from .state import PrinterDisturbance, PrinterState
 
 # ----------------------------------------------------------------------------- disturbances
 
