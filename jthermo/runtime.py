@@ -19,6 +19,13 @@ be read or written (a lock timeout, a full disk) makes JAX compile as if it were
 A directory that cannot be created or written (a read-only home) turns the cache off for the
 process: the command runs as without it.
 
+**LAPACK on the CPU, one matrix at a time.** `one_matrix_at_a_time()` lowers every batched
+factorisation or solve to a loop over single matrices, so that no LAPACK kernel waits on XLA's
+CPU thread pool: two programs running at once (threads) can then never deadlock there. The
+command, the test suite and every library function that runs programs on two threads switch it
+on (`python experiments/printer_scale.py --ab` compares it with running `tune_report`'s two
+threads' work one after the other).
+
 **Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
 compilation and sums the union of their time spans (nested traces count once); `run_s` is the
 rest of the wall time.
@@ -68,10 +75,12 @@ COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/backend_compile_duration")
 
 #: the process's compilation cache: its directory (`dir`, None when off) and why it is off
-#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering, `lapack` once
+#: `one_matrix_at_a_time` did, `looped` the batched LAPACK calls it has lowered to loops
 state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
+_install_lock = threading.Lock()
 _listening = False
 
 
@@ -234,6 +243,107 @@ def unroll_threefry() -> bool:
     mlir.register_lowering(prim, rule, platform="cpu")
     state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
     return True
+
+
+# ---------------------------------------------------------------- LAPACK, one matrix at a time
+
+
+#: the CPU-lowered LAPACK primitives of `jax._src.lax.linalg` and the core rank of each
+#: operand (the leading dimensions beyond it are batch dimensions)
+_LAPACK_RANKS = {"cholesky_p": (2,), "eig_p": (2,), "eigh_p": (2,), "geqp3_p": (2, 1),
+                 "geqrf_p": (2,), "hessenberg_p": (2,), "householder_product_p": (2, 1),
+                 "lu_p": (2,), "ormqr_p": (2, 1, 2), "schur_p": (2,), "svd_p": (2,),
+                 "triangular_solve_p": (2, 2), "tridiagonal_p": (2,),
+                 "tridiagonal_solve_p": (1, 1, 1, 2)}
+
+
+def one_matrix_at_a_time() -> bool:
+    """Lower every LAPACK call on the CPU with batch dimensions (a factorisation or solve
+    under `jax.vmap`, or of a stack of matrices) to a loop (`lax.map`) over single matrices.
+
+    Why: jaxlib's CPU LAPACK kernels (LU, triangular solve, Cholesky, QR, eig, eigh, SVD,
+    Schur, ...) deal a batch whose work exceeds 2e5 flops to XLA's intra-op thread pool in
+    chunks and block the pool thread they run on until the chunks are done
+    (`ParallelBatchMap` in jaxlib 0.10's `cpu/lapack_kernels.cc`). Two such kernels running
+    at once, from two programs on two Python threads or from two independent operations of
+    one program, hold both threads of a two-thread pool (two cores) and wait for good: the
+    hang of `jthermo tune --plant printer --zones 16` (gdb: both `tf_XLAEigen` threads in
+    `LuDecomposition::Kernel` -> `ParallelBatchMap` -> `BlockingCounter::Wait`), as of the
+    diagnosis's split fits before (`identify/lm.py`). A kernel given one matrix runs it in
+    its own thread and never schedules onto the pool, so no factorisation can wait on the
+    pool whatever runs beside it: deadlock-free by construction, for every caller, not only
+    the call sites known today. Same results: each matrix goes through the same LAPACK
+    routine; transformations (grad, vmap) are unaffected (the rule acts at lowering).
+
+    Changes the lowering of every program compiled afterwards in this process (and the keys
+    of `stored.exported_call`, `lowering_tags`); on first use it empties JAX's in-memory
+    caches, so that no program compiled before (with a batched kernel) runs again. Idempotent
+    and cheap after the first call: the CLI calls it at start-up, and every library function
+    that runs compiled programs on more than one thread calls it before it starts them.
+    Returns False, changing nothing, where this JAX lacks the internals it relies on."""
+    if state.get("lapack") == "one matrix at a time":
+        return True
+    with _install_lock:
+        if state.get("lapack") == "one matrix at a time":
+            return True
+        try:
+            from jax._src.interpreters import mlir
+            from jax._src.lax import linalg
+
+            cpu = mlir._platform_specific_lowerings["cpu"]
+            rules = {getattr(linalg, name): (ranks, cpu[getattr(linalg, name)].rule)
+                     for name, ranks in _LAPACK_RANKS.items()
+                     if getattr(linalg, name, None) in cpu}
+        except (ImportError, AttributeError, KeyError):
+            return False
+        for prim, (ranks, rule) in rules.items():
+            mlir.register_lowering(prim, _looped_lowering(prim, ranks, rule), platform="cpu")
+        state["lapack"] = "one matrix at a time"
+    import jax
+
+    jax.clear_caches()   # nothing compiled before the rule runs again
+    return True
+
+
+def _looped_lowering(prim, ranks, rule):
+    """The CPU lowering of `prim`: `rule` itself for an unbatched call, else a `lax.map` of
+    `prim` over the flattened batch (each inner call lowers through `rule`, one matrix)."""
+    import math
+
+    import jax
+
+    from jax._src.interpreters import mlir
+
+    def lower(ctx, *args, **params):
+        shape0 = ctx.avals_in[0].shape
+        batch = tuple(shape0[:len(shape0) - ranks[0]])
+        count = math.prod(batch)
+        if count <= 1 or not all(isinstance(d, int) for d in batch):
+            return rule(ctx, *args, **params)
+        state["looped"] = state.get("looped", 0) + 1
+
+        def looped(*ops):
+            flat = [o.reshape((count, *o.shape[len(batch):])) for o in ops]
+            out = jax.lax.map(lambda xs: prim.bind(*xs, **params), flat)
+            outs = out if prim.multiple_results else [out]
+            outs = [o.reshape((*batch, *o.shape[1:])) for o in outs]
+            return outs if prim.multiple_results else outs[0]
+
+        return mlir.lower_fun(looped, multiple_results=prim.multiple_results)(ctx, *args)
+
+    return lower
+
+
+def looped_calls() -> int:
+    """How many batched LAPACK calls `one_matrix_at_a_time` has lowered to a loop so far in
+    this process (a lowering loaded from the persistent cache is not counted)."""
+    return int(state.get("looped", 0))
+
+
+def lowering_tags() -> str:
+    """The lowering swaps of this process (`unroll_threefry`, `one_matrix_at_a_time`), as
+    one string: part of `stored.exported_call`'s key."""
+    return f"threefry={state.get('threefry')} lapack={state.get('lapack')}"
 
 
 # ---------------------------------------------------------------- the CPU backend's threads

@@ -18,6 +18,7 @@ from jthermo import runtime  # noqa: E402
 
 runtime.enable_cache(None if os.environ.get(runtime.ENV_DIR)
                      else runtime.default_cache_dir().with_name("jax-tests"))
+runtime.one_matrix_at_a_time()   # as the command does: no LAPACK kernel waits on XLA's pool
 
 
 @pytest.fixture

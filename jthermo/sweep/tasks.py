@@ -171,6 +171,9 @@ _TRIAL_FUNCS: dict[str, Callable[[dict, dict], dict]] = {
 def run_trial(kind: str, trial: dict, settings: dict) -> dict:
     """Run one trial in float64 (scoped); never raises: failures are recorded with their
     one-line reason."""
+    from ..runtime import one_matrix_at_a_time
+
+    one_matrix_at_a_time()   # a worker process: LAPACK one matrix at a time, as the CLI's
     t0 = time.perf_counter()
     record: dict[str, Any] = {"id": trial["id"], "params": trial["params"], "kind": kind,
                               "salt": trial_salt()}
