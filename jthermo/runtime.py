@@ -19,6 +19,12 @@ be read or written (a lock timeout, a full disk) makes JAX compile as if it were
 A directory that cannot be created or written (a read-only home) turns the cache off for the
 process: the command runs as without it.
 
+**Compiled programs.** Every XLA CPU executable keeps memory maps of its code, and Linux
+allows a process `vm.max_map_count` of them: `guard`, called by the library where its fits,
+diagnoses and sweep trials start, drops the process's compiled programs (JAX's caches and the
+library's one bounded cache of program factories, `program_factory`) once the maps reach
+`map_bound()`, so a long-lived process never nears the limit and no caller clears caches.
+
 **Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
 compilation and sums the union of their time spans (nested traces count once); `run_s` is the
 rest of the wall time.
@@ -366,3 +372,132 @@ def cache_dir() -> Path | None:
 def threefry_lowering() -> str | None:
     """"unrolled" once `unroll_threefry` swapped the CPU lowering in, else None."""
     return _state.get("threefry")
+
+
+# ---------------------------------------------------------------- the process's compiled programs
+
+#: memory maps at which `guard` drops the process's compiled programs. Every XLA CPU executable
+#: keeps memory maps of its code and Linux allows a process `vm.max_map_count` of them (65,530
+#: by default): past it LLVM aborts the process ("Unable to allocate section memory"), with no
+#: Python exception. The bound is this or half the system's limit, whichever is lower.
+MAP_BOUND = 30_000
+#: entries of the library's one cache of program factories (`program_factory`), least recently
+#: used dropped first
+FACTORY_CACHE_SIZE = 64
+_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+
+_guard = {"compiled": 0, "checked_at": -1, "clears": 0, "maps": None, "listening": False}
+_factories: "dict[tuple, object]" = {}
+_factory_lock = threading.Lock()
+
+
+def _on_duration(event: str, duration: float, **_) -> None:
+    if event == _COMPILE_EVENT:
+        _guard["compiled"] += 1
+
+
+def count_compiles() -> None:
+    """Count the programs this process compiles from now on (JAX's backend-compile events; a
+    program loaded from the persistent cache counts too: it is mapped all the same)."""
+    with _factory_lock:
+        if _guard["listening"]:
+            return
+        _guard["listening"] = True
+    import jax.monitoring
+
+    jax.monitoring.register_event_duration_secs_listener(_on_duration)
+
+
+def compiled_programs() -> int:
+    """Programs compiled (or loaded) since `count_compiles` was first called."""
+    return _guard["compiled"]
+
+
+def memory_maps() -> int | None:
+    """The process's memory maps (lines of `/proc/self/maps`); None where there is none."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return None
+
+
+@functools.cache
+def map_bound() -> int:
+    """`MAP_BOUND`, or half of `/proc/sys/vm/max_map_count` where that is lower."""
+    try:
+        limit = int(Path("/proc/sys/vm/max_map_count").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return MAP_BOUND
+    return min(MAP_BOUND, max(limit // 2, 1))
+
+
+def program_factory(fn):
+    """Decorator: `fn(*key)` (a function that builds a compiled program, e.g. returns an
+    `eqx.filter_jit`) memoised in the library's one cache of program factories, bounded to
+    `FACTORY_CACHE_SIZE` entries over all factories (least recently used dropped first) and
+    emptied by `clear_programs`. Arguments must be hashable (as for `functools.cache`)."""
+
+    @functools.wraps(fn)
+    def get(*args):
+        key = (fn.__module__, fn.__qualname__) + args
+        with _factory_lock:
+            if key in _factories:
+                _factories[key] = _factories.pop(key)      # most recently used last
+                return _factories[key]
+        value = fn(*args)
+        with _factory_lock:
+            _factories[key] = value
+            while len(_factories) > FACTORY_CACHE_SIZE:
+                _factories.pop(next(iter(_factories)))
+        return value
+
+    get.cache_clear = lambda: _clear_factory(fn)
+    return get
+
+
+def _clear_factory(fn) -> None:
+    with _factory_lock:
+        for key in [k for k in _factories if k[:2] == (fn.__module__, fn.__qualname__)]:
+            del _factories[key]
+
+
+def clear_programs() -> None:
+    """Drop every compiled program of the process: JAX's caches (`jax.clear_caches`) and the
+    library's program factories. Nothing is lost but time: a program needed again is traced
+    again and compiled, or loaded from the persistent cache (`enable_cache`)."""
+    import gc
+
+    import jax
+
+    with _factory_lock:
+        _factories.clear()
+    jax.clear_caches()
+    gc.collect()
+
+
+def guard() -> bool:
+    """Keep the process below `map_bound()` memory maps: where programs were compiled since
+    the last look and the maps reach the bound, `clear_programs()`. Called by the library at
+    the entry of its fits and sweep trials (outside every JAX trace), so a long-lived process
+    (a notebook, a study, a sweep worker) never nears Linux's limit and no caller has to clear
+    JAX's caches. Cheap: one read of `/proc/self/maps` after a compile, none otherwise.
+    True when it cleared."""
+    count_compiles()
+    if _guard["compiled"] == _guard["checked_at"] or not top_level():
+        return False
+    _guard["checked_at"] = _guard["compiled"]
+    n = memory_maps()
+    _guard["maps"] = n
+    if n is None or n < map_bound():
+        return False
+    clear_programs()
+    _guard["clears"] += 1
+    _guard["maps"] = memory_maps()
+    return True
+
+
+def guard_info() -> dict:
+    """`{"bound", "clears", "maps" (at the last look), "compiled"}` of this process's guard."""
+    return {"bound": map_bound(), "clears": _guard["clears"], "maps": _guard["maps"],
+            "compiled": _guard["compiled"]}
