@@ -379,12 +379,16 @@ def threefry_lowering() -> str | None:
 #: memory maps at which `guard` drops the process's compiled programs. Every XLA CPU executable
 #: keeps memory maps of its code and Linux allows a process `vm.max_map_count` of them (65,530
 #: by default): past it LLVM aborts the process ("Unable to allocate section memory"), with no
-#: Python exception. The bound is this or half the system's limit, whichever is lower.
-MAP_BOUND = 30_000
+#: Python exception. The bound is this or a third of the system's limit, whichever is lower:
+#: the maps one job adds between two guards (a state-space fit ~1,300, a record generated
+#: ~300: `python benchmarks/memory_maps.py`) then keep a process well below 30,000.
+MAP_BOUND = 20_000
 #: entries of the library's one cache of program factories (`program_factory`), least recently
 #: used dropped first
 FACTORY_CACHE_SIZE = 64
-_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+#: JAX's duration events of a program made: compiled, or read from the persistent cache
+_PROGRAM_EVENTS = ("/jax/core/compile/backend_compile_duration",
+                   "/jax/compilation_cache/cache_retrieval_time_sec")
 
 _guard = {"compiled": 0, "checked_at": -1, "clears": 0, "maps": None, "listening": False}
 _factories: "dict[tuple, object]" = {}
@@ -392,7 +396,7 @@ _factory_lock = threading.Lock()
 
 
 def _on_duration(event: str, duration: float, **_) -> None:
-    if event == _COMPILE_EVENT:
+    if event in _PROGRAM_EVENTS:
         _guard["compiled"] += 1
 
 
@@ -424,12 +428,12 @@ def memory_maps() -> int | None:
 
 @functools.cache
 def map_bound() -> int:
-    """`MAP_BOUND`, or half of `/proc/sys/vm/max_map_count` where that is lower."""
+    """`MAP_BOUND`, or a third of `/proc/sys/vm/max_map_count` where that is lower."""
     try:
         limit = int(Path("/proc/sys/vm/max_map_count").read_text().split()[0])
     except (OSError, ValueError, IndexError):
         return MAP_BOUND
-    return min(MAP_BOUND, max(limit // 2, 1))
+    return min(MAP_BOUND, max(limit // 3, 1))
 
 
 def program_factory(fn):
