@@ -90,6 +90,10 @@ def main(argv=None) -> int:
     if a.bound is not None:
         runtime.MAP_BOUND = a.bound
     jax.monitoring.register_event_duration_secs_listener(_on_event)
+    shown = list(argv if argv is not None else sys.argv[1:])
+    if "--out" in shown:                      # where it was written is no part of the figures
+        i = shown.index("--out")
+        del shown[i:i + 2]
     rows, t_all = [], time.perf_counter()
     m0 = maps()
     print(f"start: {m0} maps", flush=True)
@@ -105,7 +109,7 @@ def main(argv=None) -> int:
             print(f"{fam} fit {i + 1}: N={z} T={length} maps={m} compiled={c} "
                   f"clears={g['clears']} {rows[-1][-1]:.2f}s", flush=True)
     lines = ["# Memory maps of one process fitting records of many lengths", "",
-             f"`python benchmarks/memory_maps.py {' '.join(argv if argv is not None else sys.argv[1:])}`"
+             f"`python benchmarks/memory_maps.py {' '.join(shown)}`"
              f" (measured on a shared, loaded machine: load {os.getloadavg()[0]:.1f} at the end; "
              f"{time.perf_counter() - t_all:.0f} s in all). Records of N = {a.zones} zones, "
              f"lengths {a.start}, {a.start + a.step}, ... s, source `{a.source}`; Linux's limit "
