@@ -19,11 +19,9 @@ be read or written (a lock timeout, a full disk) makes JAX compile as if it were
 A directory that cannot be created or written (a read-only home) turns the cache off for the
 process: the command runs as without it.
 
-**Compiled programs.** Every XLA CPU executable keeps memory maps of its code, and Linux
-allows a process `vm.max_map_count` of them: `guard`, called by the library where its fits,
-diagnoses and sweep trials start, drops the process's compiled programs (JAX's caches and the
-library's one bounded cache of program factories, `program_factory`) once the maps reach
-`map_bound()`, so a long-lived process never nears the limit and no caller clears caches.
+**Compiled programs.** `guard`, called where the library's fits, diagnoses and sweep trials
+start, drops the process's compiled programs (JAX's caches, `program_factory`'s) once its
+memory maps reach `map_bound()`: a long-lived process never nears Linux's limit.
 
 **Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
 compilation and sums the union of their time spans (nested traces count once); `run_s` is the
@@ -33,6 +31,7 @@ rest of the wall time.
 from __future__ import annotations
 
 import functools
+import gc
 import os
 import tempfile
 import threading
@@ -52,28 +51,30 @@ MAX_CACHE_BYTES = 4 * 1024**3
 
 #: XLA options for a program a process runs once, on small arrays (the printer's design point):
 #: LLVM at -O0 and XLA's older (non-MLIR) CPU fusion emitters compile it in a fraction of the
-#: CPU time (`python benchmarks/one_shot_compile.py`, benchmarks/results/one_shot_compile*.md),
+#: CPU time (measured by `python benchmarks/one_shot_compile.py`),
 #: and its run time is negligible either way. Never for a program inside a loop: -O0 code runs
 #: several times slower.
 ONE_SHOT = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 #: XLA options for a program compiled once per cache and run once per command (`jthermo
-#: simulate`'s run program): XLA's older CPU fusion emitters compile it in 3.60 instead of 5.77
-#: CPU s and run it in 1.47 instead of 1.33 CPU s, with the same figures bit for bit
-#: (N = 16, B = 256, T = 3600: `python benchmarks/simulate_compile_options.py`)
+#: simulate`'s run program): XLA's older CPU fusion emitters compile it in less time than they
+#: cost in run time, with the same figures bit for bit (measured at N = 16, B = 256, T = 3600 by
+#: `python benchmarks/simulate_compile_options.py`)
 QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
-#: XLA options for `jthermo simulate`'s run program: `QUICK_COMPILE` with LLVM at -O1: compile
-#: 2.75 -> 2.52 CPU s, execution 1.28 -> 1.24 CPU s, mse equal to 1e-16 relative (N = 16,
-#: B = 256, T = 3600: benchmarks/results/simulate_compile_options_s26.md)
+#: XLA options for `jthermo simulate`'s run program: `QUICK_COMPILE` with LLVM at -O1: a
+#: shorter compile and no slower execution, mse equal to 1e-16 relative (measured by
+#: `python benchmarks/simulate_compile_options.py`)
 SIMULATE_COMPILE = {**QUICK_COMPILE, "xla_backend_optimization_level": 1}
 #: the options above that an XLA lacking them refuses ("No such compile option")
-_NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
+NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")
 
-_state: dict = {"dir": None, "reason": "not enabled"}
+#: the process's compilation cache: its directory (`dir`, None when off) and why it is off
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
 _listening = False
@@ -141,7 +142,7 @@ def enable_cache(path: str | os.PathLike | None = None) -> Path | None:
         jax.config.update(name, value)
         # worker processes (sweeps) inherit the cache
         os.environ[name.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
-    _state.update(dir=target, reason=None)
+    state.update(dir=target, reason=None)
     return target
 
 
@@ -153,14 +154,14 @@ def disable_cache(reason: str = "disabled") -> None:
     jax.config.update("jax_enable_compilation_cache", False)
     os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
     os.environ[ENV_OFF] = "1"
-    _state.update(dir=None, reason=reason)
+    state.update(dir=None, reason=reason)
 
 
 def cache_info() -> str:
     """One line: the cache directory in use and its entry count, or why there is none."""
-    d = _state["dir"]
+    d = state["dir"]
     if d is None:
-        return f"compilation cache off ({_state['reason']})"
+        return f"compilation cache off ({state['reason']})"
     try:
         n = sum(1 for p in Path(d).iterdir() if p.name.endswith("-cache"))
     except OSError:
@@ -184,10 +185,10 @@ def simulate_compile() -> dict:
 
 
 def accepted(options: dict) -> dict:
-    """`options` less those of `_NEWER_OPTIONS` this XLA refuses: probed once per process and
+    """`options` less those of `NEWER_OPTIONS` this XLA refuses: probed once per process and
     option set on a scalar program, so an XLA without its older CPU fusion emitters (a future
     one, or one predating the flag) compiles with the rest rather than failing."""
-    return dict(_accepted(tuple(options.items())))
+    return dict(accepted_items(tuple(options.items())))
 
 
 def top_level() -> bool:
@@ -202,7 +203,7 @@ def top_level() -> bool:
 
 
 @functools.cache
-def _accepted(items: tuple) -> tuple:
+def accepted_items(items: tuple) -> tuple:
     import jax
     import numpy as np
 
@@ -212,7 +213,7 @@ def _accepted(items: tuple) -> tuple:
         jax.block_until_ready(out)
         return items
     except Exception:  # noqa: BLE001  (JaxRuntimeError: INVALID_ARGUMENT, no such option)
-        return tuple((k, v) for k, v in items if k not in _NEWER_OPTIONS)
+        return tuple((k, v) for k, v in items if k not in NEWER_OPTIONS)
 
 
 # ---------------------------------------------------------------- random bits on the CPU
@@ -222,9 +223,8 @@ def unroll_threefry() -> bool:
     """Lower JAX's Threefry-2x32 hash on the CPU with its five rounds unrolled (the lowering JAX
     uses on GPUs) instead of a `while` loop over the whole arrays: the same bits, every
     random draw the same. On `jthermo simulate`'s run program (N = 16, B = 256, T = 3600) it
-    compiles in 8.4-8.7 instead of 9.2 CPU s and runs in the same time within the load's
-    noise (benchmarks/results/simulate_threefry.md); the command's peak memory fell from
-    1.46 to 1.11 GB (warm, one run each at load 24-27).
+    compiles in less time, runs in the same time and lowers the command's peak memory
+    (measured by `python benchmarks/simulate_threefry.py`).
 
     Changes the lowering of every program compiled afterwards in this process (their cache
     keys too), so the command calls it once at start-up, as it does `enable_cache`. Returns
@@ -237,7 +237,7 @@ def unroll_threefry() -> bool:
     except (ImportError, AttributeError):
         return False
     mlir.register_lowering(prim, rule, platform="cpu")
-    _state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
+    state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
     return True
 
 
@@ -249,9 +249,9 @@ ONE_THREAD_MAX_CPUS = 2
 
 
 #: 1-minute load average, per schedulable CPU beyond the first, from which a machine counts
-#: as busy (`busy`): measured idle (load 0.6-1.1), two threads ran `jthermo simulate` warm in
-#: 1.97 instead of 2.08 s wall (2.52 instead of 2.08 CPU s); at load 5 one thread was faster
-#: (benchmarks/results/simulate_latency_s26b_threads.md, simulate_threads.md)
+#: as busy (`busy`): on an idle machine two threads run `jthermo simulate` slightly faster in
+#: wall time for more CPU time, on a busy one a single thread is faster (measured by
+#: `python benchmarks/simulate_threads.py`)
 BUSY_LOAD_PER_CPU = 1.0
 
 
@@ -271,10 +271,9 @@ def one_thread_backend() -> bool:
     CPUs the process may use, so the calling thread is pinned to one CPU while the backend is
     made, then every thread of the process is given all its CPUs back. `jthermo simulate`'s
     programs are loops of small operations (B x n = 256 x 33) that a second thread only
-    slows: on 2 shared cores the run program executes in 1.01 instead of 1.23 CPU s (1.47
-    instead of 1.81 s wall at load 5) and its first call (trace, compile, run) takes 3.80
-    instead of 4.24 CPU s, the same figures bit for bit (`python
-    benchmarks/simulate_threads.py`, benchmarks/results/simulate_threads.md).
+    slows: on 2 shared cores both the run program and its first call (trace, compile, run)
+    take less CPU time with one thread, the same figures bit for bit (measured by `python
+    benchmarks/simulate_threads.py`).
 
     Returns False, changing nothing, where the backend exists already, the platform cannot
     set CPU affinities, or the process may use more than `ONE_THREAD_MAX_CPUS` CPUs."""
@@ -366,32 +365,30 @@ class Stopwatch:
 
 def cache_dir() -> Path | None:
     """This process's cache directory, None with the cache off (`enable_cache`)."""
-    return _state["dir"]
+    return state["dir"]
 
 
 def threefry_lowering() -> str | None:
     """"unrolled" once `unroll_threefry` swapped the CPU lowering in, else None."""
-    return _state.get("threefry")
+    return state.get("threefry")
 
 
 # ---------------------------------------------------------------- the process's compiled programs
 
-#: memory maps at which `guard` drops the process's compiled programs. Every XLA CPU executable
-#: keeps memory maps of its code and Linux allows a process `vm.max_map_count` of them (65,530
-#: by default): past it LLVM aborts the process ("Unable to allocate section memory"), with no
-#: Python exception. The bound is this or a third of the system's limit, whichever is lower:
-#: the maps one job adds between two guards (a state-space fit ~1,300, a record generated
-#: ~300: `python benchmarks/memory_maps.py`) then keep a process well below 30,000.
+#: memory maps at which `guard` drops the process's compiled programs (or a third of the
+#: system's limit if lower). Every XLA CPU executable keeps memory maps of its code; past
+#: `vm.max_map_count` (65,530 by default) LLVM aborts the process with no Python exception.
+#: What one job adds between two guards (a state-space fit ~1,300, a generated record ~300:
+#: `python benchmarks/memory_maps.py`) then leaves a process well below 30,000.
 MAP_BOUND = 20_000
-#: entries of the library's one cache of program factories (`program_factory`), least recently
-#: used dropped first
+#: entries of the library's one cache of program factories (`program_factory`)
 FACTORY_CACHE_SIZE = 64
 #: JAX's duration events of a program made: compiled, or read from the persistent cache
 _PROGRAM_EVENTS = ("/jax/core/compile/backend_compile_duration",
                    "/jax/compilation_cache/cache_retrieval_time_sec")
 
 _guard = {"compiled": 0, "checked_at": -1, "clears": 0, "maps": None, "listening": False}
-_factories: "dict[tuple, object]" = {}
+_factories: "dict[tuple, object]" = {}   # an LRU: insertion order, most recent last
 _factory_lock = threading.Lock()
 
 
@@ -401,8 +398,7 @@ def _on_duration(event: str, duration: float, **_) -> None:
 
 
 def count_compiles() -> None:
-    """Count the programs this process compiles from now on (JAX's backend-compile events; a
-    program loaded from the persistent cache counts too: it is mapped all the same)."""
+    """Count the programs this process compiles or loads from the persistent cache from now on."""
     with _factory_lock:
         if _guard["listening"]:
             return
@@ -418,7 +414,7 @@ def compiled_programs() -> int:
 
 
 def memory_maps() -> int | None:
-    """The process's memory maps (lines of `/proc/self/maps`); None where there is none."""
+    """The process's memory maps (lines of `/proc/self/maps`); None where there are none."""
     try:
         with open("/proc/self/maps", "rb") as f:
             return sum(1 for _ in f)
@@ -440,14 +436,16 @@ def program_factory(fn):
     """Decorator: `fn(*key)` (a function that builds a compiled program, e.g. returns an
     `eqx.filter_jit`) memoised in the library's one cache of program factories, bounded to
     `FACTORY_CACHE_SIZE` entries over all factories (least recently used dropped first) and
-    emptied by `clear_programs`. Arguments must be hashable (as for `functools.cache`)."""
+    emptied by `clear_programs` (or, for `fn`'s entries, `cache_clear`). Arguments must be
+    hashable (as for `functools.cache`)."""
+    name = (fn.__module__, fn.__qualname__)
 
     @functools.wraps(fn)
     def get(*args):
-        key = (fn.__module__, fn.__qualname__) + args
+        key = name + args
         with _factory_lock:
             if key in _factories:
-                _factories[key] = _factories.pop(key)      # most recently used last
+                _factories[key] = _factories.pop(key)
                 return _factories[key]
         value = fn(*args)
         with _factory_lock:
@@ -456,22 +454,19 @@ def program_factory(fn):
                 _factories.pop(next(iter(_factories)))
         return value
 
-    get.cache_clear = lambda: _clear_factory(fn)
+    def cache_clear():
+        with _factory_lock:
+            for key in [k for k in _factories if k[:2] == name]:
+                del _factories[key]
+
+    get.cache_clear = cache_clear
     return get
-
-
-def _clear_factory(fn) -> None:
-    with _factory_lock:
-        for key in [k for k in _factories if k[:2] == (fn.__module__, fn.__qualname__)]:
-            del _factories[key]
 
 
 def clear_programs() -> None:
     """Drop every compiled program of the process: JAX's caches (`jax.clear_caches`) and the
     library's program factories. Nothing is lost but time: a program needed again is traced
     again and compiled, or loaded from the persistent cache (`enable_cache`)."""
-    import gc
-
     import jax
 
     with _factory_lock:
@@ -482,23 +477,21 @@ def clear_programs() -> None:
 
 def guard() -> bool:
     """Keep the process below `map_bound()` memory maps: where programs were compiled since
-    the last look and the maps reach the bound, `clear_programs()`. Called by the library at
-    the entry of its fits and sweep trials (outside every JAX trace), so a long-lived process
-    (a notebook, a study, a sweep worker) never nears Linux's limit and no caller has to clear
-    JAX's caches. Cheap: one read of `/proc/self/maps` after a compile, none otherwise.
-    True when it cleared."""
+    the last look and the maps reach the bound, `clear_programs()` (never inside a trace).
+    Called where fits, diagnoses and sweep trials start: a long-lived process (a notebook, a
+    study, a sweep worker) needs no cache clearing of its own. One read of `/proc/self/maps`
+    after a compile, none otherwise. True when it cleared."""
     count_compiles()
     if _guard["compiled"] == _guard["checked_at"] or not top_level():
         return False
     _guard["checked_at"] = _guard["compiled"]
-    n = memory_maps()
-    _guard["maps"] = n
-    if n is None or n < map_bound():
-        return False
-    clear_programs()
-    _guard["clears"] += 1
-    _guard["maps"] = memory_maps()
-    return True
+    n = _guard["maps"] = memory_maps()
+    if n is not None and n >= map_bound():
+        clear_programs()
+        _guard["clears"] += 1
+        _guard["maps"] = memory_maps()
+        return True
+    return False
 
 
 def guard_info() -> dict:

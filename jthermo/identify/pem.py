@@ -87,7 +87,7 @@ class PEMResult(eqx.Module):
 
 def _count(r, n_valid):
     """True residual entries: `n_valid` rows of `r`'s row size."""
-    return (n_valid * (r.size // r.shape[0])).astype(r.dtype)
+    return jnp.asarray(n_valid * (r.size // r.shape[0]), r.dtype)
 
 
 def _cost(residual_fn, theta, args, n_valid):
@@ -160,6 +160,8 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
     rows count (a traced scalar: records padded to one length share the program).
     """
     raw = residual_fn
+    if n_valid is None:
+        n_valid = eqx.filter_eval_shape(raw, theta0[0], args).shape[0]
 
     def residual_fn(th, a):
         return masked_residual(raw, th, a, n_valid)
@@ -219,8 +221,10 @@ _minimize_jit = eqx.filter_jit(_minimize_impl)
 
 
 @eqx.filter_jit
-def _minimize_many_jit(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, atol,
-                       learning_rate, covariance, batch, screen_steps=0):
+def minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
+                      covariance, batch, screen_steps=0, n_valid=None):
+    """`minimize_many`'s compiled solve; `n_valid`: the true record length of padded `args`
+    (None: every residual row counts)."""
     def one(th, a):
         return _minimize_impl(residual_fn, th, a, n_valid, solver, max_steps, rtol, atol,
                               learning_rate, covariance, batch, screen_steps)
@@ -316,9 +320,9 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     runtime.guard()
     theta0 = _check(theta0, solver, max_steps, 1, batch)
     args, T = padded(residual_fn, theta0, args, 1, pad)
-    res = _minimize_many_jit(residual_fn, theta0, args, _n(T), solver, int(max_steps),
-                             float(rtol), float(atol), float(learning_rate), bool(covariance),
-                             batch, int(screen_steps))
+    res = minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
+                            float(atol), float(learning_rate), bool(covariance), batch,
+                            int(screen_steps), _n(T))
     if throw and not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"minimize: problem {bad}: no start point gave a finite cost "
