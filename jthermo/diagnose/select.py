@@ -47,6 +47,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
+from .. import runtime
 from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
 from . import baseline
@@ -179,6 +180,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     **Returns:** the JSON-ready report dict: `verdict`, `baseline`, `findings` (ranked),
     `augmented`, plus `localisation` and `candidates` (every refit's figures) and `seconds`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t_start = time.perf_counter()
     est, val, dropped = drop_idle_inputs(est, val)
     check_records(est, val, TS_TOLERANCE)

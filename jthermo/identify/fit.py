@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import runtime
 from ..data import IOData, require_excitation, require_output_variation
 from ..errors import ConfigError, DataError, ModelError
 from ..models import polynomial_numpy
@@ -83,6 +84,7 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
 
     **Returns:** a `FitResult`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t0 = time.perf_counter()
     if not isinstance(family, str) or family.lower() not in FAMILIES:
         raise ModelError(f"fit: unknown model family {family!r} (expected one of {', '.join(FAMILIES)})")
