@@ -136,7 +136,7 @@ import numpy as np
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
 from ..stored import exported_call, exported_compile
-from .mechanisms import simulate_full, simulate_zone
+from .pool import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
 #: `identify.lm.STALL` iterations (at most `n_iter`); such a fit has converged to about this
