@@ -61,6 +61,19 @@ def as_records(est) -> list:
     raise DataError("diagnose: the estimation data must be IOData or a non-empty list of IOData")
 
 
+def concatenate(records) -> IOData:
+    """Records of one plant (the same signals) one after another in time, at the first's
+    sample time: what the pooled fits see (`pool.py` keeps the records' bounds)."""
+    first = records[0]
+    if len(records) == 1:
+        return first
+    return IOData(u=np.concatenate([np.asarray(d.u, float) for d in records]),
+                  y=np.concatenate([np.asarray(d.y, float) for d in records]),
+                  w=np.concatenate([np.asarray(d.w, float) for d in records]), ts=float(first.ts),
+                  input_names=first.input_names, output_names=first.output_names,
+                  signal_names=first.signal_names)
+
+
 def pool_records(records, val, ts_tolerance: float):
     """Pooled estimation records of one plant: each checked against the first (the same input,
     output and signal names, the same sample time to `ts_tolerance`) and against `val`
@@ -76,15 +89,10 @@ def pool_records(records, val, ts_tolerance: float):
         if abs(d.ts - first.ts) > ts_tolerance * first.ts:
             raise DataError(f"diagnose: sample times of the estimation records differ: {first.ts:g} s "
                             f"and {d.ts:g} s (record {j})")
-    dropped = []
     if len(records) == 1:
         est, val, dropped = drop_idle_inputs(first, val)
         return [est], est, val, dropped
-    cat = IOData(u=np.concatenate([np.asarray(d.u, float) for d in records]),
-                 y=np.concatenate([np.asarray(d.y, float) for d in records]),
-                 w=np.concatenate([np.asarray(d.w, float) for d in records]), ts=float(first.ts),
-                 input_names=first.input_names, output_names=first.output_names,
-                 signal_names=first.signal_names)
+    cat = concatenate(records)
     # an input constant over the concatenation is constant, at one value, in every record
     cat, val, dropped = drop_idle_inputs(cat, val)
     if dropped:
@@ -97,4 +105,4 @@ def pool_records(records, val, ts_tolerance: float):
     return records, cat, val, dropped
 
 
-__all__ = ["as_records", "check_records", "drop_idle_inputs", "pool_records"]
+__all__ = ["as_records", "check_records", "concatenate", "drop_idle_inputs", "pool_records"]
