@@ -38,7 +38,7 @@ with live heater gains, `mechanisms.live_gains`: `benchmarks/results/diagnose_pr
 and fewer iterations would change the answers (`python
 benchmarks/diagnose_zone_convergence.py --record latency | heldout:12:08 | heldout:12:04 |
 heldout:12:13 --tag _h34`): on the latency record 8 of 48 problems reach the cap (stored-heat
-bodies, within 9e-6 of their cost at 300 iterations), but on set 12's lamp case (N = 5) 38 of
+bodies, within 9e-6 of their cost at 300 iterations), but on development set 12's lamp case (N = 5) 38 of
 65 do, several still 17 to 42 times their final cost at 100; `RTOL` 1e-7 instead of 1e-10
 (27 % fewer iterations on the latency record) stops those on plateaus and moves a candidate's
 estimation statistic (m log of its sum of squares) by up to 8460 there, by 151 on the slow-body
@@ -49,10 +49,10 @@ A fourth damping trial with geodesic acceleration (`masked_lm(..., geodesic=True
 follows the curved valleys (log gains and rates) that the plain steps crawl along. Replayed on
 the diagnosis's own per-zone problems with the same stop (`python benchmarks/lm_variants.py`,
 `benchmarks/results/lm_variants_h35_try2/3/4.md`, load 5-8): the latency record 2952 -> 2303
-iterations (replay CPU 16.0 -> 16.0 s), set 12's lamp case 10316 -> 4466 (20.4 -> 7.7 s), set 14's
+iterations (replay CPU 16.0 -> 16.0 s), development set 12's lamp case 10316 -> 4466 (20.4 -> 7.7 s), development set 14's
 case 00 (N = 7) 15034 -> 9924 (22.5 -> 14.0 s); no problem's final cost above the plain solver's
 by more than 1e-9 of itself (0 of 204), many lower (to -81 %: plateaus the plain solver stopped
-on). Set 14's cases 00-02 name the same (`experiments/results/diagnose_heldout_same_fresh14_mz9_vs_
+on). Development set 14's cases 00-02 name the same (`experiments/results/diagnose_heldout_same_fresh14_mz9_vs_
 h35geo_set14_f0.md`), but case 00's reported `ambient_variation` estimation statistic moved 9.6 ->
 -80.0 although its per-zone costs only fell (not explained yet), and the real recordings and a
 same-window CPU A/B were not run: not switched on. Nielsen's gain-ratio damping (2 of 48 latency
@@ -65,7 +65,7 @@ shift came from the common surroundings drift's unfinished fit, which now contin
 identical (`diagnose_heldout_same_diagnose_real_s36_vs_diagnose_real_s37geo.md`), set 20's nulls
 10/10 quiet (`..._s36drift_nulls20_vs_s37geo_nulls20.md`), the latency record the same findings and
 fit at warm 32.4-32.5 -> 29.2-30.6 CPU s, its per-zone fits 14.3-14.8 -> 11.8-12.2
-(`benchmarks/results/diagnose_warm_cpu_s37geo.md`, interleaved, load 1.4-4.1); but set
+(`benchmarks/results/diagnose_warm_cpu_s37geo.md`, interleaved, load 1.4-4.1); but development set
 16's case 05 (a drift named at 0.275 with the body its rival) flipped to `heat_accumulation`
 (`diagnose_heldout_hard_s37geo_set16_partial.log`), so it stays off.
 
@@ -148,7 +148,8 @@ FALL_LR = 1.0
 FALL_WINDOW = 20
 
 #: the per-zone fits' fourth damping trial with geodesic acceleration (`masked_lm(...,
-#: geodesic=...)`); off until the checks in the module docstring are done
+#: geodesic=...)`); off until the checks in the module docstring are done (kept off on a case
+#: of development set 16)
 GEODESIC = False
 
 

@@ -13,7 +13,7 @@ Each round's additions start where the smaller model ended, and the smaller mode
 beside them (`JointFits.extend`): the joint fits stop at `n_iter` iterations short of
 convergence, so an addition judged against the smaller model as it was would count that
 model's unfinished convergence as its own evidence. Started afresh instead (before 2026-11-27),
-two in five additions ended above the smaller model's cost. On held-out set 8
+two in five additions ended above the smaller model's cost. On development set 8
 (`python experiments/diagnose_heldout_hard.py --seed-set 8 --max-zones 3`, tags `fresh8` /
 `s29_extend8`): additions with a negative likelihood ratio 45 / 125 -> 69 / 111, additions
 that passed both tests 32 -> 11, top findings unchanged.
@@ -410,7 +410,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
         if level_test["passed"]:
             cur, free = out[1], True
     # every addition starts where the smaller model ended (`JointFits.extend`): started afresh,
-    # two in five of them ended above the smaller model's cost (held-out sets 5-8)
+    # two in five of them ended above the smaller model's cost (development sets 5-8)
     cur, adds = js.extend(cur, pool, validate) if pool else (cur, [])
     tried = []
     pool = list(pool)

@@ -404,7 +404,7 @@ GAIN_START_SHARE = 0.02
 def live_gains(log_b) -> np.ndarray:
     """One zone's log heater gains `(nu,)`, each at least `GAIN_START_SHARE` of the largest: a gain
     the baseline left at its bound ($10^{-12}$ of the largest) has no gradient in the log
-    parametrisation (held-out set 12 case 08: three such gains held a zone's lamp fit on a plateau
+    parametrisation (development set 12 case 08: three such gains held a zone's lamp fit on a plateau
     for 100 iterations, unconverged at `N_ITER`: `experiments/results/diagnose_lamp_live_gains.md`)."""
     lb = np.asarray(log_b, float).ravel()
     return np.maximum(lb, np.max(lb) + math.log(GAIN_START_SHARE))
@@ -435,7 +435,8 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
 
 #: effective time constants $\tau_w / (1 + \gamma)$ (s) of a stored-heat body's extra starts
 #: (`body_starts`): a body slower than the neutral start's 500 s (chamber walls, 20-60 min) is
-#: otherwise lost to the local optimum at the shortest time constant the model allows
+#: otherwise lost to the local optimum at the shortest time constant the model allows (set on
+#: development set 6's slow bodies)
 BODY_START_TAUS = (1500.0, 4000.0)
 
 
@@ -454,7 +455,7 @@ def body_starts(theta: np.ndarray, lay: Layout, taus=BODY_START_TAUS) -> list:
 
 #: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the neutral
 #: 0.5 a steep loss (ρ > 1, convection) is reached slowly, and a fit stopped at the iteration cap
-#: misjudges the mechanism (held-out set 11 case 02: ρ 1.18 at the cap, 1.75 from these starts)
+#: misjudges the mechanism (development set 11 case 02: ρ 1.18 at the cap, 1.75 from these starts)
 RAD_SHARE_STARTS = (1.5, 3.0)
 
 
