@@ -445,7 +445,7 @@ def pooled(res_dir: Path) -> dict:
 def write_pooled(res_dir: Path, out: Path):
     p = pooled(res_dir)
     lo, hi = clopper_pearson(p["false_alarms"], p["nulls"]) if p["nulls"] else (float("nan"),) * 2
-    lines = ["# Diagnosis: stated against measured false alarms, and confidence calibration (issue 14)", "",
+    lines = ["# Diagnosis: stated against measured false alarms, and confidence calibration", "",
              "Made by `python experiments/diagnose_heldout_hard.py --pooled`, from the studies' JSON files",
              "in `experiments/results/`: " + "; ".join(p["sources"]) + ".", "",
              (f"- Null records (nothing missing): {p['nulls']}, with a finding: {p['false_alarms']} "
