@@ -1,12 +1,20 @@
 """The diagnosis as an experiment loop: diagnose, and where a finding is uncertain, design the
-record that separates it from its rivals, run it, pool it with the records before, diagnose again.
+record that separates it from its rivals, run it, diagnose again with every record pooled.
 
 A finding is settled when the records name it with confidence and no rival is left within the
 tests' resolution (`next_step`); a tie the records cannot separate stays a tie (the finding's
 `rivals`), and the experiment that separates it (`experiment.design_experiment`) is what the
-loop asks for next. The designed record is pooled with the earlier estimation records, not put
-in their place (`select.diagnose` with a list): what they showed is kept, and the validation
-record stays the one every model is judged on.
+loop asks for next.
+
+The designed record is the next validation record, and the one it replaces joins the pooled
+estimation records (`select.diagnose` with a list): nothing a record showed is thrown away, and
+the new record is used where its design puts its power. The design maximises the rivals'
+prediction gap on a record the diagnosis *validates* on, after the nuisances re-estimated there
+(`experiment.nuisance_jacobians`), and a tie is decided on the validation record (its
+Diebold–Mariano comparison, `decide.is_rival`): pooled into the estimation records only, the
+designed record adds to the likelihood ratios but leaves the validation comparison that made
+the tie as it was (on the one-zone lamp case of `tests/diagnose/test_loop.py`, two designed
+records pooled that way left the lag tied with the dead time at confidence 0.65 and 0.76).
 """
 
 from __future__ import annotations
@@ -62,9 +70,11 @@ def diagnose_loop(records, val: IOData, run, max_experiments: int = 2, *, durati
     - `duration`, `hold`, `y_max`, `seed`, `n_steps`: the designs' (`experiment.design_experiment`).
     - the rest: `select.diagnose`'s keywords.
 
-    **Returns:** `result` (the last diagnosis), `records` (every estimation record pooled in
-    it, the designed ones last), `experiments` (each design's JSON summary), `rounds` (each
-    diagnosis's findings and `next_step`), `settled` (no finding left uncertain)."""
+    **Returns:** `result` (the last diagnosis), `records` (the estimation records pooled in
+    it: the given ones, then each earlier validation record), `validation` (the record it
+    validated on: the last designed one, or `val`), `experiments` (each design's JSON
+    summary), `rounds` (each diagnosis's findings and `next_step`), `settled` (no finding left
+    uncertain)."""
     if not (isinstance(max_experiments, (int, np.integer)) and max_experiments >= 0):
         raise ConfigError(f"diagnose_loop: max_experiments must be a non-negative integer, got {max_experiments!r}")
     if not callable(run):
@@ -75,6 +85,7 @@ def diagnose_loop(records, val: IOData, run, max_experiments: int = 2, *, durati
         result = diagnose(records, val, seed=seed, **diagnose_kw)
         step = next_step(result)
         rounds.append({"records": len(records), "next": step,
+                       "runner": (result.get("localisation") or {}).get("runner"),
                        "findings": [{k: f[k] for k in ("mechanism", "confidence", "rivals", "uncertain")}
                                     for f in result["findings"]]})
         if not step["experiment_needed"] or len(designs) >= max_experiments:
@@ -85,9 +96,9 @@ def diagnose_loop(records, val: IOData, run, max_experiments: int = 2, *, durati
         if not isinstance(new, IOData):
             raise ConfigError(f"diagnose_loop: run(u) must return IOData, got {type(new).__name__}")
         designs.append(X.to_json(d))
-        records = records + [new]
-    return {"result": result, "records": records, "experiments": designs, "rounds": rounds,
-            "settled": not step["experiment_needed"]}
+        records, val = records + [val], new
+    return {"result": result, "records": records, "validation": val, "experiments": designs,
+            "rounds": rounds, "settled": not step["experiment_needed"]}
 
 
 __all__ = ["diagnose_loop", "next_step", "open_ties"]
