@@ -2,7 +2,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-peers clean
+.PHONY: demo test docs bench bench-peers clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -20,6 +20,18 @@ demo: $(STAMP)
 # controllers) are computed once; compiled code is shared through the persistent cache.
 test: $(STAMP)
 	$(PY) -m pytest -n 2 --dist loadfile -m "not slow" --durations=15
+
+# The documentation site (mkdocs-material + mkdocstrings) into site/: the generated pages
+# (command line, API reference, results) are rewritten first; --strict fails on any warning.
+DOCS_STAMP := $(VENV)/.docs-installed
+
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(PY) -m pip install -q -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(PY) docs/gen_pages.py
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
 # The peers (SIPPY, jax-sysid) in their own environment: jax-sysid pins an older JAX than
 # jthermo's, so it cannot share .venv (needs Python <= 3.12).
@@ -43,4 +55,4 @@ bench: $(STAMP) $(PEERS_STAMP)
 	$(PY) benchmarks/tuning.py
 
 clean:
-	rm -rf $(VENV) $(PEERS) runs .pytest_cache
+	rm -rf $(VENV) $(PEERS) runs .pytest_cache site

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-FILES = ["tests/diagnose/test_diagnose.py", "tests/diagnose/test_joint_fit.py",
-         "tests/identify/test_pem.py", "tests/closedloop/test_lean_metrics.py"]
+FILES = ["tests/diagnose/test_select.py", "tests/diagnose/test_fitting_joint.py",
+         "tests/identify/test_pem.py", "tests/closedloop/test_engine_lean_metrics.py"]
 CHILD = """
 import json, resource, sys, pytest
 rc = pytest.main(["-q", "-p", "no:xdist", "-p", "no:cacheprovider", "-m", "not slow", *sys.argv[1:]])

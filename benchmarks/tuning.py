@@ -223,7 +223,7 @@ def main(argv=None):
          f"relative {cost_err:.1e}; gradient agreement (max abs difference / max |FD|): "
          f"{g_err:.1e} (forward differences carry O(h) error and straddle the anti-windup "
          "switching; the gradient itself is checked against central differences in "
-         "tests/test_tune.py and tests/control/test_gradients.py)."),
+         "tests/tune/test_optimiser.py and tests/control/test_gradients.py)."),
         "",
         "Goal of the issue: warm ratio ≥ 100×. "
         + ("Met." if fd_s / warm_s >= 100 else

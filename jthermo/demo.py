@@ -42,7 +42,7 @@ ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
 CONCEALED = ("heater_lag", {"time_constant_s": 25.0})
 
 
-class _Stages:
+class StageRunner:
     """Runs guarded stages and remembers their outcome."""
 
     def __init__(self, total: int, quiet: bool):
@@ -78,7 +78,7 @@ class _Stages:
         return out
 
 
-def _in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
+def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
     """Start `fn()` in a daemon thread (an interrupted demo does not wait for it); returns the
     function that waits for it and returns its result or raises its exception."""
     box: dict[str, Any] = {}
@@ -104,9 +104,9 @@ def _in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
 @functools.cache
 def _quick_simulate():
     """`closedloop.simulate` as one program with `runtime.simulate_compile()` options (the
-    scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): the three
-    ran in 4.7-5.2 instead of 19.4-21.0 CPU s cold, eager with default options
-    (`python benchmarks/evaluate_compile.py`, benchmarks/results/evaluate_compile.md)."""
+    scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): cold,
+    the three take a fraction of their CPU time eager with default options (measured by
+    `python benchmarks/evaluate_compile.py`)."""
     import equinox as eqx
 
     from .closedloop import simulate
@@ -131,7 +131,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     root = Path(runs_dir) / name
     figs = root / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    st = _Stages(8, quiet)
+    st = StageRunner(8, quiet)
     t_start = time.perf_counter()
     S: dict[str, Any] = {"name": name, "quick": quick, "seed": seed, "settings": cfg}
     figures: dict[str, list[tuple[Path, str]]] = {}
@@ -214,8 +214,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         except ModuleNotFoundError:
             pass
 
-    diagnosing = _in_background(diagnosis)
-    tuning = _in_background(tune_stage)
+    diagnosing = in_background(diagnosis)
+    tuning = in_background(tune_stage)
 
     # 2 -------------------------------------------------------------- identification + validation
     models: dict[str, Any] = {}
@@ -349,7 +349,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
     # the scenarios' compilations (one program per controller structure) overlap the residual
     # stage's tests and figures: started here, waited for after it
-    scenarios_done = _in_background(scenarios) if controllers else None
+    scenarios_done = in_background(scenarios) if controllers else None
 
     # 5 -------------------------------------------------------------- residual tests
     def residuals():
@@ -366,7 +366,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         fig("validation", figs / "residuals.png", f"Residual tests of the best model ({best})")
         spec = spectral_estimate(val)
         # each heater's own zone and one neighbour coupling: all ny x nu channels of a 4-zone
-        # bed are 32 log axes: 5.8-6.2 against 1.5-1.6 CPU s of drawing (python benchmarks/demo_bode.py)
+        # bed are 32 log axes, several times the drawing time (python benchmarks/demo_bode.py)
         m = models[best]
         chans = [(i, i) for i in range(min(m.n_outputs, m.n_inputs))]
         chans += [(1, 0)] if m.n_outputs > 1 else []
@@ -393,7 +393,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     S["seconds"] = round(time.perf_counter() - t_start, 1)
 
     def write():
-        path = _write_report(root, S, figures)
+        path = write_demo_report(root, S, figures)
         S["report"] = str(path)
 
     st.run("write the report", write)
@@ -405,7 +405,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     return S
 
 
-def _write_report(root: Path, S: dict, figures: dict) -> Path:
+def write_demo_report(root: Path, S: dict, figures: dict) -> Path:
     from .report import Report, markdown_table
 
     rep = Report(f"jthermo demo — {S['name']}")

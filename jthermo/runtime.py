@@ -46,28 +46,30 @@ MAX_CACHE_BYTES = 4 * 1024**3
 
 #: XLA options for a program a process runs once, on small arrays (the printer's design point):
 #: LLVM at -O0 and XLA's older (non-MLIR) CPU fusion emitters compile it in a fraction of the
-#: CPU time (`python benchmarks/one_shot_compile.py`, benchmarks/results/one_shot_compile*.md),
+#: CPU time (measured by `python benchmarks/one_shot_compile.py`),
 #: and its run time is negligible either way. Never for a program inside a loop: -O0 code runs
 #: several times slower.
 ONE_SHOT = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 #: XLA options for a program compiled once per cache and run once per command (`jthermo
-#: simulate`'s run program): XLA's older CPU fusion emitters compile it in 3.60 instead of 5.77
-#: CPU s and run it in 1.47 instead of 1.33 CPU s, with the same figures bit for bit
-#: (N = 16, B = 256, T = 3600: `python benchmarks/simulate_compile_options.py`)
+#: simulate`'s run program): XLA's older CPU fusion emitters compile it in less time than they
+#: cost in run time, with the same figures bit for bit (measured at N = 16, B = 256, T = 3600 by
+#: `python benchmarks/simulate_compile_options.py`)
 QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
-#: XLA options for `jthermo simulate`'s run program: `QUICK_COMPILE` with LLVM at -O1: compile
-#: 2.75 -> 2.52 CPU s, execution 1.28 -> 1.24 CPU s, mse equal to 1e-16 relative (N = 16,
-#: B = 256, T = 3600: benchmarks/results/simulate_compile_options_s26.md)
+#: XLA options for `jthermo simulate`'s run program: `QUICK_COMPILE` with LLVM at -O1: a
+#: shorter compile and no slower execution, mse equal to 1e-16 relative (measured by
+#: `python benchmarks/simulate_compile_options.py`)
 SIMULATE_COMPILE = {**QUICK_COMPILE, "xla_backend_optimization_level": 1}
 #: the options above that an XLA lacking them refuses ("No such compile option")
-_NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
+NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")
 
-_state: dict = {"dir": None, "reason": "not enabled"}
+#: the process's compilation cache: its directory (`dir`, None when off) and why it is off
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
 _listening = False
@@ -135,7 +137,7 @@ def enable_cache(path: str | os.PathLike | None = None) -> Path | None:
         jax.config.update(name, value)
         # worker processes (sweeps) inherit the cache
         os.environ[name.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
-    _state.update(dir=target, reason=None)
+    state.update(dir=target, reason=None)
     return target
 
 
@@ -147,14 +149,14 @@ def disable_cache(reason: str = "disabled") -> None:
     jax.config.update("jax_enable_compilation_cache", False)
     os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
     os.environ[ENV_OFF] = "1"
-    _state.update(dir=None, reason=reason)
+    state.update(dir=None, reason=reason)
 
 
 def cache_info() -> str:
     """One line: the cache directory in use and its entry count, or why there is none."""
-    d = _state["dir"]
+    d = state["dir"]
     if d is None:
-        return f"compilation cache off ({_state['reason']})"
+        return f"compilation cache off ({state['reason']})"
     try:
         n = sum(1 for p in Path(d).iterdir() if p.name.endswith("-cache"))
     except OSError:
@@ -178,10 +180,10 @@ def simulate_compile() -> dict:
 
 
 def accepted(options: dict) -> dict:
-    """`options` less those of `_NEWER_OPTIONS` this XLA refuses: probed once per process and
+    """`options` less those of `NEWER_OPTIONS` this XLA refuses: probed once per process and
     option set on a scalar program, so an XLA without its older CPU fusion emitters (a future
     one, or one predating the flag) compiles with the rest rather than failing."""
-    return dict(_accepted(tuple(options.items())))
+    return dict(accepted_items(tuple(options.items())))
 
 
 def top_level() -> bool:
@@ -196,7 +198,7 @@ def top_level() -> bool:
 
 
 @functools.cache
-def _accepted(items: tuple) -> tuple:
+def accepted_items(items: tuple) -> tuple:
     import jax
     import numpy as np
 
@@ -206,7 +208,7 @@ def _accepted(items: tuple) -> tuple:
         jax.block_until_ready(out)
         return items
     except Exception:  # noqa: BLE001  (JaxRuntimeError: INVALID_ARGUMENT, no such option)
-        return tuple((k, v) for k, v in items if k not in _NEWER_OPTIONS)
+        return tuple((k, v) for k, v in items if k not in NEWER_OPTIONS)
 
 
 # ---------------------------------------------------------------- random bits on the CPU
@@ -216,9 +218,8 @@ def unroll_threefry() -> bool:
     """Lower JAX's Threefry-2x32 hash on the CPU with its five rounds unrolled (the lowering JAX
     uses on GPUs) instead of a `while` loop over the whole arrays: the same bits, every
     random draw the same. On `jthermo simulate`'s run program (N = 16, B = 256, T = 3600) it
-    compiles in 8.4-8.7 instead of 9.2 CPU s and runs in the same time within the load's
-    noise (benchmarks/results/simulate_threefry.md); the command's peak memory fell from
-    1.46 to 1.11 GB (warm, one run each at load 24-27).
+    compiles in less time, runs in the same time and lowers the command's peak memory
+    (measured by `python benchmarks/simulate_threefry.py`).
 
     Changes the lowering of every program compiled afterwards in this process (their cache
     keys too), so the command calls it once at start-up, as it does `enable_cache`. Returns
@@ -231,7 +232,7 @@ def unroll_threefry() -> bool:
     except (ImportError, AttributeError):
         return False
     mlir.register_lowering(prim, rule, platform="cpu")
-    _state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
+    state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
     return True
 
 
@@ -243,9 +244,9 @@ ONE_THREAD_MAX_CPUS = 2
 
 
 #: 1-minute load average, per schedulable CPU beyond the first, from which a machine counts
-#: as busy (`busy`): measured idle (load 0.6-1.1), two threads ran `jthermo simulate` warm in
-#: 1.97 instead of 2.08 s wall (2.52 instead of 2.08 CPU s); at load 5 one thread was faster
-#: (benchmarks/results/simulate_latency_s26b_threads.md, simulate_threads.md)
+#: as busy (`busy`): on an idle machine two threads run `jthermo simulate` slightly faster in
+#: wall time for more CPU time, on a busy one a single thread is faster (measured by
+#: `python benchmarks/simulate_threads.py`)
 BUSY_LOAD_PER_CPU = 1.0
 
 
@@ -265,10 +266,9 @@ def one_thread_backend() -> bool:
     CPUs the process may use, so the calling thread is pinned to one CPU while the backend is
     made, then every thread of the process is given all its CPUs back. `jthermo simulate`'s
     programs are loops of small operations (B x n = 256 x 33) that a second thread only
-    slows: on 2 shared cores the run program executes in 1.01 instead of 1.23 CPU s (1.47
-    instead of 1.81 s wall at load 5) and its first call (trace, compile, run) takes 3.80
-    instead of 4.24 CPU s, the same figures bit for bit (`python
-    benchmarks/simulate_threads.py`, benchmarks/results/simulate_threads.md).
+    slows: on 2 shared cores both the run program and its first call (trace, compile, run)
+    take less CPU time with one thread, the same figures bit for bit (measured by `python
+    benchmarks/simulate_threads.py`).
 
     Returns False, changing nothing, where the backend exists already, the platform cannot
     set CPU affinities, or the process may use more than `ONE_THREAD_MAX_CPUS` CPUs."""
@@ -360,9 +360,9 @@ class Stopwatch:
 
 def cache_dir() -> Path | None:
     """This process's cache directory, None with the cache off (`enable_cache`)."""
-    return _state["dir"]
+    return state["dir"]
 
 
 def threefry_lowering() -> str | None:
     """"unrolled" once `unroll_threefry` swapped the CPU lowering in, else None."""
-    return _state.get("threefry")
+    return state.get("threefry")

@@ -32,11 +32,10 @@ def _release_compiled_code():
     """Drop a test module's compiled programs when it ends (a later module that needs one
     loads it from the persistent cache). Every XLA CPU executable keeps memory maps of its
     code, and an xdist worker that held the programs of all its modules neared Linux's
-    per-process limit (`vm.max_map_count`, 65530): 59,281 maps at 96 % of the suite, where a
-    worker segfaulted in the unwinder or LLVM failed with "Cannot allocate memory". Cleared
-    after each module, a process running test_diagnose, test_joint_fit, test_pem and
-    test_lean_metrics ends with 1,217 maps instead of 20,527 and peaks at 1.5 instead of 3.1 GB,
-    in 53 instead of 56 s (`python benchmarks/memory_maps_tests.py`)."""
+    per-process limit (`vm.max_map_count`, 65530), where a worker segfaulted in the unwinder
+    or LLVM failed with "Cannot allocate memory". Cleared after each module, a process keeps a
+    small fraction of the maps and about half the peak memory, in no more time (measured by
+    `python benchmarks/memory_maps_tests.py`)."""
     yield
     if not os.environ.get("JTHERMO_TESTS_KEEP_COMPILED"):    # benchmarks/memory_maps_tests.py
         jax.clear_caches()

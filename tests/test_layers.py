@@ -54,6 +54,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("closedloop", "io"),
     # Two consumers of the layers below, independent of each other.
     ("tune", "diagnose"),
+    # 3D-printer firmware: printer logs as records, tuned settings in the firmware's syntax.
+    ("firmware",),
     # Batch runs of fit / validate / tune.
     ("sweep",),
     # The demo runs the whole tour; the command line may launch it, never the reverse.

@@ -22,6 +22,9 @@ Imports of the library are lazy (inside each command), so `jthermo --help` is fa
     jthermo sweep [CONFIG.toml] [--ray ADDRESS] [--results FILE] [--summary] [--workers N]
     jthermo demo [--name NAME] [--quick]
     jthermo export CTRL --to {c,json} --out DIR [--name NAME] [--json REPORT.json]
+    jthermo import klippy.log --out DIR [--json REPORT.json]
+    jthermo calibrate EST.csv [--validation VAL.csv] --out DIR [--firmware klipper|marlin|kalico|c]
+                [--heater NAME] [--setpoint C] [--json REPORT.json]
 
 The commands live by family: `identify` (fit, validate), `control` (simulate, generate, tune),
 `diagnose`, `batch` (sweep, demo); `common` holds the argument types and input/output checks.
@@ -35,7 +38,7 @@ import sys
 import warnings
 
 from ..errors import JThermoError
-from . import batch, control, diagnose, export, identify
+from . import batch, control, diagnose, export, firmware, identify
 from .common import Parser, UsageError, exit_now
 
 EXIT_OK = 0
@@ -45,7 +48,8 @@ EXIT_INTERRUPT = 130
 COMMANDS = {"fit": identify.cmd_fit, "validate": identify.cmd_validate,
             "simulate": control.cmd_simulate, "generate": control.cmd_generate,
             "tune": control.cmd_tune, "diagnose": diagnose.cmd_diagnose,
-            "sweep": batch.cmd_sweep, "demo": batch.cmd_demo, "export": export.cmd_export}
+            "sweep": batch.cmd_sweep, "demo": batch.cmd_demo, "export": export.cmd_export,
+            "import": firmware.cmd_import, "calibrate": firmware.cmd_calibrate}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p.add_argument("--version", action="version", version=f"jthermo {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for family in (identify, control, diagnose, batch, export):
+    for family in (identify, control, diagnose, batch, export, firmware):
         family.add_parsers(sub)
     return p
 
@@ -80,8 +84,8 @@ BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"
 def one_blas_thread() -> bool:
     """One BLAS thread for the command, unless the user set a thread variable or NumPy is
     already loaded (an in-process caller: too late to matter). OpenBLAS's spinning worker
-    threads made `jthermo fit` 1.3-4.8x slower in wall time and 1.3-5.5x in CPU s at load 7-8
-    on 2 cores (`benchmarks/results/identification_blas.md`). Returns whether it set them."""
+    threads made `jthermo fit` several times slower in wall and CPU time on a busy 2-core
+    machine. Returns whether it set them."""
     if "numpy" in sys.modules or any(v in os.environ for v in BLAS_THREAD_VARS):
         return False
     for v in BLAS_THREAD_VARS:

@@ -176,8 +176,8 @@ def write_report(args, path: Path | None, report: dict) -> dict:
 def exit_now(code: int):
     """End the command's process with status `code` at once: flush stdout and stderr, run the
     `atexit` handlers (JAX's, filelock's, logging's), then `os._exit`, skipping the
-    interpreter's teardown of its ~1000 modules and JAX's objects (a warm `jthermo simulate`
-    ends in 0.05 instead of 0.33 CPU s: `python benchmarks/simulate_teardown.py`). Only for
+    interpreter's teardown of its ~1000 modules and JAX's objects (most of a warm `jthermo
+    simulate`'s exit: measured by `python benchmarks/simulate_teardown.py`). Only for
     the process the command owns (`python -m jthermo.cli`, `cli.entry`), never for an
     in-process `main()`."""
     import atexit

@@ -30,20 +30,21 @@ from .common import (
 
 #: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
 #: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
-#: for pi and 30 for lqg; with 60, pi returns the same controller (benchmarks/results/
-#: tuning_profile_default*.md, tuning_optimisers.json); lqg at 30 steps of learning rate 0.1
-#: (`SHORT_LR`) gives 47.7 % below lambda PI, against 47.5 % at 60 steps of 0.05 and 46.8 %
-#: at 150 (benchmarks/results/tuning_rollouts.jsonl); pi at 40 steps of 0.075 only 13.0 %
+#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by `python
+#: benchmarks/tuning_profile_default.py` and `python benchmarks/tuning_optimisers.py`); lqg at
+#: 30 steps of learning rate 0.1 (`SHORT_LR`) does as well below lambda PI as at 60 steps of
+#: 0.05 or at 150 (measured by `python benchmarks/tuning_rollouts.py`); pi at 40 steps of 0.075
+#: falls short
 SHORT_STEPS = {"pi_lambda": 60, "lqg": 30}
 #: ... and their Adam learning rate where it is not `tune_report`'s 0.05
 SHORT_LR = {"lqg": 0.1}
 #: families whose training rollouts on the virtual printer run in float32 (`tune_report(
-#: train_dtype=...)`; the guard and every held-out figure stay float64): pi 22.33 % below
-#: lambda PI against 22.35 % in float64, for ~15 % less CPU per Adam step; lqg lost 2.2 points
-#: (45.5 %) and stays float64 (benchmarks/results/tuning_rollouts.jsonl)
+#: train_dtype=...)`; the guard and every held-out figure stay float64): pi does as well below
+#: lambda PI as in float64, for less CPU per Adam step; lqg loses points and stays float64
+#: (measured by `python benchmarks/tuning_rollouts.py`)
 TRAIN_DTYPE = {"pi_lambda": "float32"}
 #: ... every other family, and any family on a fitted plant (`tune_own_plant`): pi_ff and
-#: lqg_ff lose 7 and 11 points against the best classical design at 60 (commit 3e9f1e2)
+#: lqg_ff lose 7 and 11 points against the best classical design at 60
 DEFAULT_STEPS = 150
 #: the virtual printer `simulate` and `tune` use when no --zones / --powder is given
 PRINTER_ZONES, PRINTER_POWDER = 4, "PA12"
@@ -158,14 +159,14 @@ def setpoints(text: str) -> list[float]:
 
 
 def _own_plant(args, plant, model_file):
-    """The envelope and set point of a fitted plant: the recording stored with `model_file`
-    (else with the plant's file; a stand-in for files without one) and `--setpoint` checked
-    against what the heaters can reach (exit 2 with one line otherwise)."""
+    """The envelope and (printed) operating point of a fitted plant (`models.operating`): the
+    recording stored with the plant's file (else `model_file`'s; a stand-in without one)."""
     from .. import io
-    from ..models.envelope import Envelope, check_reachable
+    from ..models.envelope import Envelope
+    from ..models.operating import operating_point
 
     env = None
-    for f in (model_file, args.plant):
+    for f in (args.plant, model_file):
         if f is not None and f != "printer":
             env = io.load_envelope(f)
             if env is not None:
@@ -175,8 +176,10 @@ def _own_plant(args, plant, model_file):
     if sp is not None and len(sp) not in (1, env.n_outputs):
         raise ConfigError(f"--setpoint: give one value or {env.n_outputs} (one per output), "
                           f"got {len(sp)}")
-    r = check_reachable(plant, env, env.default_setpoint(plant) if sp is None else sp)
-    return env, r
+    op = operating_point(plant, env, sp)
+    info(args, op.line())
+    args.operating_point = op
+    return env, op.r
 
 
 def _controller_family(name: str) -> str:
@@ -230,7 +233,7 @@ def _printer_model_fields(printer) -> dict:
     return {f: getattr(model, f) for f in _MODEL_FIELDS}
 
 
-def _printer_model(printer):
+def stored_printer_model(printer):
     """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
     many small ones, each traced, lowered and looked up in the cache on every run. It runs
     once, so it is compiled with `runtime.one_shot()` options (-O0), and traced once per
@@ -240,11 +243,11 @@ def _printer_model(printer):
     from ..models import StateSpace
     from ..stored import cached_arrays
 
-    fields = cached_arrays(_printer_model_fields, (printer,), _printer_model_program)
+    fields = cached_arrays(_printer_model_fields, (printer,), printer_model_program)
     return StateSpace(**fields, ts=printer.ts)
 
 
-def _printer_model_program(printer) -> dict:
+def printer_model_program(printer) -> dict:
     """`_printer_model_fields(printer)` run as its exported, -O0 compiled program."""
     import equinox as eqx
 
@@ -259,11 +262,11 @@ def _printer_model_program(printer) -> dict:
 
 #: families whose controller structure depends on the design model's values, not only its
 #: shapes (IMC's static `inverse`: whether the model's zeros are stable): not prepared early
-_PREPARE_SKIP = ("imc",)
+PREPARE_SKIP = ("imc",)
 
 
-def _shape_model(printer):
-    """A stand-in for `_printer_model(printer)` with its shapes, dtypes and sample time (a
+def shape_model(printer):
+    """A stand-in for `stored_printer_model(printer)` with its shapes, dtypes and sample time (a
     stable diagonal plant): a controller designed on it has the real one's
     structure, so `closedloop.prepare_run` can compile for it before the real design."""
     import jax
@@ -279,9 +282,9 @@ def _shape_model(printer):
 
 
 def _prepare_in_background(cl, kind: str, family: str, printer, kwargs: dict):
-    """A started thread that designs `family` on `_shape_model(printer)` and compiles `run`'s
+    """A started thread that designs `family` on `shape_model(printer)` and compiles `run`'s
     program for it (`closedloop.prepare_run`): on a cold cache the compile overlaps the
-    design model's (`_printer_model`). The caller joins it before `run`; a failure there only
+    design model's (`stored_printer_model`). The caller joins it before `run`; a failure there only
     leaves the compile to `run`."""
     import threading
 
@@ -289,7 +292,7 @@ def _prepare_in_background(cl, kind: str, family: str, printer, kwargs: dict):
         try:
             from ..control.design import design
 
-            proto = design(family, _shape_model(printer))
+            proto = design(family, shape_model(printer))
             cl.prepare_run(kind, proto, printer, rollouts=kwargs["rollouts"], duration=kwargs["duration"])
         except Exception:  # noqa: BLE001  (an optimisation only: `run` compiles what it needs)
             pass
@@ -341,7 +344,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
                               "seed": args.seed, "scenario_kw": scenario_kw}
     prepared = None
-    if (not own and isinstance(controller, str) and controller not in ("untuned", *_PREPARE_SKIP)
+    if (not own and isinstance(controller, str) and controller not in ("untuned", *PREPARE_SKIP)
             and args.model is None):
         # the run program compiles in a thread while the printer's design model is computed
         prepared = _prepare_in_background(cl, args.scenario, controller, plant, kwargs)
@@ -352,7 +355,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
             input_file(args.model, "--model")
             model = io.load_model(args.model)
         else:
-            model = plant if own else _printer_model(plant)
+            model = plant if own else stored_printer_model(plant)
         controller = design(controller, model, **({"setpoint": r} if own else {}))
     if prepared is not None:
         prepared.join()
@@ -370,6 +373,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
               "seed": args.seed}
     if plant_desc == "printer":
         report["printer_seed"] = args.printer_seed
+    if own:
+        report["operating_point"] = args.operating_point.to_dict()
     report.setdefault("seconds", seconds)
     if plot is not None and traj is not None:
         from .. import plots
@@ -443,7 +448,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             raise ConfigError(f"tune: the model has {model.n_inputs} heater(s) and {model.n_outputs} "
                               "sensor(s); the controllers need one sensor per heater: fit it on "
                               "the heated zones' sensors (`jthermo fit ... --outputs NAME[,NAME...]`)")
-        env, r = _own_plant(args, model, args.model)
+        env, r = _own_plant(args, plant, args.model)
         if args.validation_plant is not None:
             input_file(args.validation_plant, "--validation-plant")
             validation = io.load_model(args.validation_plant)
@@ -475,6 +480,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         rep.pop(k)
     costs = rep.get("costs") or rep.get("history")
     report = {"controller": args.controller, **rep, "seed": args.seed}
+    if own:
+        report["operating_point"] = args.operating_point.to_dict()
     report["tuned_vs_start_percent"] = _gain(report.get("start_cost"), report.get("tuned_cost"))
     if not own:
         report["printer_seed"] = args.printer_seed
@@ -490,7 +497,9 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         if tuned is None:
             raise ConfigError("tune: the tuning result holds no controller to save")
         io.save(tuned, out, meta={"family": args.controller, "seed": args.seed,
-                                  "tuned_cost": report.get("tuned_cost")})
+                                  "tuned_cost": report.get("tuned_cost"),
+                                  **({"operating_point": report["operating_point"]}
+                                     if own else {})})
         report["out"] = str(out)
     report = write_report(args, js, report)
     kept = " (the tuning kept its start: no step beat it on held-out rollouts)" \

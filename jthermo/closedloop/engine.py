@@ -87,7 +87,7 @@ class _LinearPlant(eqx.Module):
 
 
 #: the printer scenarios `make_scenario` draws without any recoat (tests/closedloop/
-#: test_substeps.py checks it): `run` integrates the printer in them without the recoat
+#: test_engine_substeps.py checks it): `run` integrates the printer in them without the recoat
 #: sweep, in fewer sub-steps (`Printer.discretise(recoat=False)`)
 RECOAT_FREE_KINDS = ("tracking", "preheat")
 
@@ -219,7 +219,7 @@ def simulate_metrics(plant, controller: AbstractController, scenario: Scenario,
 
     `recoat=False` (a printer scenario without any recoat, `RECOAT_FREE_KINDS`): the printer
     is integrated without the recoat sweep (`Printer.discretise(recoat=False)`), within 1e-3 °C
-    of the full integration (benchmarks/results/simulate_substeps.md).
+    of the full integration (measured by `python benchmarks/simulate_substeps.py`).
 
     `noise` (`Printer.noise_stream`): the measurement noise drawn inside the scan instead of
     read from `scenario.v` (`run` does this: the distribution of `scenario.v`, other draws).
@@ -253,7 +253,7 @@ def rollout_metrics(plant, controller: AbstractController, scenarios: Scenario,
 
 def rollouts(plant, controller: AbstractController, scenarios: Scenario, x0s=None, *,
              plant_axis: int | None = None) -> Trajectory:
-    """A batch of closed-loop runs: vmap over the leading axis of `scenarios` (and `x0s`), and
+    """A batch of closed-loop runs: vmap over the first axis of `scenarios` (and `x0s`), and
     over a stacked batch of plants with `plant_axis=0` (one plant per rollout)."""
     if scenarios.r.ndim != 3:
         raise ConfigError("rollouts: scenarios need a leading rollout axis (make_scenario(..., n_rollouts=B))")
@@ -381,7 +381,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     else:
         sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)),
                            n_rollouts=int(rollouts), **dict(scenario_kw or {}))
-        out = _run_metrics(plant, ctrl, sc, kind not in RECOAT_FREE_KINDS)
+        out = run_metrics(plant, ctrl, sc, kind not in RECOAT_FREE_KINDS)
     vals, r0, n_samples = jax.device_get(out)   # one transfer to the host
     J = vals.pop("cost")
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
@@ -413,7 +413,7 @@ def prepare_run(kind: str, controller, plant: Printer, *, rollouts: int = 8,
 
 
 @eqx.filter_jit
-def _run_metrics(plant, controller, scenarios, recoat=True, noise=None, held=()):
+def run_metrics(plant, controller, scenarios, recoat=True, noise=None, held=()):
     """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost), the
     first set point and the run length: one compiled call, no `(B, T, n)` output."""
     vals = rollout_metrics(plant, controller, scenarios, recoat=recoat, noise=noise, held=held)
@@ -447,19 +447,20 @@ def run_scenario(kind: str, plant: Printer, duration, key, n_rollouts: int) -> S
 
 
 def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
-    """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
+    """`run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
     traced: one compile for every seed). The measurement noise is drawn inside the scan,
     sample by sample (`rollout_noise`: the scenario's noise distribution, about a quarter of
     its cost): the scenario's `(B, T, ny)` noise is never formed (XLA drops it unread):
-    `jthermo simulate`'s run program before and after in benchmarks/results/simulate_stages*.md."""
+    `jthermo simulate`'s run program's stages are measured by
+    `python benchmarks/simulate_stages.py`."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
-    return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,
+    return run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,
                         HELD_SIGNALS.get(kind, ()))
 
 
-_scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
+scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
 
 
 def _seeded_metrics_fn(kind, plant, controller, duration, seed, n_rollouts):
@@ -472,7 +473,7 @@ def _seeded_metrics_fn(kind, plant, controller, duration, seed, n_rollouts):
 
 @functools.cache
 def _quick_scenario_metrics():
-    """`_scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
+    """`scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
     it where its exported program cannot serve: compiled once per cache and run once per
     command (the same figures to 1e-16 relative)."""
     return eqx.filter_jit(_scenario_metrics_fn, compiler_options=simulate_compile())

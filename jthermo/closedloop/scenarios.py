@@ -270,8 +270,9 @@ def compiled_make_scenario():
     """`make_scenario` (the same arguments) with a printer's scenarios built as one compiled
     program with `runtime.one_shot()` options (non-array arguments static), for scenarios built
     once per process: -O0 compiles the scenario program in a fraction of the default options'
-    time (`runtime.ONE_SHOT`); with `demo`'s jitted runs, the demo's three figure runs took
-    4.7-5.2 instead of 19.4-21.0 CPU s cold (`python benchmarks/evaluate_compile.py`). A fitted
+    time (`runtime.ONE_SHOT`); with `demo`'s jitted runs, the demo's three figure runs take a
+    fraction of their eager CPU time cold (measured by `python benchmarks/evaluate_compile.py`).
+    A fitted
     model's scenarios (which check their envelope in Python) are built by `make_scenario`."""
     jitted = _jitted_make_scenario()
 

@@ -132,7 +132,7 @@ class RunningMetrics(eqx.Module):
 
     `init` gives the carry, `update` adds sample k, `finish` gives the figures; they equal
     `metrics(simulate(...))` and `cost(...)` of the same run to rounding
-    (`tests/closedloop/test_lean_metrics.py`)."""
+    (`tests/closedloop/test_engine_lean_metrics.py`)."""
 
     r_end: Float[Array, " ny"]        # final set point, °C
     sign: Float[Array, " ny"]         # direction of the step (+1 without one)

@@ -178,8 +178,8 @@ class LQG(AbstractController):
 def compiled_gains(ctrl: LQG) -> LQGGains:
     """`ctrl.gains()` for use outside jit, as NumPy float64 arrays: the same doubling
     iterations (`lqg_gains(xp=np)`) run eagerly on the small dense matrices, so nothing is
-    compiled (as one compiled program it cost about 1.5 CPU s cold per state size; eager JAX
-    compiled about 50 small programs)."""
+    compiled (as one compiled program it cost a compile per state size; eager JAX compiled
+    about 50 small programs)."""
     f = lambda a: np.asarray(a, np.float64)
     return lqg_gains(f(ctrl.A), f(ctrl.B), f(ctrl.C), f(ctrl.q1), f(ctrl.q2), f(ctrl.qi),
                      f(ctrl.qw), ctrl.ts, ctrl.iters, xp=np)

@@ -161,7 +161,7 @@ def confidence(z_base: float, z_runner: float | None, z_runner_est: float | None
     another shows on both records. Two forms both outside the truth's (a lamp's $u^p$ and a
     $T^4$ loss for a natural-convection $h(T)$) can differ on the validation record, whose
     levels the better extrapolating one happens to match, and tie on the longer estimation
-    record (development set 18 case 17: $z$ 4.77 against 0.12)."""
+    record."""
     c = 1.0 - p_value(z_base)
     zs = [z for z in (z_runner, z_runner_est) if z is not None and np.isfinite(z)]
     if zs:
@@ -271,7 +271,7 @@ def order_body_drift(rows: list, z_input: float) -> list:
     `ambient_variation` when the drift the latter fitted depends on the inputs
     (`input_dependent`): a body the heaters warm, not an exogenous drift. Otherwise unchanged:
     the test's power on a body whose time constant is near the record length is low (a drift
-    first there was wrong on the development records: printer slow-body test, hard set 0), so
+    first there was wrong on the development records' printer slow bodies), so
     no evidence of input dependence leaves the validation ranking, and `body_drift_tied` makes
     the other its rival."""
     return _body_ahead(rows) if input_dependent(z_input) else list(rows)

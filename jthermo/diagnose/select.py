@@ -86,23 +86,19 @@ ACTUATORS = {"resistive-pwm": {"input_nonlinearity": "a PWM-driven resistive hea
                                                      "in the duty cycle"},
              "any": {}}
 #: most Levenberg–Marquardt iterations of a per-zone candidate fit (each stops once converged,
-#: `fitting.RTOL`). At 25 many stopped short, and an unconverged fit misjudges its mechanism's
-#: evidence: development set 8 11 -> 12/16 at 60 (its lamp case: `input_nonlinearity` LR 284 -> 549,
-#: ahead of a body), nulls 12/12 quiet (`diagnose_heldout_hard_s30_niter60_*`). At 60 a zone with
-#: many heater gains (N = 4-9) or a slow body's long valley still stopped short: development set 12
-#: at 1-9 zones 10 -> 12/16 at 200 (both slow bodies named, no longer `ambient_variation`; a
-#: 5-zone lamp case's LRs 5431 / 5510 -> 11428 / 11759), nulls 3/3
-#: (`diagnose_heldout_hard_s33_mz9_set12{,_iter200}`), for 75 % more CPU on the latency record
-#: (warm `jthermo diagnose` 34.0 -> 59.5 CPU s, the candidates' fits 9.0 -> 24.8: `python
-#: benchmarks/latency.py --only diagnose`, `benchmarks/diagnose_profile.py --tag _s33_iter200`).
+#: `fitting.RTOL`). An unconverged fit misjudges its mechanism's evidence: at 25 many fits
+#: stopped short, and at 60 a zone with many heater gains (N = 4-9) or a slow body's long valley
+#: still did, so that slow bodies were named `ambient_variation`; at 200 they are named and the
+#: null records stay quiet, for more CPU per diagnosis (measured by `python
+#: experiments/diagnose_heldout_hard.py` and `python benchmarks/latency.py --only diagnose`).
 #: Fewer would move the answers: a looser `fitting.RTOL`, a cap of 100 or no extra body starts
-#: shift candidates' estimation statistics by 100s to 8000s on development set 12 (`python
-#: benchmarks/diagnose_zone_convergence.py --tag _h34`, the `fitting` module's note)
+#: shift candidates' estimation statistics by hundreds to thousands (measured by
+#: `python benchmarks/diagnose_zone_convergence.py`, the `fitting` module's note)
 N_ITER = 200
 #: at most this many more `n_iter` rounds for the zone fits still falling at the cap
-#: (`fitting.still_falling`; the others stop): development set 21's lamp case 84 (N = 7) was named
-#: `radiative_loss` at 0.999 against a lamp fit whose heater gains revive only after 200-800
-#: iterations, and names `input_nonlinearity` with 800 (`experiments/results/diagnose_continue_s35.md`)
+#: (`fitting.still_falling`; the others stop): a 7-zone lamp record was named `radiative_loss`
+#: at 0.999 against a lamp fit whose heater gains revive only after 200-800 iterations, and is
+#: named `input_nonlinearity` with 800
 CONTINUE_ROUNDS = 3
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
@@ -136,7 +132,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     - `actuator`: a key of `ACTUATORS`; a finding its physics rules out is reported under
       `flagged` (with the reason), not named.
 
-    **Returns:** the JSON-ready dict of issue 5: `verdict`, `baseline`, `findings` (ranked),
+    **Returns:** the JSON-ready report dict: `verdict`, `baseline`, `findings` (ranked),
     `augmented`, plus `localisation` and `candidates` (every refit's figures) and `seconds`.
     """
     t_start = time.perf_counter()

@@ -11,7 +11,7 @@ shift), with $c = \\alpha a (1 + \\gamma)$ and $W_0 = \\beta a / c$: linear in
 $(\\kappa, \\alpha, \\beta)$ for each $\\tau$. `body_from_drift` fits that restriction to a zone's
 fitted drift (least squares over a grid of $\\tau$) and writes the body model it stands for: a
 start for the body's own fit in the basin of a slow body that the neutral starts miss (a body
-slower than the record, whose time constant and share trade along a long valley; issue 14).
+slower than the record, whose time constant and share trade along a long valley).
 """
 
 from __future__ import annotations

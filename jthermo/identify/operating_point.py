@@ -67,7 +67,7 @@ def estimate_rest_level(y, u, nb, nkt, n_den, full_a, ts):
     an ARX model of the family's own orders is biased on output-error data, and its biased
     response moved the level by −0.12 to −0.18 °C on OE data and by −0.19 °C on W1 with 16
     zones (`experiments/rest_level_check.py`; the 3σ coverage of the OE parameters fell to 0.91
-    in `tests/identify/test_coverage.py`'s slow study); a higher-order ARX approximates any
+    in `tests/identify/test_fit_coverage.py`'s slow study); a higher-order ARX approximates any
     linear system better.
     """
     yn, un = np.asarray(y, np.float64), np.asarray(u, np.float64)

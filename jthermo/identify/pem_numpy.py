@@ -19,7 +19,8 @@ $$\\frac{\\partial\\varepsilon}{\\partial a_k} = \\frac{D}{C} q^{-k} y, \\quad
 chained through the reflection map by its complex-step Jacobian (exact to rounding). A solve of
 a few dozen parameters over a few thousand samples is then milliseconds per step, where the
 compiled solve costs seconds of XLA compilation in every fresh process (and about a second of
-tracing even with the persistent cache warm): `benchmarks/results/peers_fixed_profile_n4.md`.
+tracing even with the persistent cache warm; measured by
+`python benchmarks/peers_fixed_profile.py`).
 
 The solver is Levenberg–Marquardt with Marquardt's scaling $\\lambda\\,\\mathrm{diag}(J^\\top J)$
 (floored at $10^{-4}$ of its largest entry, the 100× range of `pem.minimize`'s Jacobi scaling):

@@ -44,13 +44,10 @@ ENGINES = ("auto", "jax", "numpy")
 #: `choose_engine`: the largest work $w = n_y T p$ (output rows x samples x parameters per row)
 #: the NumPy engine takes when two or more cores are free for the compiled one, for rows without
 #: a noise model (OE) and with one (ARMAX, BJ: `nc + nd > 0`, whose compiled Jacobian costs
-#: more). Measured cold in fresh processes on W1 (`benchmarks/polynomial_engine_crossover.py`,
-#: `benchmarks/results/polynomial_engine_crossover_s26.md`): NumPy used less CPU at every row
-#: up to N = 16 and ARMAX at N = 16 (w = 1.8e6) 7.5 against 13.2 CPU s; OE at N = 16 (3.1e6)
-#: 12.5 against 19.6 CPU s, but the compiled engine runs on both cores, and on two idle cores it
-#: was the faster in wall time there (14.0 against 18.2 s, before the NumPy Jacobian's 25 %
-#: speed-up: `identification_default_n16_armax_oe_bj{,_numpy}.md`), so OE keeps it above
-#: 2.5e6; BJ at N = 16 (3.4e6) took 16.5 CPU s with NumPy against 29.3. Beyond: compiled
+#: more). NumPy uses less CPU up to these sizes; the compiled engine runs on both cores, and on
+#: two idle cores it is the faster in wall time for OE above 2.5e6, so OE keeps it there; with a
+#: noise model NumPy stays cheaper further (measured cold in fresh processes by
+#: `python benchmarks/polynomial_engine_crossover.py`). Beyond: compiled
 AUTO_NUMPY_MAX_WORK = 2_500_000
 AUTO_NUMPY_MAX_WORK_NOISE = 3_500_000
 
@@ -104,7 +101,7 @@ def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
     `y_i (T,)` this output, `y_src (T, m)` the outputs in its A row, `u (T, nu)` inputs (all
     deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `PolySpec`; an optional
     sixth entry `mask (p,)` of 0/1 gives the residual of $\\theta \\odot \\mathrm{mask}$: a smaller
-    structure embedded in `spec` (`_embedding`, zeros for its missing coefficients) then shares
+    structure embedded in `spec` (`parameter_embedding`, zeros for its missing coefficients) then shares
     `spec`'s compiled solve, its masked parameters with a zero Jacobian column (no step).
     """
     yi, ysrc, u, sel, s = args[:5]
@@ -166,8 +163,8 @@ def fit_polynomial(y: Float[Array, "T ny"], u: Float[Array, "T nu"], *, na: int 
     solves the output rows and their start points one after another inside one compiled call
     (`lax.map`): one MISO problem's Jacobian $(T, p)$ is held at a time and each row stops at
     its own step count; `"vmap"` solves all $n_y K$ problems together, which on CPU holds them
-    all at once and runs every row to the slowest one's step count (N = 16: peak RSS and time in
-    `benchmarks/results/identification_default_batch_n16_true.md`; same fits). `common_f`:
+    all at once and runs every row to the slowest one's step count (more peak memory and time at
+    N = 16, the same fits; measured by `python benchmarks/identification.py`). `common_f`:
     OE/BJ with one denominator per output shared by all its inputs, $y_i = \\sum_j B_{ij}/F_i\\, u_j + \\dots$
     (SIPPY's MIMO structure; a zone with one dominant thermal time constant), instead of
     MATLAB's $F_{ij}$ per input–output pair. `shape_orders`: orders (`na`, `nb`, `nc`, `nd`,
@@ -310,9 +307,9 @@ def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **
     `shape_orders`, in the compiled shape of that larger structure (missing coefficients
     masked), the result mapped back to `spec`'s own parameters."""
     ny = dy.shape[1]
-    big = spec if shape_orders is None else _padded_spec(spec, shape_orders, nkt)
+    big = spec if shape_orders is None else padded_spec(spec, shape_orders, nkt)
     args = poly_args(dy, du, big, nkt, spec.m > 1)
-    idx = _embedding(spec, big)
+    idx = parameter_embedding(spec, big)
     if shape_orders is not None:    # the shared compiled shape, missing coefficients masked
         padded = np.zeros(starts.shape[:2] + (big.n_params,))
         padded[..., idx] = starts
@@ -332,7 +329,7 @@ def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **
     return res
 
 
-def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
+def padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
     """The structure `spec` enlarged to the orders `orders` (`na`, `nb`, `nc`, `nd`, `nf`; each
     the larger of the two): a compiled shape that `spec` and smaller structures share."""
     o = {n: max(getattr(spec, n), int(orders.get(n, 0))) for n in ("na", "nb", "nc", "nd", "nf")}
@@ -340,7 +337,7 @@ def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
     return spec._replace(**o, L=max(L, spec.L))
 
 
-def _embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
+def parameter_embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
     """Positions of the parameters of `s` in the parameter vector of the larger `big` (same
     m, nu, offset, common_f): each coefficient block `(rows, n)` sits in the first `n`
     columns of `big`'s `(rows, n_big)` block."""

@@ -8,29 +8,25 @@ Levenberg–Marquardt (`jthermo.identify.pem.minimize`). The initial state is es
 other parameters. Simulation is the default because the validation figure a thermal bed's user
 reads is a simulation fit, and with the innovations model of order n the noise model shares the
 plant's poles: coloured sensor noise (a pole of its own) then biases the prediction-focus plant.
-Measured validation fits, prediction → simulation focus (`experiments/ss_focus_scale.py`):
-linear N-zone bed with AR(1) sensor noise, gap to the true model 2.01 → 0.43 / 6.24 → 1.93 /
-9.75 → 3.31 / 9.78 → 4.33 points at N = 4 / 9 / 16 / 19; TCLab CACE SS 4 90.2 → 95.3 %
-(`experiments/results/ss_focus_real.md`).
+Simulation focus narrows the validation fit's gap to the true model at every N from 4 to 19
+on a linear N-zone bed with AR(1) sensor noise, and raises the real recordings' fits (measured
+by `python experiments/ss_focus_scale.py`).
 
 One state per output (n = ny, C = I, simulation focus, initial state estimated): the gap left
-at N ≥ 9 by full A was variance, not an early stop (`experiments/scale_fit_checks.py ss --n 9`):
-at N = 9 the true structure (diagonal A: zones coupled only through the heaters) fitted by the
-same PEM simulates 93.84 % against full A's 92.51 % and the true model's 94.43 %, while full
-A's estimation error is the lower (767 against 836). The default (`coupling="auto"`) therefore
+at N ≥ 9 by full A was variance, not an early stop: the true structure (diagonal A: zones
+coupled only through the heaters) fitted by the same PEM simulates better than full A, whose
+estimation error is the lower (measured by `python experiments/scale_fit_checks.py ss --n 9`).
+The default (`coupling="auto"`) therefore
 fits diagonal A first, each output its own first-order problem given the inputs
 (`fit_diagonal`: N small problems in one compiled call), and keeps it unless full A, refined from it on the first
 two thirds of the record, simulates the last third better (`coupling_holdout`); then full A is
-refined from the diagonal fit on the whole record. Gap to the true model with automatic
-orders, full A → default: 0.43 → 0.21 / 1.93 → 0.59 / 3.31 → 0.70 / 4.33 → 0.69 points at
-N = 4 / 9 / 16 / 19 (diagonal A chosen at every N; `experiments/ss_coupling_scale.py`); the
-real recordings fit as before (`experiments/results/ss_coupling_real.md`).
-In rest mode (x0 = 0, `rest_coupling`) the same structure with x0 fixed at 0: gap to the true
-model, full A → diagonal-first, seed 0 +0.07 → +0.15 / −0.44 → −0.32 / −0.73 → −0.36 and
-held-back seed 31 (noise 0.15 °C, pole 0.8) −0.36 → −0.25 / −0.87 → −0.40 / −0.99 → −0.37
-points at N = 4 / 9 / 16; TCLab CACE 2020 ss 2 75.07 → 75.72 %, Kantor 94.25 % kept (the
-hold-out keeps full A; x0 estimated instead had cost CACE 6.7 points,
-`experiments/results/ss_rest_diagonal_x0zero.md`, `ss_rest_structure.md`).
+refined from the diagonal fit on the whole record. With automatic orders this narrows the gap
+to the true model at N = 4 to 19 (diagonal A chosen at every N), and the real recordings fit as
+well as with full A (measured by `python experiments/ss_coupling_scale.py`).
+In rest mode (x0 = 0, `rest_coupling`) the same structure with x0 fixed at 0: closer to the true
+model at N = 9 and 16, and on the real recordings no worse (where the hold-out keeps full A);
+x0 estimated instead costs the short recordings several points (measured by
+`python experiments/ss_rest_structure.py`).
 The returned model is stable (A's eigenvalues are projected inside the unit circle if the
 optimum lies outside it).
 
@@ -301,8 +297,8 @@ def fit_statespace(data: IOData, n: int | None = None, *, seed: int = 0, n_start
       `"diagonal"` or `"full"` (N4SID starts, full A: the path for any other structure).
       `extra["coupling"]` says which was fitted, `extra["coupling_holdout"]` the hold-out errors.
     - `rest_coupling`: the same choice in rest mode with x0 = 0 (`"auto"`, the default, and
-      `"diagonal"`: the diagonal-A fit with x0 = 0; `"full"`: N4SID starts, full A, the path
-      before fd8d1c6); `coupling` `"full"` overrides it.
+      `"diagonal"`: the diagonal-A fit with x0 = 0; `"full"`: N4SID starts, full A); `coupling`
+      `"full"` overrides it.
 
     **Returns:** a `FitResult` with `model` (a stable `StateSpace`), `orders = {"n": n}`,
     `converged`, `cost` (mean squared residual), `covariance`/`std` of the packed parameters

@@ -11,8 +11,8 @@ The combined deterministic–stochastic algorithm of Van Overschee & De Moor (19
    values; canonical correlations for CVA) show the order;
 4. the extended observability matrix $\\Gamma_i = W_1^{-1} U_1 S_1^{1/2}$ and the Kalman-filter
    state sequence $\\hat x(t) = \\Gamma_i^\\dagger \\mathcal O_i(t)$, one column per sample t;
-5. least squares on consecutive states, $[\\hat x(t+1); y(t)] = [A\\;B; C\\;D][\\hat x(t); u(t)]
-   + [\\rho_w; \\rho_v]$ (the state-sequence shift, as SIPPY does, in place of the book's
+5. least squares on consecutive states, $[\\hat x(t+1); y(t)] = [A\\;B; C\\;D][\\hat x(t); u(t)] +
+   [\\rho_w; \\rho_v]$ (the state-sequence shift, as SIPPY does, in place of the book's
    second projection $X_{i+1} = \\underline{\\Gamma_i}^\\dagger \\mathcal O_{i-1}$), and the
    Kalman gain $K$ from the residual covariances $(Q, S, R)$ by the filter Riccati equation.
 

@@ -56,7 +56,7 @@ def _zeros(shape, dtype) -> Array:
 class Polynomial(AbstractModel):
     """MIMO polynomial model $A y = \\frac{B}{F} u(t-n_k) + \\frac{C}{D} e$ (ARX, ARMAX, OE, BJ).
 
-    **Fields** (coefficients exclude the leading 1 of monic polynomials):
+    **Fields** (coefficients exclude the first coefficient, 1, of monic polynomials):
     - `a`: `(ny, m, na)` with m = ny for a full A, m = 1 for a diagonal A (own output only).
     - `b`: `(ny, nu, nb)`; `c`: `(ny, nc)`; `d`: `(ny, nd)`; `f`: `(ny, nu, nf)`.
     - `u0`, `y0`: the operating point (power fraction, °C); `nk` `(ny, nu)` delays in samples.

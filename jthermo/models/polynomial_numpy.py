@@ -3,9 +3,9 @@ and BJ model that `fit` chooses by itself).
 
 The JAX methods of `Polynomial` (`simulate`, `residuals`, `to_statespace`) compile once per
 shape: in a fresh process that is dozens of small XLA compiles for a handful of filters over a
-few thousand samples, which dominated the cold `jthermo fit` (`benchmarks/results/
-fit_profile_n4_before.md`). These functions compute the same quantities with `scipy.signal.lfilter`
-on float64 arrays (equal to the JAX methods to rounding; tests/models/test_polynomial_numpy.py)
+few thousand samples, which dominated the cold `jthermo fit` (measured by
+`python benchmarks/fit_profile.py`). These functions compute the same quantities with
+`scipy.signal.lfilter` on float64 arrays (equal to the JAX methods to rounding; tests/models/test_polynomial_numpy.py)
 and compile nothing. Per output $i$ of a diagonal A:
 
 $$\\hat y_i = y_{0,i} + \\frac{1}{A_i}\\sum_j \\frac{B_{ij}}{F_{ij}}\\,(u_j - u_{0,j}), \\qquad

@@ -5,7 +5,7 @@ whose `simulate` is that realisation's (`StateSpace`, `BedModel`, `ExtendedBedMo
 In a fresh process each JAX function of a small model compiles once per shape: the validation
 of a grey-box bed (`validate.compare`: its realisation, the simulation, the Jacobian of the
 simulation in the initial state, the least squares) was about 50 XLA compiles and most of a
-cold `jthermo fit --model greybox` (`benchmarks/results/fit_profile_n16_greybox*.md`). Here the
+cold `jthermo fit --model greybox` (measured by `python benchmarks/fit_profile.py`). Here the
 realisation is one compiled program (`realise`, shared with the plausibility check) and the
 rest runs on the host in float64:
 
@@ -27,7 +27,7 @@ from .polynomial import Polynomial
 @eqx.filter_jit
 def realise(model: AbstractModel) -> StateSpace:
     """`model.to_statespace()` as one compiled program (eagerly, a realisation compiles op by
-    op: 1.6 CPU s against 0.17 s in a fresh process for a hot-end OE model)."""
+    op, about ten times the compiled program's CPU time in a fresh process)."""
     return model.to_statespace()
 
 

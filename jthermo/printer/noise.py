@@ -1,6 +1,6 @@
 """The printer's measurement noise drawn one sample at a time inside a closed-loop scan: the
 distribution of the whole-run draw (`Printer.sample_noise`) at about a quarter of its cost
-(0.53 against 1.90 CPU s for N = 16, B = 256, T = 3600: benchmarks/results/simulate_noise_options.md).
+(measured at N = 16, B = 256, T = 3600 by `python benchmarks/simulate_noise_options.py`).
 
 `Printer.sample_noise` draws three float64 normal arrays: the scenario's white noise, the
 `sensor_noise` effect's white part (both on every output) and the innovations of its AR(1)
@@ -15,7 +15,7 @@ the two white parts as one draw of their summed variance (the same distribution)
 draw in float32 (24-bit normals, far finer than the noise's 0.05 °C steps). Per channel the
 same standard deviation and autocorrelation as `sample_noise`, other draws: a run of
 `closedloop.run` on the printer is a statistically equal, not an identical, realisation of
-`make_scenario`'s noise (`tests/closedloop/test_noise_in_scan.py` checks the statistics;
+`make_scenario`'s noise (`tests/closedloop/test_engine_noise.py` checks the statistics;
 `python benchmarks/simulate_noise_options.py` times both and reports the statistics).
 Deterministic: the same key gives the same stream.
 """
@@ -68,10 +68,10 @@ class NoiseStream(eqx.Module):
         j = k % CHUNK
         buf = jax.lax.cond(j == 0, lambda b: self._draws(k), lambda b: b, buf)
         e = jax.lax.dynamic_index_in_dim(buf, j, keepdims=False).astype(self.dtype)
-        v, c = self._noise(k, c, e)
+        v, c = self.shape_noise(k, c, e)
         return v, (c, buf)
 
-    def _noise(self, k, c, e):
+    def shape_noise(self, k, c, e):
         if self.sensor is None:
             return self.white_std * e, c
         p = self.sensor

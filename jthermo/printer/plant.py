@@ -17,7 +17,7 @@ from .noise import NoiseStream
 
 #: sub-steps per sample for radiation alone (no recoat sweep): its T^4 term changes little over
 #: a sample, so one ETD2RK step stays within 1e-3 °C of 100 sub-steps in closed loop
-#: (benchmarks/results/simulate_substeps.md; the sensor noise is 0.05-0.1 °C)
+#: (measured by `python benchmarks/simulate_substeps.py`; the sensor noise is 0.05-0.1 °C)
 SMOOTH_SUBSTEPS = 1
 
 # ----------------------------------------------------------------------------- state & disturbance

@@ -142,10 +142,8 @@ def _generate_fn(printer, u, key, u_mean, noise_std, steady: bool):
 def _generate_core():
     """`_generate_fn` compiled with `runtime.one_shot()` options (-O0; probed on first use, not
     at import): an experiment is simulated once per record shape, and compiles in about half
-    the CPU time for a slower run (`jthermo demo`'s two 4-zone records: 10.5-12.6 -> 5.9-6.3
-    CPU s cold; 10 h of 9 zones: compile + run 8.7-8.8 -> 3.5-4.0 CPU s, a repeat run 0.35 ->
-    0.52 s; outputs equal to 5e-12 °C: `python benchmarks/generate_compile.py`,
-    benchmarks/results/generate_compile.md)."""
+    the CPU time for a slower run, outputs equal to 5e-12 °C (measured by
+    `python benchmarks/generate_compile.py`)."""
     return eqx.filter_jit(_generate_fn, compiler_options=one_shot())
 
 

@@ -31,10 +31,8 @@ from ..runtime import QUICK_COMPILE, accepted
 
 #: XLA compile options of Adam's training-step program (`runtime.accepted`; empty: XLA's
 #: defaults): `runtime.QUICK_COMPILE` (XLA's older CPU fusion emitters) compiles the default
-#: `jthermo tune` step in 8.1-8.4 instead of 13.5-14.9 CPU s for lqg and 4.7-5.8 instead of
-#: 6.9-7.7 for pi, at the same CPU s per step (lqg 0.43 against 0.44-0.49, pi 0.30 against
-#: 0.31; `python benchmarks/tune_program_options.py --program step --controller lqg|pi`,
-#: benchmarks/results/tune_step_options_*_s31_a.md)
+#: `jthermo tune` step in less CPU time for lqg and pi, at the same CPU time per step (measured
+#: by `python benchmarks/tune_program_options.py --program step --controller lqg|pi`)
 STEP_COMPILE: dict = dict(QUICK_COMPILE)
 
 
@@ -173,7 +171,7 @@ def _lbfgs_iterates(objective, z, batch, steps: int, lr: float, memory: int = 10
             return
 
 
-def _adam_iterates(objective, z, batches: Callable[[], list], steps: int, lr: float,
+def adam_iterates(objective, z, batches: Callable[[], list], steps: int, lr: float,
                    template=None):
     """Yield `(z, cost of z on its batch, evaluations so far)` for each Adam iterate (the
     batches, which `batches()` returns, cycled), then the last finite iterate with its cost on
@@ -259,7 +257,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         obj = (lambda z, bb: sum(objective(z, b) for b in bb) / len(bb)) if many else objective
         its = _lbfgs_iterates(obj, z0, tuple(bs) if many else bs[0], steps, lr)
     else:
-        its = _adam_iterates(objective, z0, resolved, steps, lr, template=template)
+        its = adam_iterates(objective, z0, resolved, steps, lr, template=template)
     iterates, evals = [], 0           # (z_k, f_k), k = 0..K; f_K of Adam on batches[0]
     for z, val, n in its:
         if not iterates and not np.isfinite(val):

@@ -1,5 +1,5 @@
 """A smooth, differentiable peak sensitivity of PI-family loops, for a penalty inside the
-tuning cost (issue 16 item 3: robustness constrained in tuning, not only checked after it).
+tuning cost (robustness constrained in tuning, not only checked after it).
 
 On a fixed grid $\\omega_1..\\omega_F$ up to Nyquist, with the design model's response
 $G_f = C (e^{j\\omega_f} I - A)^{-1} B + D$ computed once and the PI law

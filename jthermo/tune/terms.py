@@ -212,7 +212,7 @@ def _group_terms(controller, groups, weights, parts: bool = False):
     (`parts=True`: `(items, 6)`, the mean of each term of `simulate_parts` and the mse), one
     compiled program per structure, compiled with `runtime.quick_compile()` options: tune runs
     each such evaluation program a few times per process, so compiling it faster pays
-    (benchmarks/results/tuning_latency_ab_tune_*.md). Inside a trace (the training step's
+    (measured by `python benchmarks/simulate_latency_ab.py`). Inside a trace (the training step's
     loss) the plain jit is inlined there: JAX refuses compile options on a nested jit."""
     fn = _quick_group_terms() if top_level() else _plain_group_terms
     return fn(controller, groups, weights, parts)

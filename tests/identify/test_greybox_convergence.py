@@ -1,4 +1,4 @@
-"""Issue 12: the grey-box fit says which zones did not converge and by how much a further
+"""The grey-box fit says which zones did not converge and by how much a further
 Gauss–Newton step would still lower their cost."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import numpy as np
 from jthermo.identify.greybox import fit_greybox
 from jthermo.identify.pem import EXPECTED_IMPROVEMENT_TOL
 
-from .test_scale import _bed
+from .test_greybox_scale import _bed
 
 
 def test_converged_flag_matches_zone_report():

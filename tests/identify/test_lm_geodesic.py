@@ -1,5 +1,5 @@
 """`masked_lm(..., geodesic=True)`: the geodesic-acceleration trial reaches the same minimum of a
-curved-valley problem in fewer iterations (issue 13) and keeps the early stop's iterates."""
+curved-valley problem in fewer iterations and keeps the early stop's iterates."""
 
 import jax
 import jax.numpy as jnp

@@ -1,4 +1,4 @@
-"""Issue 12: the host-side simulation and least-squares initial state of linear models
+"""The host-side simulation and least-squares initial state of linear models
 (`models.statespace_numpy`) equal the JAX path of `validate.compare` they replace."""
 
 import jax.numpy as jnp
@@ -7,7 +7,7 @@ import pytest
 
 from jthermo.data import from_arrays
 from jthermo.models import polynomial
-from jthermo.models._base import StateSpace
+from jthermo.models import StateSpace
 from jthermo.models.greybox import BedModel
 from jthermo.models import statespace_numpy as ssn
 from jthermo.validate import compare, estimate_initial_state
