@@ -30,7 +30,7 @@ thousands (measured by `python benchmarks/diagnose_zone_convergence.py`).
 A fourth damping trial with geodesic acceleration (`masked_lm(..., geodesic=True)`, `GEODESIC`)
 follows the curved valleys (log gains and rates) that the plain steps crawl along, in fewer
 iterations and to no higher cost; it stays off because it flips a drift named with a
-stored-heat body as its rival to `heat_accumulation` on a held-out record
+stored-heat body as its rival to `heat_accumulation` on a development-set record
 (`python experiments/diagnose_heldout_same.py`). Nielsen's gain-ratio damping, five trials
 instead of three, a step scaled instead of clipped, acceleration on all three trials and an
 extrapolated step were measured and rejected (some final costs above the plain solver's, or no
@@ -72,7 +72,7 @@ import numpy as np
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
 from ..stored import exported_call, exported_compile
-from .mechanisms import simulate_full, simulate_zone
+from .pool import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
 #: `identify.lm.STALL` iterations (at most `n_iter`); such a fit has converged to about this
@@ -84,7 +84,8 @@ FALL_LR = 1.0
 FALL_WINDOW = 20
 
 #: the per-zone fits' fourth damping trial with geodesic acceleration (`masked_lm(...,
-#: geodesic=...)`); off until the checks in the module docstring are done
+#: geodesic=...)`); off until the checks in the module docstring are done (kept off on a case
+#: of development set 16)
 GEODESIC = False
 
 
