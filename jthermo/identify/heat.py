@@ -167,6 +167,8 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
                 continue
             try:
                 r = fitter.run(data, family, o, **kw)
+            except ConfigError:
+                raise           # a wrong option is the caller's, not a candidate's, failure
             except JThermoError as exc:
                 path.append(f"{family} {_orders_text(o)}: refused ({exc})")
                 continue
@@ -191,11 +193,36 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
 
 def greybox_options(data: IOData, kw: dict) -> dict:
     """`use_signals` for the greybox model: the first measured signal is its surroundings only
-    when named so (a fan command is no temperature)."""
-    if "use_signals" in kw or data.w.shape[1] == 0:
-        return kw
-    name = data.signal_names[0].lower()
-    return {**kw, "use_signals": any(wd in name for wd in SURROUNDINGS_WORDS)}
+    when named so (a fan command is no temperature); fitted surroundings are bounded by the
+    lowest recorded temperature (`fit_greybox`'s `surroundings_max`)."""
+    if "use_signals" not in kw and data.w.shape[1]:
+        name = data.signal_names[0].lower()
+        kw = {**kw, "use_signals": any(wd in name for wd in SURROUNDINGS_WORDS)}
+    if "surroundings_max" not in kw:
+        kw = {**kw, "surroundings_max": float(np.min(np.asarray(data.y)))}
+    return kw
+
+
+def fit_greybox_heat(data: IOData, fitter, **kw) -> tuple[FitResult, list]:
+    """The greybox bed on the heat path: measured surroundings where a signal is named so,
+    else a fitted constant below the coldest reading (`greybox_options`); where measured
+    surroundings give a model that does not pass `heat_check` (a room sensor that is no
+    zone's surroundings), the fitted, bounded constant instead."""
+    opts = greybox_options(data, kw)
+    r = fitter.run(data, "greybox", None, **opts)
+    chk = heat_check(r.model, data)
+    where = ("surroundings measured" if r.model.n_signals else
+             "surroundings fitted" + (", bounded by the coldest reading"
+                                      if r.extra.get("surroundings_bounded") else ""))
+    path = [f"greybox: {where}" + ("" if chk["plausible"] else f", {chk['warnings'][0]}")]
+    if chk["plausible"] or not r.model.n_signals or "use_signals" in kw:
+        return r, path
+    alt = fitter.run(data, "greybox", None, **{**opts, "use_signals": False})
+    alt_chk = heat_check(alt.model, data)
+    path.append("greybox: surroundings fitted" + (
+        ", bounded by the coldest reading" if alt.extra.get("surroundings_bounded") else "")
+        + ("" if alt_chk["plausible"] else f", {alt_chk['warnings'][0]}"))
+    return (alt, path) if alt_chk["plausible"] else (r, path)
 
 
 def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitResult:
@@ -209,4 +236,4 @@ def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitR
 
 
 __all__ = ["PHYSICS", "SURROUNDINGS_WORDS", "constrained_polynomial", "first_order",
-           "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "with_report"]
+           "fit_greybox_heat", "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "with_report"]
