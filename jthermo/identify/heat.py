@@ -31,7 +31,7 @@ import numpy as np
 
 from ..data import IOData, idle_inputs, keep_inputs
 from ..errors import ConfigError, DataError, FitError, JThermoError, ModelError
-from ..models.plausibility import heat_check, is_setpoint_signal
+from ..models.plausibility import heat_check, is_setpoint_signal, starts_at_rest
 from ..models.polynomial import Polynomial
 from .orders import information_criterion
 from .positive import fit_positive
@@ -82,7 +82,7 @@ def rest_before(data: IOData) -> tuple[IOData, list, int]:
     """A record whose inputs are all constant: the step from rest it is, or a `DataError`.
 
     Heaters held at constant powers $u_j \ne 0$ from the first sample on, with every output
-    at its lowest reading there ($y_i(0) \le \min_k y_i(k) + 3\sigma_i + 0.05\,\mathrm{range}_i$),
+    at its lowest reading there (`models.plausibility.starts_at_rest`),
     is the step test of a device switched on at rest, as TCLab step tests are logged: the
     heaters were off before $t_0$ and the outputs at their first reading. That initial
     condition is what carries the information (the response to $0 \to u$); it is written
@@ -98,9 +98,8 @@ def rest_before(data: IOData) -> tuple[IOData, list, int]:
     if not on:
         raise DataError("IOData: every input is constant at 0 (no heater was on): the record "
                         "carries no information on what the heaters do")
-    tol = 3.0 * _noise_std(y) + 0.05 * np.ptp(y, axis=0)
-    if np.any(y[0] > y.min(axis=0) + tol):
-        j = int(np.argmax(y[0] - y.min(axis=0) - tol))
+    if not starts_at_rest(y, _noise_std(y)):
+        j = int(np.argmax(y[0] - y.min(axis=0) - 0.05 * np.ptp(y, axis=0)))
         raise DataError(f"IOData: every input is constant, and the record does not start at rest "
                         f"(y_{data.output_names[j]} starts at {y[0, j]:.4g}, above its lowest "
                         f"{y[:, j].min():.4g}): it carries no information on what the heaters do")
