@@ -110,8 +110,7 @@ def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
 def _quick_simulate():
     """`closedloop.simulate` as one program with `runtime.simulate_compile()` options (the
     scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): cold,
-    the three take a fraction of their CPU time eager with default options (measured by
-    `python benchmarks/evaluate_compile.py`)."""
+    the three take less CPU time than eager runs with default options."""
     import equinox as eqx
 
     from .closedloop import simulate

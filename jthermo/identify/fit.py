@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import runtime
 from ..data import IOData, require_excitation, require_output_variation
 from ..errors import ConfigError, DataError, ModelError
 from ..models import polynomial_numpy
@@ -83,6 +84,7 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
 
     **Returns:** a `FitResult`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t0 = time.perf_counter()
     if not isinstance(family, str) or family.lower() not in FAMILIES:
         raise ModelError(f"fit: unknown model family {family!r} (expected one of {', '.join(FAMILIES)})")
@@ -131,9 +133,9 @@ def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str,
         res, path = heat.fit_ss_heat(data, o, criterion, **kw)
         return res, path, None
     if family == "greybox":
-        res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress,
-                         **heat.greybox_options(data, kw))
-        return res, [f"greybox: {'surroundings measured' if res.model.n_signals else 'surroundings fitted'}"], None
+        res, path = heat.fit_greybox_heat(data, fitter, seed=seed, n_starts=n_starts,
+                                          progress=progress, **kw)
+        return res, path, None
     if o is not None or kw.get("full_a", False):
         table = None
         if o is None:       # a full A: the PEM grid

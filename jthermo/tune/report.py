@@ -60,8 +60,7 @@ def quick_evaluate():
     builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
     `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
     and scenario kind and run once, they cut the cold CPU time of `jthermo demo`'s held-out
-    scenarios of eleven classical designs by about a third, the same figures to 1e-14 (measured
-    by `python benchmarks/evaluate_compile.py`)."""
+    scenarios of the classical designs, with the same figures."""
     return (eqx.filter_jit(_evaluate_fn, compiler_options=simulate_compile()),
             compiled_make_scenario())
 
@@ -146,8 +145,7 @@ def rescaled_start(ctrl):
     units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
     moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
     against integral gains per sample far below that destabilised the loop in one step (on the
-    4-zone printer: training objective 0 -> 19 after the first Adam step,
-    experiments/results/schedule_ff_study_ff_init.json)."""
+    4-zone printer, the first Adam step)."""
     if isinstance(ctrl, MIMOPI):
         return ctrl.rescaled()
     if isinstance(ctrl, ScheduleFF) and isinstance(ctrl.feedback, MIMOPI):
