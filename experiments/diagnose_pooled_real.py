@@ -30,7 +30,9 @@ from jthermo.diagnose import diagnose, to_json  # noqa: E402
 from jthermo.errors import JThermoError  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real"
+#: `../shared/data/real` beside the checkout (or beside a folder above it: a worktree)
+REAL = next((p / "shared" / "data" / "real" for p in ROOT.parents if (p / "shared" / "data" / "real").is_dir()),
+            ROOT.parent / "shared" / "data" / "real")
 
 #: (name, estimation records, validation record, actuator, published validation SAE or None)
 GROUPS = [
