@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import time
+import warnings
 from typing import Callable
 
 import numpy as np
@@ -143,11 +144,15 @@ def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str,
                                      n_starts=1)
         res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
         chk = heat.heat_check(res.model, data)
-        if not chk["plausible"]:
-            raise ModelError(f"fit: {family} {','.join(f'{k}={v}' for k, v in (o or {}).items())}"
-                             f" is not a plant heat could be ({chk['warnings'][0]}); leave the "
-                             "orders to the automatic choice, or physics='none'")
-        return res, [f"{family} {','.join(f'{k}={v}' for k, v in o.items())}: plausible"], table
+        name = f"{family} {','.join(f'{k}={v}' for k, v in o.items())}"
+        if not chk["shape_ok"]:
+            raise ModelError(f"fit: {name} is not a plant heat could be ({chk['warnings'][0]}); "
+                             "leave the orders to the automatic choice, or physics='none'")
+        if not chk["plausible"]:    # a heated body whose steady states miss part of the record
+            warnings.warn(f"fit: {name}: {chk['warnings'][0]}; kept because the orders were given",
+                          stacklevel=3)
+            return res, [f"{name}: kept as given; {'; '.join(chk['warnings'])}"], table
+        return res, [f"{name}: plausible"], table
 
     def screen(d, fam):
         if progress:
