@@ -23,7 +23,7 @@ for NumPy. NumPy and the dense paths are skipped where one dense (B, T, N) array
 `--max-gb` (stated).
 
     python benchmarks/closedloop.py            # N in {4,16,64}, B in {1,256,4096}, T = 3600
-    python benchmarks/closedloop.py --quick    # N in {4,16}, B in {1,256}, T = 600 (_quick.md)
+    python benchmarks/closedloop.py --quick    # N in {4,16}, B in {1,256}, T = 600
 """
 
 from __future__ import annotations
@@ -300,10 +300,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="small grid for a smoke test")
     ap.add_argument("--max-gb", type=float, default=3.0, help="skip configurations above this")
     ap.add_argument("--out", default=None,
-                    help="default benchmarks/results/closedloop.md (closedloop_quick.md with --quick)")
+                    help="default benchmarks/results/closedloop.md")
     args = ap.parse_args(argv)
     if args.out is None:
-        args.out = str(HERE / "results" / ("closedloop_quick.md" if args.quick else "closedloop.md"))
+        args.out = str(HERE / "results" / "closedloop.md")
     if args.quick:
         Ns, Bs, T, repeats, pcr, scaling = (4, 16), (1, 256), 600, 2, 2, False
     else:

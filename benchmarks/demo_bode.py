@@ -39,7 +39,7 @@ def main() -> None:
             plots.plot_bode({"ss": model}, spectral=spec, channels=chans, path=Path(tmp) / "b.png")
             rows.append((label, time.perf_counter() - t, time.process_time() - c))
     load = Path("/proc/loadavg").read_text().split()[0]
-    text = "\n".join(["# `jthermo demo`'s Bode figure: drawing time (issue 13)", "",
+    text = "\n".join(["# `jthermo demo`'s Bode figure: drawing time", "",
                       f"`python benchmarks/demo_bode.py`, 1-minute load {load} at the end (2 shared CPUs).", "",
                       "| channels | wall s | CPU s |", "|---|---|---|"]
                      + [f"| {a} | {w:.2f} | {c:.2f} |" for a, w, c in rows]) + "\n"

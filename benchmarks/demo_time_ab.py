@@ -59,7 +59,7 @@ def main() -> None:
                 for name, tree in trees.items():
                     work = Path(tempfile.mkdtemp(dir=tmp))
                     rows.append((name, phase, run(tree, caches[name], work)))
-    lines = ["# `jthermo demo`: two trees, cold and warm (issue 13)", "",
+    lines = ["# `jthermo demo`: two trees, cold and warm", "",
              f"`python benchmarks/demo_time_ab.py --repeats {args.repeats} "
              + " ".join(f"--base BASE --base-label {lab}" for lab in labels) + "`: each run "
              "a fresh process from the tree's directory; cold = an empty compilation cache, warm = "

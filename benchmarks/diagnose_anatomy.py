@@ -13,9 +13,9 @@ Then, for each call:
   the call's static `n_active` and at the problem's own number of free parameters, of one
   residual (a simulation), and of the whole fit.
 
-    python benchmarks/diagnose_anatomy.py [--tag _s31]
+    python benchmarks/diagnose_anatomy.py
 
-Writes `benchmarks/results/diagnose_anatomy{tag}.md` and `.json`.
+Writes `benchmarks/results/diagnose_anatomy.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_profile import _cpu, _load, write_record
+from common import cpu_seconds, load1
+from diagnose_profile import write_record
 
 
 def iterations(hist, c) -> int:
@@ -66,9 +67,9 @@ def _timeit(fn, *args, reps=3) -> float:
     jax.block_until_ready(fn(*args))
     best = np.inf
     for _ in range(reps):
-        c0 = _cpu()
+        c0 = cpu_seconds()
         jax.block_until_ready(fn(*args))
-        best = min(best, _cpu() - c0)
+        best = min(best, cpu_seconds() - c0)
     return best
 
 
@@ -136,12 +137,12 @@ def problems(name, a):
 
 
 def fit_history(fit, p):
-    c0 = _cpu()
+    c0 = cpu_seconds()
     c, hist, cost0 = jax.block_until_ready(fit(p))
-    first = _cpu() - c0
-    c0 = _cpu()
+    first = cpu_seconds() - c0
+    c0 = cpu_seconds()
     jax.block_until_ready(fit(p))
-    run = _cpu() - c0
+    run = cpu_seconds() - c0
     cost0 = float(cost0)
     return {"iterations": iterations(hist, c), "accepted": accepted(hist, cost0), "cost0": cost0,
             "cost": float(c), "first_call_cpu_s": first, "run_cpu_s": run}
@@ -149,13 +150,12 @@ def fit_history(fit, p):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tag", default="")
     ap.add_argument("--zone-sample", type=int, default=12, help="per-zone problems refitted per call")
     args = ap.parse_args()
     from jthermo.data import load
     from jthermo.diagnose import fitting, joint, select, to_json
 
-    load0 = _load()
+    load0 = load1()
     with tempfile.TemporaryDirectory(prefix="jthermo-anatomy-") as d:
         tmp = Path(d)
         est, val = (load(f) for f in write_record(tmp))
@@ -171,9 +171,9 @@ def main() -> None:
     select.fit_zones = keep("fit_zones", select.fit_zones)
     select.fit_records = keep("fit_records", select.fit_records)
     joint.fit_joint = keep("fit_joint", joint.fit_joint)
-    c0, t0 = _cpu(), time.perf_counter()
+    c0, t0 = cpu_seconds(), time.perf_counter()
     js = to_json(select.diagnose(est, val))
-    diag = {"cpu_s": _cpu() - c0, "wall_s": time.perf_counter() - t0,
+    diag = {"cpu_s": cpu_seconds() - c0, "wall_s": time.perf_counter() - t0,
             "findings": [f["mechanism"] for f in js["findings"]],
             "augmented": js["augmented"]["mechanisms"], "fit": js["augmented"]["mean_fit_percent"]}
     print(diag, flush=True)
@@ -185,7 +185,7 @@ def main() -> None:
             continue
         fit, residual, jac, pick, n_iter, n_active = problems(name, a)
         if name == "fit_joint":
-            src = fitting._first_copies(*a[:4], a[6])
+            src = fitting.first_copies(*a[:4], a[6])
             todo = sorted(set(src.tolist()))
             row = {"call": ci, "name": name, "slots": len(src), "distinct": len(todo),
                    "n_iter": n_iter, "n_active": n_active, "models": []}
@@ -206,11 +206,11 @@ def main() -> None:
             row["models"].append({"slot" if name == "fit_joint" else "problem": j, **fh})
             print(ci, name, j, fh, flush=True)
         rows.append(row)
-    out = {"diagnosis": diag, "calls": rows, "load_before": load0, "load_after": _load()}
+    out = {"diagnosis": diag, "calls": rows, "load_before": load0, "load_after": load1()}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"diagnose_anatomy{args.tag}.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
-    lines = [f"# Diagnosis anatomy{(' (' + args.tag.strip('_') + ')') if args.tag else ''}", "",
-             f"`python benchmarks/diagnose_anatomy.py{(' --tag ' + args.tag) if args.tag else ''}`: the latency "
+    (RESULTS / "diagnose_anatomy.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
+    lines = ["# Diagnosis anatomy", "",
+             "`python benchmarks/diagnose_anatomy.py`: the latency "
              "record's diagnosis (findings " + ", ".join(diag["findings"]) + f", augmented fit {diag['fit']:.2f} %), "
              f"load {load0:.2f} → {out['load_after']:.2f}. Each problem refitted alone (jitted, second call "
              "timed: run CPU s); iterations until the early stop, accepted steps; Jacobian CPU s at the call's "
@@ -225,7 +225,7 @@ def main() -> None:
                          f"{mdl['run_cpu_s']:.3f} | {mdl.get('residual_cpu_s', float('nan')):.4f} | "
                          f"{mdl.get('jacobian_n_active_cpu_s', float('nan')):.4f} / "
                          f"{mdl.get('jacobian_own_cpu_s', float('nan')):.4f} |")
-    (RESULTS / f"diagnose_anatomy{args.tag}.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / "diagnose_anatomy.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

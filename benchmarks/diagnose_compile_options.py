@@ -24,16 +24,14 @@ import sys
 import tempfile
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 #: the latency benchmark's record (benchmarks/latency.py RECORD)
 RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
           "lateral_conduction,radiative_loss,heater_lag"]
 
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def _capture(est, val) -> dict:
@@ -113,13 +111,13 @@ def main(argv=None) -> None:
         outs = {}
         for opt_name, opts in (("default", None), ("quick_compile", quick_compile())):
             jax.clear_caches()
-            c0 = _cpu()
+            c0 = cpu_seconds()
             lowered = jax.jit(fn, static_argnames=static, compiler_options=opts).lower(*fargs)
-            c1 = _cpu()
+            c1 = cpu_seconds()
             comp = lowered.compile()
-            c2 = _cpu()
+            c2 = cpu_seconds()
             out = jax.block_until_ready(comp(*dyn))
-            c3 = _cpu()
+            c3 = cpu_seconds()
             outs[opt_name] = [np.asarray(v) for v in jax.tree_util.tree_leaves(out)]
             rows.append({"program": label, "options": opt_name, "trace_lower_cpu_s": c1 - c0,
                          "compile_cpu_s": c2 - c1, "run_cpu_s": c3 - c2, "load": os.getloadavg()[0]})

@@ -11,9 +11,9 @@ the arguments of every `fit_zones` and `fit_joint` call kept; then each call is 
 
 and the variants' costs and parameters are compared with `as is` (largest relative difference).
 
-    python benchmarks/diagnose_fit_variants.py [--tag _s31] [--reps 2]
+    python benchmarks/diagnose_fit_variants.py [--reps 2]
 
-Writes `benchmarks/results/diagnose_fit_variants{tag}.md` and `.json`.
+Writes `benchmarks/results/diagnose_fit_variants.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -34,19 +34,20 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_profile import _cpu, _load, write_record
+from common import cpu_seconds, load1
+from diagnose_profile import write_record
 
 
 def timed(fn, args, reps):
     """(first call CPU s (compile + run), best later call CPU s, outputs)."""
-    c0 = _cpu()
+    c0 = cpu_seconds()
     out = jax.block_until_ready(fn(*args))
-    first = _cpu() - c0
+    first = cpu_seconds() - c0
     best = math.inf
     for _ in range(reps):
-        c0 = _cpu()
+        c0 = cpu_seconds()
         jax.block_until_ready(fn(*args))
-        best = min(best, _cpu() - c0)
+        best = min(best, cpu_seconds() - c0)
     return first, best, out
 
 
@@ -57,7 +58,6 @@ def rel(a, b) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tag", default="")
     ap.add_argument("--reps", type=int, default=2)
     args = ap.parse_args()
     import jax.numpy as jnp
@@ -66,7 +66,7 @@ def main() -> None:
     from jthermo.diagnose import fitting, joint, select, to_json
     from jthermo.runtime import quick_compile
 
-    load0 = _load()
+    load0 = load1()
     with tempfile.TemporaryDirectory(prefix="jthermo-variants-") as d:
         tmp = Path(d)
         est, val = (load(f) for f in write_record(tmp))
@@ -91,7 +91,7 @@ def main() -> None:
             call = tuple(a[:8]) + (jnp.asarray(budget, jnp.int32),)
             variants = {"as is": (quick, call), "default options": (None, call)}
         else:
-            src = fitting._first_copies(*a[:4], a[6])
+            src = fitting.first_copies(*a[:4], a[6])
             if len(set(src.tolist())) == 1:
                 continue
             budget = np.where(src == np.arange(src.size), a[9], 0).astype(np.int32)
@@ -115,18 +115,18 @@ def main() -> None:
                    "cost_sum": float(np.sum(np.asarray(cost)))}
             rows.append(row)
             print(row, flush=True)
-    out = {"rows": rows, "load_before": load0, "load_after": _load()}
+    out = {"rows": rows, "load_before": load0, "load_after": load1()}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"diagnose_fit_variants{args.tag}.json").write_text(json.dumps(out, indent=1) + "\n")
-    lines = [f"# Diagnosis fits compiled other ways{(' (' + args.tag.strip('_') + ')') if args.tag else ''}", "",
-             f"`python benchmarks/diagnose_fit_variants.py{(' --tag ' + args.tag) if args.tag else ''}"
+    (RESULTS / "diagnose_fit_variants.json").write_text(json.dumps(out, indent=1) + "\n")
+    lines = ["# Diagnosis fits compiled other ways", "",
+             f"`python benchmarks/diagnose_fit_variants.py"
              f" --reps {args.reps}`: the latency record's calls, load {load0:.2f} → {out['load_after']:.2f}; "
              "first call = trace + compile + run, run = best later call (CPU s); differences relative to `as is`.", "",
              "| call | fit | variant | first CPU s | run CPU s | cost rel. diff | θ rel. diff |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['call']} | {r['fit']} | {r['variant']} | {r['first_cpu_s']:.2f} | {r['run_cpu_s']:.2f} | "
                      f"{r['cost_rel_diff']:.1e} | {r['theta_rel_diff']:.1e} |")
-    (RESULTS / f"diagnose_fit_variants{args.tag}.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / "diagnose_fit_variants.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

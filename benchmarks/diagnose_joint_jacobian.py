@@ -10,7 +10,7 @@ call's models), with the coupled simulation's recurrence differentiated three wa
   computed outside the loop);
 - `plain`: the same scan body differentiated by JAX (the code before 71aa95f);
 - `rule, dense hold`: the rule, with the zero-order hold as before (`_zoh_dense`: the dense
-  $2m \\times 2m$ exponential, instead of `mechanisms._zoh`'s $m \\times m$ blocks).
+  $2m \\times 2m$ exponential, instead of `mechanisms.zoh_blocks`'s $m \\times m$ blocks).
 
 CPU s = user + system of the process (load-robust); wall s and the 1-minute load beside.
 
@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
@@ -38,10 +40,6 @@ REPS = 5
 class _Captured(Exception):
     pass
 
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def _plain(E, P, a, r, F, sig, s0):
@@ -59,16 +57,29 @@ def _plain(E, P, a, r, F, sig, s0):
     return jax.lax.scan(body, s0, (F, sig))[1]
 
 
-def _zoh_dense(A, Bc, ts):
-    """`mechanisms._zoh` before: `_expm` of the dense $2m \\times 2m$ block matrix."""
+def _taylor_expm(Mt, squarings: int = 10, order: int = 10):
+    """$e^{M}$ by a fixed Taylor series and squaring (branch-free), as `zoh_blocks` computed it before."""
     import jax.numpy as jnp
 
-    import jthermo.diagnose.mechanisms as M
+    X = Mt / (2.0 ** squarings)
+    eye = jnp.eye(Mt.shape[-1], dtype=Mt.dtype)
+    term, out = eye, eye
+    for k in range(1, order + 1):
+        term = term @ X / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def _zoh_dense(A, Bc, ts):
+    """`mechanisms.zoh_blocks` before: the Taylor exponential of the dense $2m \\times 2m$ block matrix."""
+    import jax.numpy as jnp
 
     m = A.shape[0]
     dt = A.dtype
     Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
-    F = M._expm(Mt * ts)
+    F = _taylor_expm(Mt * ts)
     return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]
 
 
@@ -129,22 +140,22 @@ def main() -> None:
         return jax.vmap(f, out_axes=1)(tang)
 
     rows, Js = [], {}
-    zoh = M._zoh
+    zoh = M.zoh_blocks
     for name, fn, hold in (("rule", radiative, zoh), ("plain", _plain, zoh),
                            ("rule, dense hold", radiative, _zoh_dense)):
-        M.radiative, M._zoh = fn, hold
+        M.radiative, M.zoh_blocks = fn, hold
         J = jax.jit(jax.vmap(jac))
-        c0 = _cpu()
+        c0 = cpu_seconds()
         comp = J.lower(V, on, fper).compile()
-        c_comp = _cpu() - c0
+        c_comp = cpu_seconds() - c0
         Js[name] = np.asarray(comp(V, on, fper))
         t = []
         for _ in range(REPS):
-            w0, c0, ld = time.perf_counter(), _cpu(), os.getloadavg()[0]
+            w0, c0, ld = time.perf_counter(), cpu_seconds(), os.getloadavg()[0]
             jax.block_until_ready(comp(V, on, fper))
-            t.append((time.perf_counter() - w0, _cpu() - c0, ld))
+            t.append((time.perf_counter() - w0, cpu_seconds() - c0, ld))
         rows.append((name, c_comp, min(c for _, c, _ in t), min(w for w, _, _ in t), t[0][2]))
-    M.radiative, M._zoh = radiative, zoh
+    M.radiative, M.zoh_blocks = radiative, zoh
     rel = lambda J: float(np.abs(Js["rule"] - J).max() / np.abs(J).max())
     lines = ["# The joint fit's Jacobian: tangent rule against JAX's derivative of the scan", "",
              f"`python benchmarks/diagnose_joint_jacobian.py`: the latency record's first joint fit "

@@ -3,9 +3,9 @@ process) for two code trees, interleaved A B A B in one window: A a tree given b
 `git archive main` unpacked in /tmp), put first on `PYTHONPATH`; B this checkout.
 
     git archive main | tar -x -C /tmp/main_tree
-    python benchmarks/diagnose_latency_ab.py --a /tmp/main_tree --a-label main --rounds 2 --tag _h34
+    python benchmarks/diagnose_latency_ab.py --a /tmp/main_tree --a-label main --rounds 2
 
-Writes `benchmarks/results/diagnose_latency_ab{tag}.md` and `.json`: wall, CPU (user + system of
+Writes `benchmarks/results/diagnose_latency_ab.md` and `.json`: wall, CPU (user + system of
 the child process) and the 1-min load before each run, the verdict and top finding.
 """
 
@@ -39,7 +39,6 @@ def main(argv=None) -> int:
     ap.add_argument("--a-label", default="A")
     ap.add_argument("--b-label", default=None)
     ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                           cwd=HERE, check=False).stdout.strip()
@@ -57,9 +56,9 @@ def main(argv=None) -> int:
                 row = measure("diagnose", Path(d), False)
             runs.append({"round": r, "code": label, "jthermo_from": "the A tree" if root else "the checkout", **row})
     os.environ["PYTHONPATH"] = base_pp
-    L = [f"# `jthermo diagnose` latency, A/B{args.tag}", "",
+    L = ["# `jthermo diagnose` latency, A/B", "",
          (f"`python benchmarks/diagnose_latency_ab.py --a {args.a} --a-label {args.a_label} --rounds {args.rounds}"
-         f"{' --tag ' + args.tag if args.tag else ''}`: the latency record (`benchmarks/latency.py`), each code "
+         f"`: the latency record (`benchmarks/latency.py`), each code "
          "cold (empty cache) then warm (second process), the codes interleaved; wall s, CPU s (user + system "
          "of the process), load before (1-min)."), "",
          "| round | code | cold wall s | cold CPU s | cold load | warm wall s | warm CPU s | warm load | result |",
@@ -70,8 +69,8 @@ def main(argv=None) -> int:
                  f"{c['load_before'].split()[0]} | {w['wall_s']:.1f} | {w.get('cpu_s', float('nan')):.1f} | "
                  f"{w['load_before'].split()[0]} | {w.get('verdict', w.get('error', ''))}, {w.get('top_finding')} |")
     out = HERE / "results"
-    atomic_write_text(out / f"diagnose_latency_ab{args.tag}.md", "\n".join(L) + "\n")
-    atomic_write_text(out / f"diagnose_latency_ab{args.tag}.json", json.dumps(runs, indent=1))
+    atomic_write_text(out / "diagnose_latency_ab.md", "\n".join(L) + "\n")
+    atomic_write_text(out / "diagnose_latency_ab.json", json.dumps(runs, indent=1))
     print("\n".join(L))
     return 0
 

@@ -11,10 +11,10 @@ events (tracing, lowering, backend compile; a cache hit counts as a short load).
 the process's user + system time (all threads): the load-robust figure on a shared machine.
 
     python benchmarks/diagnose_profile.py                 # cold + warm, writes the results
-    python benchmarks/diagnose_profile.py --tag _after    # ... to diagnose_profile_after.md
+    python benchmarks/diagnose_profile.py    # ... to diagnose_profile_after.md
     python benchmarks/diagnose_profile.py --cprofile      # + the top functions (cold run)
 
-Writes `benchmarks/results/diagnose_profile{tag}.md` and `.json`.
+Writes `benchmarks/results/diagnose_profile.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from common import cpu_seconds, load1  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -47,16 +49,6 @@ def write_record(tmp: Path) -> tuple[Path, Path]:
                         "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
     return tmp / "est.csv", tmp / "val.csv"
 
-def _load() -> float:
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError):
-        return float("nan")
-
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 class _Clock:
@@ -85,7 +77,7 @@ class _Clock:
             self.loads += 1
 
     def snap(self):
-        return time.perf_counter(), _cpu(), self.compile_s, self.compiles, self.loads
+        return time.perf_counter(), cpu_seconds(), self.compile_s, self.compiles, self.loads
 
     def add(self, label: str, s0, calls: int = 1):
         s1 = self.snap()
@@ -150,7 +142,7 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None, one_thread:
     jax.monitoring.register_event_duration_secs_listener(clock.on_duration)
     jax.monitoring.register_event_listener(clock.on_event)
     state = {"stage": "baseline", "round": 0}
-    t0, c0 = time.perf_counter(), _cpu()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     s0 = clock.snap()
     import jthermo.diagnose as diag
     from jthermo.data import load
@@ -180,7 +172,7 @@ def run_once(est_path: str, val_path: str, cprofile_out: str | None, one_thread:
     js = diag.to_json(result)
     json.dumps(js, default=float)
     clock.add("report (to_json)", s0)
-    return {"rows": clock.rows, "total_wall_s": time.perf_counter() - t0, "total_cpu_s": _cpu() - c0,
+    return {"rows": clock.rows, "total_wall_s": time.perf_counter() - t0, "total_cpu_s": cpu_seconds() - c0,
             "compile_s": clock.compile_s, "compiles": clock.compiles, "cache_loads": clock.loads,
             "compile_by_event": clock.by_event,
             "verdict": js["verdict"], "findings": [f["mechanism"] for f in js["findings"]],
@@ -204,11 +196,11 @@ def _subprocess(phase: str, est: Path, val: Path, cache: Path, out: Path, cprofi
         cmd += ["--child-cprofile", str(cprofile)]
     if one_thread:
         cmd += ["--one-thread"]
-    load0 = _load()
+    load0 = load1()
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, env=env)
     row = json.loads(out.read_text())
-    row.update(phase=phase, process_wall_s=time.perf_counter() - t0, load_before=load0, load_after=_load())
+    row.update(phase=phase, process_wall_s=time.perf_counter() - t0, load_before=load0, load_after=load1())
     print(phase, {k: row[k] for k in ("process_wall_s", "total_cpu_s", "compile_s", "compiles",
                                       "verdict", "augmented", "augmented_fit", "load_before")}, flush=True)
     return row
@@ -228,11 +220,11 @@ def _table(run: dict) -> list[str]:
     return lines
 
 
-def write(runs: list[dict], tag: str, cmdline: str) -> Path:
+def write(runs: list[dict], cmdline: str) -> Path:
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"diagnose_profile{tag}.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
+    (RESULTS / "diagnose_profile.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
     w = runs[-1]
-    lines = [f"# `jthermo diagnose` profile{(' (' + tag.strip('_') + ')') if tag else ''}", "",
+    lines = ["# `jthermo diagnose` profile", "",
              f"`{cmdline}`: the latency record (1 h, 4 zones; 30 min validation), diagnosed "
              "in-process, cold (empty compilation cache) then warm (second process). Stages are "
              "the diagnosis's progress ticks; `stage: call` rows are the compiled fits inside a "
@@ -244,14 +236,13 @@ def write(runs: list[dict], tag: str, cmdline: str) -> Path:
              f"{w['augmented_fit']:.2f} % (zones {', '.join(f'{v:.2f}' for v in w['augmented_fit_per_zone'])}).", ""]
     for run in runs:
         lines += _table(run) + [""]
-    out = RESULTS / f"diagnose_profile{tag}.md"
+    out = RESULTS / "diagnose_profile.md"
     out.write_text("\n".join(lines))
     return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tag", default="", help="suffix of the results files")
     ap.add_argument("--cprofile", action="store_true", help="cProfile the cold run's diagnose()")
     ap.add_argument("--phases", default="cold,warm")
     ap.add_argument("--one-thread", action="store_true",
@@ -268,12 +259,12 @@ def main() -> None:
         write_record(tmp)
         runs = []
         for phase in args.phases.split(","):
-            cp = RESULTS / f"diagnose_profile{args.tag}.cprofile.txt" if args.cprofile and phase == "cold" else None
+            cp = RESULTS / "diagnose_profile.cprofile.txt" if args.cprofile and phase == "cold" else None
             runs.append(_subprocess(phase, tmp / "est.csv", tmp / "val.csv", tmp / "cache",
                                     tmp / f"{phase}.json", cp, args.one_thread))
-    cmd = "python benchmarks/diagnose_profile.py" + (f" --tag {args.tag}" if args.tag else "") + \
+    cmd = "python benchmarks/diagnose_profile.py" + \
         (" --cprofile" if args.cprofile else "") + (" --one-thread" if args.one_thread else "")
-    print(write(runs, args.tag, cmd).read_text())
+    print(write(runs, cmd).read_text())
 
 
 if __name__ == "__main__":

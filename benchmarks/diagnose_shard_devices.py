@@ -8,15 +8,15 @@ call compiles; no persistent cache), comparing wall s and the sum of the fitted 
 - `--fits joint`: the second joint call (`fitting._fit_joint`: the top mechanism refitted and
   six additions, padded to 8 slots; a padding copy is refitted, the same answer).
 
-A probe for issue 13 (2026-11-28): the per-zone fits split with the same costs and no hang; the
+A probe: the per-zone fits split with the same costs and no hang; the
 joint fits' sharded call never returned (the watchdog's stacks after 400 s), as the threaded
 splits did (`diagnose_zone_threads.py`, `results/diagnose_threads_deadlock.md`), until
 `masked_lm` factored one matrix at a time (the cause, in that record; `--tag _s42_lmap`). A
 watchdog (`--watchdog` s) prints the stacks and exits with status 1.
 
-    python benchmarks/diagnose_shard_devices.py --fits zones [--watchdog 400] [--tag T]
+    python benchmarks/diagnose_shard_devices.py --fits zones [--watchdog 400]
 
-Writes `benchmarks/results/diagnose_shard_devices_{fits}{tag}.md` (not after a hang).
+Writes `benchmarks/results/diagnose_shard_devices_{fits}.md` (not after a hang).
 """
 
 from __future__ import annotations
@@ -87,7 +87,6 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--fits", choices=("zones", "joint"), default="zones")
     ap.add_argument("--watchdog", type=float, default=400.0)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     faulthandler.dump_traceback_later(args.watchdog, exit=True)
     program, call_args = captured_call(args.fits)
@@ -110,11 +109,11 @@ def main(argv=None) -> None:
         print(rows[-1], flush=True)
     lines = [f"# The diagnosis's {args.fits} fits over two XLA CPU devices", "",
              (f"Made by `python benchmarks/diagnose_shard_devices.py --fits {args.fits}"
-              f"{' --tag ' + args.tag if args.tag else ''}`; {os.cpu_count()} CPUs, 1-minute load "
+              f"`; {os.cpu_count()} CPUs, 1-minute load "
               f"{os.getloadavg()[0]:.2f} at the end; no persistent cache."), "",
              "| run | first call s | second call s | sum of the costs |", "|---|---|---|---|"]
     lines += [f"| {label} | {a:.2f} | {b:.2f} | {c:.12g} |" for label, a, b, c in rows]
-    out = HERE / "results" / f"diagnose_shard_devices_{args.fits}{args.tag}.md"
+    out = HERE / "results" / "diagnose_shard_devices.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -11,11 +11,12 @@ rtol's stop. Per candidate (each zone its best start, as `mechanisms.best_of_sta
 estimation sum of squares under each variant against the reference, as the likelihood-ratio
 shift m log(SSE / SSE_ref) (m = T n residuals), and the iterations each variant spends.
 
-    python benchmarks/diagnose_zone_convergence.py --record latency [--ref 300] [--tag _h34]
-    python benchmarks/diagnose_zone_convergence.py --record heldout:12:8 --max-zones 9 [--tag _h34]
+    python benchmarks/diagnose_zone_convergence.py --record latency [--ref 300]
+    python benchmarks/diagnose_zone_convergence.py --record dev:12:8 --max-zones 9
 
-`heldout:S:I`: case I of `experiments/diagnose_heldout_hard.py --seed-set S`. Writes
-`benchmarks/results/diagnose_zone_convergence{tag}_{record}.md` and `.json`.
+`dev:S:I`: case I of `experiments/diagnose_heldout_hard.py --seed-set S` (a development set:
+the records this study looks into are not held out any more). Writes
+`benchmarks/results/diagnose_zone_convergence.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from common import cpu_seconds  # noqa: E402
 
 import jax
 
@@ -49,10 +52,6 @@ from jthermo.identify.lm import STALL, masked_lm
 RTOLS = (1e-10, 1e-9, 1e-8, 1e-7, 1e-6)
 CUTS = (30, 60, 100)
 
-
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
 
 
 def load_record(spec: str, max_zones: int):
@@ -108,24 +107,23 @@ def main(argv=None) -> int:
     ap.add_argument("--record", default="latency")
     ap.add_argument("--max-zones", type=int, default=9)
     ap.add_argument("--ref", type=int, default=300, help="fixed iterations of the reference run (per n_iter 200)")
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     est, val = load_record(args.record, args.max_zones)
     calls = []
     orig = select.fit_zones
 
     def spy(*a):
-        t0, c0 = time.perf_counter(), _cpu()
+        t0, c0 = time.perf_counter(), cpu_seconds()
         out = orig(*a)
         jax.block_until_ready(out)
         calls.append({"args": a[:7], "cost": np.asarray(out[1]), "wall_s": time.perf_counter() - t0,
-                      "cpu_s": _cpu() - c0})
+                      "cpu_s": cpu_seconds() - c0})
         return out
 
     select.fit_zones = spy
-    t0, c0 = time.perf_counter(), _cpu()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     res = select.to_json(select.diagnose(est, val))
-    diag = {"wall_s": time.perf_counter() - t0, "cpu_s": _cpu() - c0,
+    diag = {"wall_s": time.perf_counter() - t0, "cpu_s": cpu_seconds() - c0,
             "findings": [(f["mechanism"], round(f["confidence"], 4)) for f in res["findings"]],
             "candidates": {r["mechanism"]: round(r["estimation_lr"], 2) for r in res["candidates"]}}
     select.fit_zones = orig
@@ -136,10 +134,10 @@ def main(argv=None) -> int:
         theta0, mask, on, per, shared, lay, n_iter = call["args"]
         n_active = 4 * int(np.ceil(np.asarray(mask).sum(axis=1).max() / 4))
         ref = args.ref * n_iter // 200
-        c1 = _cpu()
+        c1 = cpu_seconds()
         _, _, hist = _fixed_jit(theta0, mask, on, per, shared, lay, ref, n_active)
         hist = np.asarray(hist)
-        call["ref_cpu_s"] = _cpu() - c1
+        call["ref_cpu_s"] = cpu_seconds() - c1
         c0s = np.asarray(jax.vmap(lambda t, o, p, sh=shared, ly=lay:
                                   jnp.mean(fitting._zone_residual(t, o, {**sh, **p}, ly) ** 2))(theta0, on, per))
         for b, (nm, zone) in enumerate(labels(cands, theta0.shape[0], n, ci)):
@@ -196,13 +194,12 @@ def main(argv=None) -> int:
             row["lr_shift"][m] = float(n * T * np.log(sse / ref_sse[m]))
         row["iterations"] = tot_it
         cand_rows.append(row)
-    name = args.record.replace(":", "_")
     out = {"record": args.record, "n": n, "T": T, "diagnosis": diag,
            "calls": [{k: v for k, v in c.items() if k not in ("args", "cost")} for c in calls],
            "problems": problems, "variants": cand_rows}
-    L = [f"# Per-zone candidate fits: iterations and convergence ({args.record}{args.tag})", "",
+    L = [f"# Per-zone candidate fits: iterations and convergence ({args.record})", "",
          f"`python benchmarks/diagnose_zone_convergence.py --record {args.record} --max-zones {args.max_zones} "
-         f"--ref {args.ref}{' --tag ' + args.tag if args.tag else ''}`: N = {n}, T = {T}; diagnosis "
+         f"--ref {args.ref}`: N = {n}, T = {T}; diagnosis "
          f"{diag['wall_s']:.1f} s wall, {diag['cpu_s']:.1f} CPU s, load {os.getloadavg()[0]:.1f}; findings "
          f"{diag['findings']}. Fit_zones calls: "
          + "; ".join(f"n_iter {c['args'][6]}, {c['args'][0].shape[0]} problems, {c['cpu_s']:.1f} CPU s"
@@ -227,8 +224,8 @@ def main(argv=None) -> int:
         L.append(f"| {r['variant']} | {r['iterations']} | " + " | ".join(f"{r['lr_shift'][m]:.3g}" for m in cands) + " |")
     L += ["", "Diagnosis's estimation LRs: " + ", ".join(f"{k} {v}" for k, v in diag["candidates"].items())]
     RESULTS.mkdir(exist_ok=True)
-    atomic_write_text(RESULTS / f"diagnose_zone_convergence{args.tag}_{name}.md", "\n".join(L) + "\n")
-    atomic_write_text(RESULTS / f"diagnose_zone_convergence{args.tag}_{name}.json", json.dumps(out))
+    atomic_write_text(RESULTS / "diagnose_zone_convergence.md", "\n".join(L) + "\n")
+    atomic_write_text(RESULTS / "diagnose_zone_convergence.json", json.dumps(out))
     print("\n".join(L))
     return 0
 

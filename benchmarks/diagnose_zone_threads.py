@@ -5,7 +5,7 @@ core mostly idle (the warm run's CPU is ~1.3x its wall time). Here the diagnosis
 estimation and half-hour validation records) are run as they are and again as `--shares` equal shares (problems dealt round-robin), each
 share's call in a thread of its own (after one compiling call), comparing wall s and results.
 
-A second look at what session 27 rejected (`benchmarks/results/diagnose_threads_deadlock.md`:
+A second look at a rejected split (two threads over the joint fits deadlocked:
 one call per problem, two threads, a hang). Measured 2026-11-28: the per-zone fits split well
 (see the results file), but the same split of the joint fits (`fitting.fit_joint`) hung, also
 with `XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`. The cause, found later that day (the
@@ -14,9 +14,9 @@ factors one matrix at a time and `fitting` splits every call into shares itself
 (`fitting._run_spread`). This script keeps its watchdog (`--watchdog` s, then the stacks and
 exit status 1) and splits the calls it captures explicitly (`JTHERMO_FIT_THREADS=1` inside).
 
-    python benchmarks/diagnose_zone_threads.py [--shares 2] [--tag T]
+    python benchmarks/diagnose_zone_threads.py [--shares 2]
 
-Writes `benchmarks/results/diagnose_zone_threads{tag}.md`.
+Writes `benchmarks/results/diagnose_zone_threads.md`.
 """
 
 from __future__ import annotations
@@ -48,7 +48,6 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--shares", type=int, default=2)
     ap.add_argument("--watchdog", type=float, default=900.0)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     faulthandler.dump_traceback_later(args.watchdog, exit=True)
     os.environ["JTHERMO_FIT_THREADS"] = "1"          # the split is this script's own
@@ -104,12 +103,12 @@ def main(argv=None) -> None:
             S.fit_zones = whole_call
     lines = [f"# Per-zone fits split over threads, N = 4, {k} shares", "",
              (f"Made by `python benchmarks/diagnose_zone_threads.py --shares {k}"
-              f"{' --tag ' + args.tag if args.tag else ''}`; {os.cpu_count()} CPUs, 1-minute load "
+              f"`; {os.cpu_count()} CPUs, 1-minute load "
               f"{os.getloadavg()[0]:.2f} at the end; wall s of each warm call (after a compiling one)."), "",
              "| problems | with iterations | one call s | shares in threads s | ratio | largest difference |",
              "|---|---|---|---|---|---|"]
     lines += [f"| {B} | {w} | {a:.2f} | {b:.2f} | {b / a:.2f} | {dd:.3g} |" for B, w, a, b, dd in rows]
-    out = HERE / "results" / f"diagnose_zone_threads{args.tag}.md"
+    out = HERE / "results" / "diagnose_zone_threads.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -7,9 +7,9 @@ starts) is captured and run again (warm, after one compiling call each) as is an
 calls of problems grouped by their own width (4 ceil(free / 4)), comparing CPU s, costs and
 parameters.
 
-    python benchmarks/diagnose_zone_width.py [--record latency | heldout:S:I] [--repeats 2] [--tag _h34]
+    python benchmarks/diagnose_zone_width.py [--record latency | dev:S:I] [--repeats 2]
 
-Writes `benchmarks/results/diagnose_zone_width{tag}_{record}.md` and `.json`.
+Writes `benchmarks/results/diagnose_zone_width.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
-from diagnose_zone_convergence import _cpu, load_record
+from common import cpu_seconds
+from diagnose_zone_convergence import load_record
 
 from jthermo.data import atomic_write_text
 from jthermo.diagnose import fitting, select
@@ -43,7 +44,7 @@ def run(args, groups):
     n_active = 4 * math.ceil(np.asarray(mask).sum(axis=1).max() / 4)
     B = theta0.shape[0]
     th, c = np.zeros(theta0.shape), np.zeros(B)
-    c0 = _cpu()
+    c0 = cpu_seconds()
     for g in groups:
         g = np.asarray(g)
         free = int(np.asarray(mask)[g].sum(axis=1).max())
@@ -52,7 +53,7 @@ def run(args, groups):
                                 shared, lay, n_iter, na)
         jax.block_until_ready(out)
         th[g], c[g] = np.asarray(out[0]), np.asarray(out[1])
-    return th, c, _cpu() - c0
+    return th, c, cpu_seconds() - c0
 
 
 def main(argv=None) -> int:
@@ -60,7 +61,6 @@ def main(argv=None) -> int:
     ap.add_argument("--record", default="latency")
     ap.add_argument("--max-zones", type=int, default=9)
     ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     est, val = load_record(args.record, args.max_zones)
     calls = []
@@ -93,9 +93,9 @@ def main(argv=None) -> int:
                      "max_rel_cost_diff": float(np.max(np.abs(c - base_c) / np.abs(base_c))),
                      "max_abs_theta_diff": float(np.max(np.abs(th - base_th))), "worst": worst,
                      "widths": sorted({int(4 * math.ceil(free[g].max() / 4)) for g in map(np.asarray, grp)})})
-    L = [f"# Per-zone candidate fits by Jacobian width ({args.record}{args.tag})", "",
+    L = [f"# Per-zone candidate fits by Jacobian width ({args.record})", "",
          (f"`python benchmarks/diagnose_zone_width.py --record {args.record} --repeats {args.repeats}"
-         f"{' --tag ' + args.tag if args.tag else ''}`: the diagnosis's first fit_zones call "
+         f"`: the diagnosis's first fit_zones call "
          f"({free.size} problems, n_iter {a[6]}; free parameters {sorted(set(free.astype(int).tolist()))}) "
          f"run as one call and split by width; CPU s (user + sys) the median of {args.repeats} warm rounds; "
          f"load {os.getloadavg()[0]:.1f}."), "",
@@ -110,9 +110,8 @@ def main(argv=None) -> int:
                                                 f"{w['theta_diff']:.2g}, cost rel. {w['rel_cost_diff']:.1e}"
                                                 for w in r["worst"])]
     RESULTS.mkdir(exist_ok=True)
-    name = args.record.replace(":", "_")
-    atomic_write_text(RESULTS / f"diagnose_zone_width{args.tag}_{name}.md", "\n".join(L) + "\n")
-    atomic_write_text(RESULTS / f"diagnose_zone_width{args.tag}_{name}.json", json.dumps(rows, indent=1))
+    atomic_write_text(RESULTS / "diagnose_zone_width.md", "\n".join(L) + "\n")
+    atomic_write_text(RESULTS / "diagnose_zone_width.json", json.dumps(rows, indent=1))
     print("\n".join(L))
     return 0
 

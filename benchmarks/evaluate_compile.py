@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-from simulate_common import cold_child
+from common import cold_child
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -100,7 +100,7 @@ def main() -> None:
     worst = max(abs(a - b) / max(abs(a), 1e-300)
                 for name, kinds in by["before"]["figures"].items()
                 for k, pair in kinds.items() for a, b in zip(pair, by["now"]["figures"][name][k]))
-    lines = ["# Cold cost of `jthermo demo`'s scenario stage: evaluation programs (issue 13)", "",
+    lines = ["# Cold cost of `jthermo demo`'s scenario stage: evaluation programs", "",
              f"`python benchmarks/evaluate_compile.py --repeats {args.repeats}`: N = 4, 600 s, 4 rollouts, "
              "each mode in a fresh process with an empty compilation cache, modes interleaved; "
              "2 shared CPUs, 1-minute load before each process. See the script's docstring for "

@@ -1,5 +1,5 @@
 """Where the cold `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` spends its time
-(issue 12): the command run from the shell in a fresh process with an empty compilation cache,
+: the command run from the shell in a fresh process with an empty compilation cache,
 on the W1 records of `benchmarks/identification.py --default-path` (absolute °C, 6000 + 3000
 samples), its stages timed by wrapping the functions the command calls.
 
@@ -14,7 +14,7 @@ backend compile, count and seconds); the functions compiled are listed by name
 `--imports` adds the cumulative import time of the heavy packages (`python -X importtime`).
 
     python benchmarks/fit_profile.py --n 4 --families arx armax oe bj --imports
-    -> benchmarks/results/fit_profile_n4.md (and .json)
+    -> benchmarks/results/fit_profile.md (and .json)
 
 The machine is shared: the 1-minute load is recorded with every row; CPU seconds are the
 figure that depends least on the load.
@@ -232,7 +232,7 @@ ORDER = ["startup", "import jax", "import library", "read data", "operating poin
 
 
 def markdown(rows: list[dict], imports: list, command: str) -> str:
-    lines = ["# Cold `jthermo fit` profile (issue 12)", "",
+    lines = ["# Cold `jthermo fit` profile", "",
              f"`{command}`: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` on W1 "
              "records (absolute °C, 6000 + 3000 samples), fresh process, empty compilation cache. "
              "Stage seconds are exclusive (nested stages subtracted); CPU = user + system of the "
@@ -281,9 +281,9 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", default=["arx", "armax", "oe", "bj"])
     ap.add_argument("--imports", action="store_true", help="add the import-time table")
     ap.add_argument("--out", type=Path, default=None,
-                    help="Markdown path (default benchmarks/results/fit_profile_n<N>.md)")
+                    help="Markdown path (default benchmarks/results/fit_profile.md)")
     args = ap.parse_args(argv)
-    out = args.out or RESULTS / f"fit_profile_n{args.n}.md"
+    out = args.out or RESULTS / "fit_profile.md"
     rows = run(args.n, args.families)
     imports = import_times() if args.imports else []
     command = "python benchmarks/fit_profile.py " + " ".join(argv)

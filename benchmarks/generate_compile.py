@@ -72,7 +72,7 @@ def main() -> None:
                     runs.append((mode, load, json.loads(p.stdout.strip().splitlines()[-1])["rows"]))
                     outs[mode] = np.load(npy)
         diff = float(np.max(np.abs(outs["default options"] - outs["one_shot"])))
-    lines = ["# `printer.generate`: compile options (issue 13)", "",
+    lines = ["# `printer.generate`: compile options", "",
              "`python benchmarks/generate_compile.py`: each mode in a fresh process with an empty "
              "compilation cache, modes interleaved; 2 shared CPUs, 1-minute load before each process.", "",
              "| mode | record | wall s | CPU s | load |", "|---|---|---|---|---|"]

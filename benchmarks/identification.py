@@ -316,14 +316,14 @@ PEER_WARM_MAX_CPU = 60.0
 def peer_child(tool: str, family: str, N: int) -> dict:
     """One fresh process of the peers' environment: fit (timed), fit again unless the first
     call took more than `PEER_WARM_MAX_CPU` (warm), simulate the validation record from rest.
-    jax-sysid is configured as its documentation recommends (`peers_fair.SYSID_CONFIGS['doc']`)."""
+    jax-sysid is configured as its documentation recommends (`peers.SYSID_CONFIGS['doc']`)."""
     W = load_workloads()
     est, val = W.estimation_validation(N, T, 0)
     row = {"tool": tool, "family": family, "N": N}
     if tool == "SIPPY":
         fit_once = (lambda: _sippy_fit(family, est, N))
     else:
-        from peers_fair import sysid_fit, sysid_sim_from_rest
+        from peers import sysid_fit, sysid_sim_from_rest
 
         fit_once = (lambda: sysid_fit(est, N, "doc"))
     model, row["cold_s"], row["cold_cpu"] = timed(fit_once)
@@ -494,18 +494,19 @@ def shell_fit(tmp: Path, fam: str, tag: str, extra=(), pythonpath: Path | None =
 
 
 def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
-                 engine: str = "auto") -> list[dict]:
+                 engine: str = "auto", prior: list[dict] = ()) -> list[dict]:
     """What a user meets: `jthermo fit EST.csv --model M --validation VAL.csv --json OUT` with
     automatic orders, in a fresh process with an empty compilation cache (JTHERMO_CACHE_DIR),
     on W1 records in absolute °C (ambient 25 °C, 6000 estimation + 3000 validation samples).
     Wall time and peak RSS from /usr/bin/time; gap = validation fit minus the true model's
     (the noise-free W1 plant simulated from rest vs measured). `engine`: `--engine` for
-    armax/oe/bj (`"auto"`: the default, no flag)."""
+    armax/oe/bj (`"auto"`: the default, no flag). `prior`: rows of earlier calls, kept first in
+    `out`'s table."""
     import tempfile
 
     from jthermo.data import atomic_write_text
 
-    rows = []
+    rows = list(prior)
     for N in Ns:
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
@@ -575,22 +576,21 @@ def main(argv=None) -> int:
     ap.add_argument("--engines", nargs="+", default=["auto"], choices=("auto", "jax", "numpy"),
                     help="jthermo PEM engines timed for armax/oe/bj (fit_polynomial(engine=...); "
                     "auto: the default)")
-    ap.add_argument("--tag", default="", help="--default-path: appended to the results files' names")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--out", type=Path, default=RESULTS / "identification.md")
     ap.add_argument("--estimate-level", action="store_true",
                     help="jthermo estimates the rest level instead of taking W1's 0 °C")
     ap.add_argument("--default-path", action="store_true",
                     help="time `jthermo fit` with automatic orders from the shell (cold), per --n "
-                    "and --families; writes results/identification_default_n<N>.md/.json")
+                    "and --families; writes results/identification_default_path.md/.json")
     ap.add_argument("--seed", type=int, default=0,
                     help="--default-path: W1 seed of the plant and records (held-back checks use "
-                    "seeds never used in development; results file tagged _seed<S>)")
+                    "seeds never used in development)")
     ap.add_argument("--noise-std", type=float, default=None,
                     help="--default-path: stationary std of W1's coloured sensor noise, °C "
-                    "(W1: 0.1; results file tagged _noise<X>)")
+                    "(W1: 0.1)")
     ap.add_argument("--noise-pole", type=float, default=None,
-                    help="--default-path: AR(1) pole of that noise (W1: 0.7; tagged _pole<X>)")
+                    help="--default-path: AR(1) pole of that noise (W1: 0.7)")
     args = ap.parse_args(argv)
     global REST_LEVEL
     if args.child:   # jthermo FAMILY N CACHE zero|estimated warm|cold ENGINE, or peer TOOL FAMILY N
@@ -606,13 +606,10 @@ def main(argv=None) -> int:
     if args.default_path:
         fams = [f for f in args.families if f != "n4sid"]
         W = with_noise(load_workloads(), args.noise_std, args.noise_pole)
-        variant = "".join(f"_{k}{v:g}" for k, v in (("seed", args.seed or None),
-                          ("noise", args.noise_std), ("pole", args.noise_pole)) if v is not None)
-        for N in args.n or [4]:
-            for engine in args.engines:
-                tag = ("" if engine == "auto" else f"_{engine}") + variant + args.tag
-                default_path(W, [N], fams, seed=args.seed, engine=engine,
-                             out=RESULTS / f"identification_default_n{N}_{'_'.join(fams)}{tag}.md")
+        rows = []
+        for engine in args.engines:
+            rows = default_path(W, args.n or [4], fams, seed=args.seed, engine=engine,
+                                out=RESULTS / "identification_default_path.md", prior=rows)
         return 0
     if "greybox" in args.families:
         ap.error("--families greybox: only with --default-path (no fixed-order W1 grey-box)")

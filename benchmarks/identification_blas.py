@@ -1,4 +1,4 @@
-"""Does `jthermo fit` from the shell gain from one BLAS thread (issue 12, item 5)?
+"""Does `jthermo fit` from the shell gain from one BLAS thread?
 
 The default-path records of `benchmarks/identification.py` (W1, absolute °C, 6000 + 3000
 samples) fitted by `jthermo fit EST --model M --validation VAL --json OUT` in fresh processes,

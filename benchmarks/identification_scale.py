@@ -1,4 +1,4 @@
-"""Issue 12 part 3 (scale): `jthermo fit --model ss|greybox` from the shell at N = 4, 16, 19.
+"""`jthermo fit --model ss|greybox` from the shell at N = 4, 16, 19.
 
 Records: a linear N-zone bed (`BedModel`, absolute °C, measured surroundings `w_0`), PRBS on every
 heater, process noise and coloured (AR(1)) sensor noise, 6000 estimation + 3000 validation
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    lines = ["# Identification at scale: `jthermo fit` from the shell (issue 12 part 3)", "",
+    lines = ["# Identification at scale: `jthermo fit` from the shell", "",
              f"`python benchmarks/identification_scale.py --n {' '.join(map(str, args.n))} "
              f"--families {' '.join(args.families)} --seed {args.seed}`; {T_EST} estimation + "
              f"{T_VAL} validation samples, Ts = {TS} s, linear bed, AR(1) sensor noise "

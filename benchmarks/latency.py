@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import loads  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 
@@ -46,12 +48,6 @@ RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
           "lateral_conduction,radiative_loss,heater_lag"]
 
 
-def _load() -> str:
-    try:
-        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "n/a"
-
 
 def _child_cpu() -> float:
     """User + system CPU seconds of the finished child processes so far."""
@@ -63,13 +59,13 @@ def _jthermo(argv: list[str], env: dict, json_path: Path | None, cwd: str | None
     cmd = [sys.executable, "-m", "jthermo.cli", *argv, "--quiet"]
     if json_path is not None:
         cmd += ["--json", str(json_path)]
-    load0 = _load()
+    load0 = loads()
     cpu0 = _child_cpu()
     t0 = time.perf_counter()
     r = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, cwd=cwd)
     wall = time.perf_counter() - t0
     row = {"wall_s": round(wall, 2), "cpu_s": round(_child_cpu() - cpu0, 2), "load_before": load0,
-           "load_after": _load(), "returncode": r.returncode}
+           "load_after": loads(), "returncode": r.returncode}
     if r.returncode != 0:
         row["error"] = (r.stderr.strip().splitlines() or ["?"])[-1]
         return row

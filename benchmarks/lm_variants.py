@@ -1,7 +1,7 @@
 """Damping, step and acceleration variants of the masked Levenberg–Marquardt replayed on the
-diagnosis's own per-zone problems (issue 13: the same minima in fewer iterations?).
+diagnosis's own per-zone problems (the same minima in fewer iterations?).
 
-`--capture REC`: runs `select.diagnose` on a record (`latency` or `heldout:S:I`, as
+`--capture REC`: runs `select.diagnose` on a record (`latency` or `dev:S:I`, as
 `diagnose_zone_convergence.py`) and stores every `fitting.fit_zones` call's arguments and its
 costs (production `identify.lm.masked_lm`) under `--store` (not committed: arrays).
 
@@ -13,9 +13,9 @@ cost, iterations and Jacobians. Per variant: the problems whose cost is above th
 statistic shift m log(SSE / SSE_base) (its zones' costs summed), total iterations and Jacobians, CPU s of the run.
 
     python benchmarks/lm_variants.py --capture latency
-    python benchmarks/lm_variants.py --records latency,heldout:12:08 --variants base,nielsen --tag _h35
+    python benchmarks/lm_variants.py --records latency,dev:12:08 --variants base,nielsen
 
-Writes `benchmarks/results/lm_variants{tag}.md` and `.json`.
+Writes `benchmarks/results/lm_variants.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ import os
 import pickle
 import sys
 from pathlib import Path
+
+from common import cpu_seconds  # noqa: E402
 
 import jax
 
@@ -186,10 +188,6 @@ def _replay(theta0, mask, on, per, shared, lay, n_iter, n_active, opts):
 _replay_jit = jax.jit(_replay, static_argnames=("lay", "n_iter", "n_active", "opts"))
 
 
-def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
-
 
 def capture(spec: str, max_zones: int) -> None:
     from diagnose_zone_convergence import load_record
@@ -216,7 +214,7 @@ def capture(spec: str, max_zones: int) -> None:
 
 def run_variant(calls, opts):
     out = []
-    c0 = _cpu()
+    c0 = cpu_seconds()
     for call in calls:
         theta0, mask, on, per, shared, lay, n_iter, n_active = (list(call["args"]) + [None])[:8]
         if n_active is None:
@@ -226,7 +224,7 @@ def run_variant(calls, opts):
                                    jax.tree_util.tree_map(jnp.asarray, shared), lay, n_iter, n_active,
                                    tuple(sorted(opts.items())))
         out.append({"cost": np.asarray(c), "iters": np.asarray(k), "jac": np.asarray(nj)})
-    return out, _cpu() - c0
+    return out, cpu_seconds() - c0
 
 
 def main(argv=None) -> int:
@@ -235,15 +233,14 @@ def main(argv=None) -> int:
     ap.add_argument("--max-zones", type=int, default=9)
     ap.add_argument("--records", default="latency")
     ap.add_argument("--variants", default="base,nielsen")
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     if args.capture:
         for s in args.capture.split(","):
             capture(s, args.max_zones)
         return 0
-    rows, L = [], [f"# Masked LM variants on the diagnosis's per-zone problems{args.tag}", "",
+    rows, L = [], ["# Masked LM variants on the diagnosis's per-zone problems", "",
                    f"`python benchmarks/lm_variants.py --records {args.records} --variants {args.variants}"
-                   f"{' --tag ' + args.tag if args.tag else ''}` (load {os.getloadavg()[0]:.1f}). Excess: problems "
+                   f"` (load {os.getloadavg()[0]:.1f}). Excess: problems "
                    "whose final cost is above the baseline's by more than 1e-9 relative; LR shift: each (candidate set x start) "
                    "block's m log(SSE/SSE_base), its zones' costs summed (min / max over blocks, negative = lower cost). "
                    "CPU s: the replay run (second call, compiled).", "",
@@ -286,8 +283,8 @@ def main(argv=None) -> int:
             print(line, flush=True)
     L += ["", "LR shift here is per (candidate set x start) block summed over zones (not the zone-best "
           "combination): positive = that block's fits cost more than the baseline's."]
-    atomic_write_text(HERE / "results" / f"lm_variants{args.tag}.md", "\n".join(L) + "\n")
-    atomic_write_text(HERE / "results" / f"lm_variants{args.tag}.json", json.dumps(rows))
+    atomic_write_text(HERE / "results" / "lm_variants.md", "\n".join(L) + "\n")
+    atomic_write_text(HERE / "results" / "lm_variants.json", json.dumps(rows))
     return 0
 
 

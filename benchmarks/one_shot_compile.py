@@ -8,7 +8,7 @@ with XLA's default options, with LLVM at -O0 alone (`runtime.ONE_SHOT` until 202
 matrix from the default's (what the controller design downstream sees).
 
     python benchmarks/one_shot_compile.py [--zones 16] [--repeats 3]
-    python benchmarks/one_shot_compile.py --zones 4     # tune's printer (results/one_shot_compile_n4.md)
+    python benchmarks/one_shot_compile.py --zones 4     # tune's printer
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--zones", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", default=None, help="default results/one_shot_compile[_nN].md")
+    ap.add_argument("--out", default=None, help="default benchmarks/results/one_shot_compile.md")
     args = ap.parse_args()
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -80,8 +80,7 @@ def main() -> None:
              "one_shot": f"runtime.ONE_SHOT = {runtime.ONE_SHOT}"}
     for mode, r in rows.items():
         lines.append(f"| {names[mode]} | {r['wall']:.2f} | {r['cpu']:.2f} | {r['diff']:.3g} |")
-    out = args.out or str(HERE / "results" / ("one_shot_compile.md" if args.zones == 16
-                                              else f"one_shot_compile_n{args.zones}.md"))
+    out = args.out or str(HERE / "results" / "one_shot_compile.md")
     Path(out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

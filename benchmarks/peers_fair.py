@@ -1,4 +1,4 @@
-"""Issue 12 item 5: state space against jax-sysid, cold with cold and warm with warm.
+"""State space against jax-sysid, cold with cold and warm with warm.
 
 Same W1 records as `benchmarks/identification.py` (`../shared/bench/workloads.py`, T = 6000
 estimation + 6000 validation samples, N = 4 and 16 zones, fit % = validation simulation fit
@@ -7,7 +7,7 @@ process: `cold` = the first fit call (JAX compilation included; imports and data
 both tools), `warm` = a second fit call in the same process on the same data.
 
 jthermo: `fit(data, "ss", (N,))` with its defaults (what `jthermo fit --model ss` does with the
-order given; simulation focus since issue 12; operating point chosen automatically).
+order given; simulation focus by default; operating point chosen automatically).
 
 jax-sysid (`LinearModel(N, N, N)`, L-BFGS on the simulation error), configured as its README and
 `examples/dynamic/example_linear.py` recommend: inputs and outputs standard-scaled
@@ -43,15 +43,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-#: jax-sysid configurations: (scaled, rho_th, lbfgs_epochs, seeds)
-SYSID_CONFIGS = {
-    "doc": (True, 1e-2, 1000, (0,)),
-    "unscaled": (False, 1e-2, 1000, (0,)),
-    "doc_rho1e-4": (True, 1e-4, 1000, (0,)),
-    "doc_3000": (True, 1e-2, 3000, (0,)),
-    "doc_rho1e-4_3000": (True, 1e-4, 3000, (0,)),
-    "doc_seeds3": (True, 1e-2, 1000, (0, 1, 2)),
-}
+from peers import SYSID_CONFIGS, sysid_fit, sysid_sim_from_rest  # noqa: E402
+
 
 
 def _data(N: int):
@@ -61,48 +54,6 @@ def _data(N: int):
     est, val = W.estimation_validation(N, T, 0)
     oracle = W.fit_percent(val["y"], val["y_clean"])
     return W, est, val, oracle
-
-
-def sysid_fit(est: dict, N: int, config: str) -> tuple:
-    """One jax-sysid fit (every seed of `config`, the best estimation MSE kept): returns
-    (model, scaling); `identification.timed` or `child` time it."""
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    from jax_sysid.models import LinearModel
-    from jax_sysid.utils import standard_scale
-
-    scaled, rho_th, epochs, seeds = SYSID_CONFIGS[config]
-    Y, U = est["y"], est["u"]
-    if scaled:
-        Y, ymean, ygain = standard_scale(Y)
-        U, umean, ugain = standard_scale(U)
-    else:
-        ymean, ygain, umean, ugain = np.zeros(N), np.ones(N), np.zeros(N), np.ones(N)
-    best = None
-    for seed in seeds:
-        m = LinearModel(N, N, N, feedthrough=False, seed=seed)
-        m.loss(rho_x0=1e-3, rho_th=rho_th)
-        m.optimization(adam_epochs=0, lbfgs_epochs=epochs, iprint=-1)
-        m.fit(Y, U)
-        yhat, _ = m.predict(m.x0, U)
-        mse = float(np.mean((np.asarray(yhat) - Y) ** 2))
-        if best is None or mse < best[0]:
-            best = (mse, m)
-    return best[1], (ymean, ygain, umean, ugain)
-
-
-def sysid_sim_from_rest(model, scaling, u: np.ndarray) -> np.ndarray:
-    """Simulate the (scaled) jax-sysid model from rest at u = 0, unscaled output."""
-    ymean, ygain, umean, ugain = scaling
-    A, B, C, _ = (np.asarray(m) for m in model.ssdata())
-    us = (u - umean) * ugain
-    x = np.linalg.solve(np.eye(A.shape[0]) - A, B @ ((0.0 - umean) * ugain))
-    ys = np.empty((u.shape[0], C.shape[0]))
-    for k in range(u.shape[0]):
-        ys[k] = C @ x
-        x = A @ x + B @ us[k]
-    return ys / ygain + ymean
 
 
 def child(tool: str, config: str, N: int, warm: bool = True) -> dict:
@@ -157,7 +108,7 @@ def run_child(python: str, tool: str, config: str, N: int, timeout: float,
 
 def report(rows: list[dict], args, uptime: str) -> list[str]:
     f = (lambda v, nd=1: "—" if v is None else f"{v:.{nd}f}")
-    lines = ["# State space vs jax-sysid, cold with cold and warm with warm (issue 12 item 5)", "",
+    lines = ["# State space vs jax-sysid, cold with cold and warm with warm", "",
              (f"`python benchmarks/peers_fair.py --n {' '.join(map(str, args.n))} --configs "
              f"{' '.join(args.configs)}` (jax-sysid in its own environment: jax-sysid 1.1.0 pins "
              "jax <= 0.4.31; jthermo on jax 0.10). W1 records of `identification.py`, T = 6000 + "

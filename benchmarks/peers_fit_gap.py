@@ -1,4 +1,4 @@
-"""Why jthermo's fixed-order W1 fits end hundredths of a point below SIPPY's (issue 12): both
+"""Why jthermo's fixed-order W1 fits end hundredths of a point below SIPPY's: both
 models scored on the same two yardsticks, over several data seeds.
 
 For each seed, family (ARMAX, OE, BJ at the W1 orders of `benchmarks/identification.py`, and
@@ -13,7 +13,7 @@ by the same `scipy.signal.lfilter` code. A model with the lower V on the estimat
 better PEM estimate; the validation fit then says how that carries over to new data.
 
     python benchmarks/peers_fit_gap.py --n 4 --seeds 0 1 2
-    -> benchmarks/results/peers_fit_gap_n4.md (and .json)
+    -> benchmarks/results/peers_fit_gap.md (and .json)
 """
 
 from __future__ import annotations
@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     ap.add_argument("--engines", nargs="+", default=["numpy", "jax"], choices=("jax", "numpy"))
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--out", type=Path, default=None,
-                    help="default benchmarks/results/peers_fit_gap_n<N>.md")
+                    help="default benchmarks/results/peers_fit_gap.md")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         return 0
     from jthermo.data import atomic_write_text
 
-    out = args.out or ROOT / "benchmarks" / "results" / f"peers_fit_gap_n{args.n}.md"
+    out = args.out or ROOT / "benchmarks" / "results" / "peers_fit_gap.md"
     command = "python benchmarks/peers_fit_gap.py " + " ".join(argv or sys.argv[1:])
     rows = []
     for seed in args.seeds:

@@ -1,6 +1,6 @@
 """Where the fixed-order W1 fit of `benchmarks/identification.py` spends its first call, with an
 empty persistent compilation cache (cold) and with the cache the cold process wrote (cached):
-the columns on which jthermo is compared with SIPPY (issue 12, "≥ 10× SIPPY").
+the columns on which jthermo is compared with SIPPY.
 
 Each (family, N) runs in two fresh processes sharing one new cache directory, exactly as
 `identification.run_jthermo` does; each times the first `identification.jthermo_fit` call (the
@@ -12,7 +12,7 @@ process, the cache only saves the backend compile: what is left in the cached co
 floor a second process pays before it runs.
 
     python benchmarks/peers_fixed_profile.py --n 4 --families armax oe bj
-    -> benchmarks/results/peers_fixed_profile_n4.md (and .json)
+    -> benchmarks/results/peers_fixed_profile.md (and .json)
 
 The machine is shared: the 1-minute load is recorded; CPU seconds depend least on it.
 """
@@ -101,7 +101,7 @@ def run(N: int, families: list[str]) -> list[dict]:
 
 
 def markdown(rows: list[dict], command: str) -> str:
-    lines = ["# Fixed-order W1 fit: cold and cached first call, by stage (issue 12)", "",
+    lines = ["# Fixed-order W1 fit: cold and cached first call, by stage", "",
              (f"`{command}`; options of `benchmarks/identification.py` (fixed orders, rest level "
              "0, 4 starts). Cold = fresh process, empty persistent compilation cache; cached = a "
              "second fresh process reading the cache the first wrote. Stage seconds are exclusive "
@@ -145,13 +145,13 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", default=["armax", "oe", "bj"],
                     choices=[f for f in B.FAMILIES if f != "n4sid"])
     ap.add_argument("--out", type=Path, default=None,
-                    help="default benchmarks/results/peers_fixed_profile_n<N>.md")
+                    help="default benchmarks/results/peers_fixed_profile.md")
     args = ap.parse_args(argv)
     if args.child:
         fam, n, cache, out = args.child
         child(fam, int(n), cache, Path(out))
         return 0
-    out = args.out or B.RESULTS / f"peers_fixed_profile_n{args.n}.md"
+    out = args.out or B.RESULTS / "peers_fixed_profile.md"
     command = "python benchmarks/peers_fixed_profile.py " + " ".join(argv or sys.argv[1:])
     rows = run(args.n, args.families)
     out.with_suffix(".json").write_text(json.dumps(rows, indent=1))

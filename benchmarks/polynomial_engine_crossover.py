@@ -13,7 +13,7 @@ output row `p` and the validation fit. CPU seconds are the load-robust figure; w
 show what the compiled engine's second core buys.
 
     python benchmarks/polynomial_engine_crossover.py --n 1 2 4 9 16 --t 6000 \
-        [--engines jax numpy] [--families armax oe bj] [--tag _s26]
+        [--engines jax numpy] [--families armax oe bj]
     -> benchmarks/results/polynomial_engine_crossover<tag>.md (and .json)
 """
 
@@ -137,7 +137,6 @@ def main(argv=None) -> int:
     ap.add_argument("--engines", nargs="+", default=["jax", "numpy"],
                     choices=("jax", "numpy", "auto"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--tag", default="")
     ap.add_argument("--cores", type=int, default=None,
                     help="pin each fit process to this many CPUs (taskset; default: all)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
@@ -148,7 +147,7 @@ def main(argv=None) -> int:
     from jthermo.data import atomic_write_text
 
     command = "python benchmarks/polynomial_engine_crossover.py " + " ".join(argv or sys.argv[1:])
-    out = ROOT / "benchmarks" / "results" / f"polynomial_engine_crossover{args.tag}.md"
+    out = ROOT / "benchmarks" / "results" / "polynomial_engine_crossover.md"
     W = B.load_workloads()
     rows = []
     for N in args.n:

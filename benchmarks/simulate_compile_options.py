@@ -2,7 +2,7 @@
 
 Each row is a fresh process with no compilation cache: it builds the N-zone printer, designs
 lambda PI as the command does, then traces, compiles (with the row's options) and runs
-`closedloop.engine._scenario_metrics` (the command's run program: scenarios drawn inside, noise
+`closedloop.engine.scenario_metrics` (the command's run program: scenarios drawn inside, noise
 in the scan, lean metrics) three times. Reported per row, median over `--repeats` processes:
 CPU s (user + system, all threads) and wall s of the compile and of one execution (the median
 of the three), and the mse. A program compiled once per cache but run on every call pays its
@@ -10,7 +10,7 @@ run time on each warm call and its compile time once.
 
     python benchmarks/simulate_compile_options.py [--zones 16 --rollouts 256 --duration 3600]
     python benchmarks/simulate_compile_options.py --only "older CPU fusion emitters" \
-        "older emitters, LLVM -O1" --repeats 3 --tag _s26
+        "older emitters, LLVM -O1" --repeats 3
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from simulate_common import load
+from common import load
 
 HERE = Path(__file__).resolve().parent
 
@@ -49,7 +49,7 @@ args = ("tracking", plant, ctrl, dur, key, B)
 def clock():
     return time.perf_counter(), time.process_time()
 w, c = clock()
-lowered = engine._scenario_metrics.lower(*args)
+lowered = engine.scenario_metrics.lower(*args)
 w1, c1 = clock()
 compiled = lowered.compile(compiler_options=opts)
 w2, c2 = clock()
@@ -73,7 +73,6 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--only", nargs="+", choices=list(OPTIONS), default=list(OPTIONS),
                     help="option sets to run (default all)")
-    ap.add_argument("--tag", default="", help="suffix of the results file name")
     args = ap.parse_args()
     import numpy as np
 
@@ -95,7 +94,7 @@ def main() -> None:
              (f"`python benchmarks/simulate_compile_options.py --zones {args.zones} --rollouts "
               f"{args.rollouts} --duration {args.duration:g} --repeats {args.repeats}"
               + ("" if args.only == list(OPTIONS) else " --only " + " ".join(
-                  f'"{n}"' for n in args.only)) + (f" --tag {args.tag}" if args.tag else "")
+                  f'"{n}"' for n in args.only))
               + "`: a fresh "
               "process per repeat, no compilation cache; medians over the repeats (one execution: "
               "the median of three). 1-minute load "
@@ -108,7 +107,7 @@ def main() -> None:
                      f"{r['run_cpu']:.2f} | {r['run_wall']:.2f} | {r['mse']!r} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    (HERE / "results" / f"simulate_compile_options{args.tag}.md").write_text(text)
+    (HERE / "results" / "simulate_compile_options.md").write_text(text)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ process's CPU seconds (user + system) are recorded next to the wall seconds.
     python benchmarks/simulate_latency_ab.py --base BASE --base-label REV --command tune_pi
         # -> results/tuning_latency_ab_tune_pi.md
     python benchmarks/simulate_latency_ab.py --base BASE --base-label REV --this AFTER \
-        --this-label REV2 --repeats 3 --out benchmarks/results/simulate_latency_s26.md
+        --this-label REV2 --repeats 3
 
 `--this` takes a second snapshot in place of this checkout (other work in the checkout then
 stays out of the comparison); `--repeats K` runs the cold/warm pairs K times (each cold run
@@ -61,13 +61,12 @@ def main() -> None:
     ap.add_argument("--base-label", required=True, help="how the table names it (e.g. a commit)")
     ap.add_argument("--command", default="simulate", choices=("simulate", "tune_pi", "tune_lqg"))
     ap.add_argument("--out", default=None,
-                    help="default results/simulate_latency_ab.md or tuning_latency_ab_COMMAND.md")
+                    help="default benchmarks/results/simulate_latency_ab.md")
     ap.add_argument("--this", default=None, help="source tree to compare (default: this checkout)")
     ap.add_argument("--this-label", default="this checkout")
     ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
-    out = args.out or str(HERE / "results" / ("simulate_latency_ab.md" if args.command == "simulate"
-                                              else f"tuning_latency_ab_{args.command}.md"))
+    out = args.out or str(HERE / "results" / "simulate_latency_ab.md")
     this = Path(args.this).resolve() if args.this else HERE.parent
     trees = {args.base_label: Path(args.base).resolve(), args.this_label: this}
     argv = COMMANDS[args.command][0]

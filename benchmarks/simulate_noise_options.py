@@ -1,5 +1,5 @@
 """What the measurement noise of `jthermo simulate` costs, and what cheaper draws of the same
-distribution cost (issue 13). `Printer.sample_noise` (every printer scenario of
+distribution cost. `Printer.sample_noise` (every printer scenario of
 `make_scenario`, and `generate`) keeps its three float64 draws; since 2026-11-25 `closedloop.run`
 on the printer (`jthermo simulate`) draws its noise inside the scan with `Printer.noise_stream`
 (last row), which changed its random stream (mse 0.08304 -> the value in
@@ -32,7 +32,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from simulate_common import finish, load, timed
+from common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 

@@ -1,4 +1,4 @@
-"""Where `jthermo simulate` spends its time (issue 13 item 1): the command's stages timed one by
+"""Where `jthermo simulate` spends its time: the command's stages timed one by
 one in this process, each with its wall and CPU seconds and the JAX compile events it caused.
 
 Stages, as `jthermo.cli.control.cmd_simulate` runs them: import, `make_printer`, the design
@@ -28,6 +28,8 @@ import sys
 import time
 from pathlib import Path
 
+from common import load  # noqa: E402
+
 T_START = time.perf_counter()
 CPU_START = time.process_time()
 
@@ -52,12 +54,6 @@ def _cache_entries() -> int:
     d = runtime.default_cache_dir()
     return sum(1 for p in d.iterdir() if p.name.endswith("-cache")) if d.is_dir() else 0
 
-
-def _load() -> str:
-    try:
-        return Path("/proc/loadavg").read_text().split()[0]
-    except OSError:
-        return "n/a"
 
 
 def stage(rows: list, name: str, fn):
@@ -103,7 +99,7 @@ def imports(out: str) -> None:
 
     probe = ("import time; w, c = time.perf_counter(), time.process_time(); {stmt}; "
              "print(time.perf_counter() - w, time.process_time() - c)")
-    load0 = _load()
+    load0 = load()
     lines = ["# Import times", "",
              (f"`python benchmarks/simulate_profile.py --imports`: a fresh interpreter per import, "
               f"median of 5; 1-minute load {load0} at the start, {{load1}} at the end (2 shared "
@@ -118,7 +114,7 @@ def imports(out: str) -> None:
         lines.append(f"| `{stmt}` ({name}) | {statistics.median(float(r[0]) for r in runs):.3f} | "
                      f"{statistics.median(float(r[1]) for r in runs):.3f} | {mods or 'none'} |")
         print(lines[-1], flush=True)
-    text = "\n".join(lines).replace("{load1}", _load()) + "\n"
+    text = "\n".join(lines).replace("{load1}", load()) + "\n"
     print(text)
     if out != "-":
         Path(out).write_text(text)
@@ -141,7 +137,7 @@ def main() -> None:
         imports(args.out if args.out != str(HERE / "results" / "simulate_profile.md")
                 else str(HERE / "results" / "import_times.md"))
         return
-    load0 = _load()
+    load0 = load()
     n_cache0 = _cache_entries()
     rows: list = []
     t0, c0 = time.perf_counter(), time.process_time()
@@ -175,7 +171,7 @@ def main() -> None:
     lean = None
     for rep in ("first", "second"):
         lean = stage(rows, f"scenarios + lean metrics, one program as in `run` ({rep} call)",
-                     lambda: engine._scenario_metrics("tracking", plant, ctrl, args.duration,
+                     lambda: engine.scenario_metrics("tracking", plant, ctrl, args.duration,
                                                       key, args.rollouts))
     noise = eqx.filter_jit(lambda k: jax.vmap(lambda kk: plant.sample_noise(
         kk, round(args.duration / plant.ts), 0.05))(jax.random.split(k, args.rollouts)))
@@ -196,7 +192,7 @@ def main() -> None:
     rows.append({"stage": "total (this process)", "wall_s": time.perf_counter() - T_START,
                  "cpu_s": time.process_time() - CPU_START, **{k: _seen[k] for k in EVENTS.values()},
                  "compile_events_s": sum(_secs.values())})
-    load1 = _load()
+    load1 = load()
     lines = [(f"# `jthermo simulate` profile: N = {args.zones}, B = {args.rollouts}, "
               f"T = {args.duration:g} s"), "",
              (f"`python benchmarks/simulate_profile.py --zones {args.zones} --rollouts "
@@ -212,7 +208,7 @@ def main() -> None:
         lines.append(f"| {r['stage']} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {r['trace']} | "
                      f"{r['lower']} | {r['compile']} | {r['compile_events_s']:.2f} |")
     if args.hlo:
-        lines += ["", *hlo_ops(engine._scenario_metrics, "tracking", plant, ctrl, args.duration,
+        lines += ["", *hlo_ops(engine.scenario_metrics, "tracking", plant, ctrl, args.duration,
                                key, args.rollouts)]
     text = "\n".join(lines) + "\n"
     print(text)

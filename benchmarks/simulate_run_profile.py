@@ -1,4 +1,4 @@
-"""Where the execution of `jthermo simulate`'s run program goes, kernel by kernel (issue 13).
+"""Where the execution of `jthermo simulate`'s run program goes, kernel by kernel.
 
 The program `closedloop.run` compiles for the printer (`engine._scenario_metrics_fn` with
 `runtime.simulate_compile()` options, the command's one-thread backend and unrolled
@@ -63,7 +63,7 @@ def main() -> None:
     from jthermo.printer import make_printer
 
     plant = make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
-    ctrl = design(args.controller, control._printer_model(plant))
+    ctrl = design(args.controller, control.stored_printer_model(plant))
     key = jax.random.key(0)
     call = (args.kind, plant, ctrl, args.duration, key, args.rollouts)
     options = dict(runtime.simulate_compile())

@@ -1,4 +1,4 @@
-"""Where `jthermo simulate` spends its time, cold and warm, stage by stage (issue 13 item 1).
+"""Where `jthermo simulate` spends its time, cold and warm, stage by stage.
 
 Each compiled program of the command is split into its three parts: trace + lower to
 StableHLO (done on every run, warm or cold: the persistent cache is keyed by the lowered
@@ -14,7 +14,7 @@ then a second child with the cache the first one filled (warm), both as the comm
 
     python benchmarks/simulate_stages.py                      # N = 16, B = 256, T = 3600
     python benchmarks/simulate_stages.py --rollouts 32 --duration 600 --out -   # quick look
-    python benchmarks/simulate_stages.py --command --out benchmarks/results/simulate_stages_command.md
+    python benchmarks/simulate_stages.py --command
 
 `--command` times the command's own steps instead (`cli.control`'s design model and
 `closedloop.run`, with `runtime.one_thread_backend` and the programs kept by
@@ -92,7 +92,7 @@ def command_child(args) -> None:
     plant = jax.block_until_ready(make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12",
                                                seed=0))
     clock.mark("make_printer")
-    model = jax.block_until_ready(control._printer_model(plant))
+    model = jax.block_until_ready(control.stored_printer_model(plant))
     clock.mark("design model (exported program)")
     ctrl = jax.block_until_ready(design("pi_lambda", model))
     clock.mark("design pi_lambda (small programs, eager)")

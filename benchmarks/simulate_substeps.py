@@ -1,4 +1,4 @@
-"""Sub-steps of the printer in the recoat-free scenarios (issue 13): the integration error of
+"""Sub-steps of the printer in the recoat-free scenarios: the integration error of
 `Printer.discretise(recoat=False)` (radiation alone, `SMOOTH_SUBSTEPS` sub-steps) and of the
 earlier path (`substeps` = 10, the recoat term evaluated though no recoat happens) against a
 fine-step reference (100 sub-steps), and what the run program costs with each.
@@ -23,7 +23,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from simulate_common import finish, load, timed
+from common import finish, load, timed
 
 HERE = Path(__file__).resolve().parent
 NOISE = "sensor noise: white 0.05 °C (scenario) + 0.05 °C and AR(1) 0.1 °C (`sensor_noise`)"
@@ -83,13 +83,13 @@ def main() -> None:
     B = args.time_rollouts
     lines += ["", f"## The run program at B = {B} (second call, compiled)", "",
               "| path | sub-steps | wall s | CPU s | load | mse |", "|---|---|---|---|---|---|"]
-    full = eqx.filter_jit(lambda p, c, k: engine._run_metrics(p, c, cl.make_scenario(
+    full = eqx.filter_jit(lambda p, c, k: engine.run_metrics(p, c, cl.make_scenario(
         "tracking", p, args.duration, k, n_rollouts=B), True))
     key = jax.random.key(0)
     for label, fn, m in (
             ("earlier (recoat term, 10 sub-steps)", lambda: full(base, ctrl, key),
              base.substeps),
-            ("now (recoat=False)", lambda: engine._scenario_metrics(
+            ("now (recoat=False)", lambda: engine.scenario_metrics(
                 "tracking", base, ctrl, args.duration, key, B), SMOOTH_SUBSTEPS)):
         load_now = load()
         out, wall, cpu = timed(fn)

@@ -21,7 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from simulate_common import finish, load
+from common import finish, load
 
 HERE = Path(__file__).resolve().parent
 ARGV = ["simulate", "--scenario", "tracking", "--controller", "pi", "--zones", "16",

@@ -19,7 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from simulate_common import finish, load
+from common import finish, load
 
 HERE = Path(__file__).resolve().parent
 

@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from simulate_common import finish, load
+from common import finish, load
 
 HERE = Path(__file__).resolve().parent
 
@@ -43,7 +43,7 @@ key = jax.random.key(0)
 rows = []
 for _ in range(3):
     w, c = time.perf_counter(), time.process_time()
-    out = jax.block_until_ready(engine._scenario_metrics("tracking", p, ctrl, {duration}, key,
+    out = jax.block_until_ready(engine.scenario_metrics("tracking", p, ctrl, {duration}, key,
                                                          {rollouts}))
     rows.append((time.perf_counter() - w, time.process_time() - c))
 print(json.dumps({{"rows": rows, "mse": float(out[0]["mse"])}}))

@@ -1,4 +1,4 @@
-"""The warm `jthermo simulate` run program in its parts (issue 13): the exported program read
+"""The warm `jthermo simulate` run program in its parts: the exported program read
 from disk, `jit(exported.call)` lowered (JAX initialises the CPU LAPACK kernels there, which
 imports `scipy.linalg`: timed on its own), the executable loaded from the persistent
 compilation cache, and executed.
@@ -25,7 +25,7 @@ HERE = Path(__file__).resolve().parent
 
 
 def child(args) -> None:
-    from jthermo import runtime
+    from jthermo import runtime, stored
 
     runtime.enable_cache()
     runtime.unroll_threefry()
@@ -49,16 +49,16 @@ def child(args) -> None:
     rows.append(("interpreter start to imports done", time.perf_counter() - T_START,
                  time.process_time()))
     plant = make_printer(args.zones, cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
-    ctrl = jax.block_until_ready(design("pi_lambda", control._printer_model(plant)))
+    ctrl = jax.block_until_ready(design("pi_lambda", control.stored_printer_model(plant)))
     mark("printer, design model, pi_lambda")
     fn_args = ("tracking", plant, ctrl, args.duration, jax.random.key(0), args.rollouts)
-    exp, arrays = runtime._exported_program(engine._scenario_metrics_fn, fn_args)
+    exp, arrays = stored._exported_program(engine._scenario_metrics_fn, fn_args)
     mark("exported program read")
     had_scipy = "scipy.linalg" in sys.modules
     if not had_scipy:
         import scipy.linalg  # noqa: F401  (what the lowering's LAPACK initialisation imports)
     mark("import scipy.linalg (LAPACK initialisation)" + (" (already loaded)" if had_scipy else ""))
-    lowered = runtime._caller(exp, runtime.simulate_compile()).lower(*arrays)
+    lowered = stored._caller(exp, runtime.simulate_compile()).lower(*arrays)
     mark("lower jit(exported.call)")
     compiled = lowered.compile()
     mark("executable from the persistent cache")

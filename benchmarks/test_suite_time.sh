@@ -3,11 +3,14 @@
 # compilation cache of its own: empty at the start (cold, as on a machine that never ran the
 # tests), then the same command again on the cache it filled (warm); the load average before and
 # after each, and a per-test timeline (benchmarks/test_timeline.py) summed by file.
-#   bash benchmarks/test_suite_time.sh OUTDIR [cold|warm|both]
-# Run from the repository root, the venv built (make .venv/.installed).
+#   bash benchmarks/test_suite_time.sh [cold|warm|both]
+# Run from the repository root, the venv built (make .venv/.installed). Writes
+# benchmarks/results/test_suite_time.md (the times and the per-file tables); the logs stay in a
+# temporary folder, printed at the end.
 set -u
-out=$(realpath -m "$1"); mode=${2:-both}
-mkdir -p "$out"
+mode=${1:-both}
+out=$(mktemp -d /tmp/jthermo-test-suite-time.XXXX)
+report=benchmarks/results/test_suite_time.md
 cache=$(mktemp -d /tmp/jthermo-tests-cache.XXXX)
 runs=$([ "$mode" = both ] && echo "cold warm" || echo "$mode")
 for run in $runs; do
@@ -22,3 +25,12 @@ for run in $runs; do
   .venv/bin/python benchmarks/test_timeline_summary.py "$out/timeline_$run.jsonl" > "$out/files_$run.md"
 done
 rm -rf "$cache"
+{
+  echo '# `make test` wall and CPU time, cold and warm'
+  echo
+  echo "\`bash benchmarks/test_suite_time.sh $mode\`: one line per run (wall s, load before and after, time, pytest's summary)."
+  echo
+  sed 's/^/    /' "$out/times.txt"
+  for run in $runs; do echo; echo "## $run: seconds per test file"; echo; cat "$out/files_$run.md"; done
+} > "$report"
+echo "logs: $out; report: $report"

@@ -7,7 +7,7 @@ figures from the first option set's.
 The batch is the default report's held-out chunk (`tune_report` at the CLI's defaults: 4 zones,
 16 rollouts, 600 s, 3 plants x 3 scenarios = 9 items), built as `tune_report` builds it.
 
-    python benchmarks/tune_program_options.py --tag s31 \
+    python benchmarks/tune_program_options.py \
         --options quick='{"xla_cpu_use_fusion_emitters": false}' \
         --options o1='{"xla_cpu_use_fusion_emitters": false, "xla_backend_optimization_level": 1}'
 """
@@ -17,20 +17,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_seconds  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 
-
-def _cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def child(options: dict, out: str, repeats: int) -> int:
@@ -56,7 +53,7 @@ def child(options: dict, out: str, repeats: int) -> int:
     plants.update(report._gain_plants(pl, 0.2))
     _, batches = report.held_out_study(plants, (training.HELD_OUT,), rollouts=16,
                                        duration=600.0, chunk=len(ens) * 3)
-    ctrls = {"lqg": report._rescaled(design("lqg", model)), **report.classical_designs(model)}
+    ctrls = {"lqg": report.rescaled_start(design("lqg", model)), **report.classical_designs(model)}
     seen, todo = [], {}
     for name, c in ctrls.items():
         s = jax.tree_util.tree_structure(c)
@@ -66,9 +63,9 @@ def child(options: dict, out: str, repeats: int) -> int:
     fn = eqx.filter_jit(terms._group_terms_fn, compiler_options=runtime.accepted(options) or None)
     rows, values = {}, {}
     for name, c in todo.items():
-        n0, t0, c0 = len(events), time.perf_counter(), _cpu()
+        n0, t0, c0 = len(events), time.perf_counter(), cpu_seconds()
         v = np.asarray(fn(c, batches[0], None))
-        first, first_cpu = time.perf_counter() - t0, _cpu() - c0
+        first, first_cpu = time.perf_counter() - t0, cpu_seconds() - c0
         runs = []
         for _ in range(repeats):
             t1 = time.perf_counter()
@@ -98,7 +95,7 @@ def child_step(options: dict, out: str, controller: str) -> int:
     pl = report._plant_from("printer", zones=4, powder="PA12", plant_seed=0)
     ens = training.plant_ensemble(pl, 2, seed=0)
     model = report._printer_model(pl)
-    start = report._rescaled(design(fam, model))
+    start = report.rescaled_start(design(fam, model))
     refs = [design(f, model) for f in ("pi_lambda",) if f != fam]
     train, _ = report._training_sets(ens, 16, 600.0, 0)
     optimiser.STEP_COMPILE = options
@@ -183,8 +180,7 @@ def scenario_table(args, sets, res, base) -> int:
                      f"{r['load']:.2f} | {r['first_wall']:.2f} | {r['first_cpu']:.2f} | "
                      f"{r['rest_wall']:.2f} | {r['rest_cpu']:.2f} | {float(np.max(d)):.3g} | "
                      f"{float(np.max(d / np.maximum(np.abs(b), 1e-300))):.3g} |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_scenario_options{tag}.md"
+    path = RESULTS / "tune_program_options_scenario.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0
@@ -194,7 +190,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--options", action="append", default=[], metavar="LABEL=JSON")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--tag", default="")
     ap.add_argument("--program", choices=("terms", "step", "scenario"), default="terms",
                     help="the evaluation program per structure, or Adam's training step")
     ap.add_argument("--controller", default="lqg", help="with --program step: pi or lqg")
@@ -254,8 +249,7 @@ def main(argv=None) -> int:
                                                                      "backend", "run")}
         lines.append(f"| | | all | {tot['first']:.2f} | {tot['first_cpu']:.2f} | "
                      f"{tot['backend']:.2f} | {tot['run']:.3f} | | |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_program_options{tag}.md"
+    path = RESULTS / "tune_program_options.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0
@@ -284,8 +278,7 @@ def step_table(args, sets, res, base) -> int:
         lines.append(f"| `{label}` {r['options']} | {r['wall']:.1f}, {r['cpu']:.1f}, "
                      f"{r['load']:.2f} | {r['first_wall']:.2f} | {r['first_cpu']:.2f} | "
                      f"{r['step_wall']:.3f} | {r['step_cpu']:.3f} | {h:.3g} | {lv:.3g} |")
-    tag = f"_{args.tag}" if args.tag else ""
-    path = RESULTS / f"tune_step_options_{args.controller}{tag}.md"
+    path = RESULTS / f"tune_program_options_step_{args.controller}.md"
     path.write_text("\n".join(lines) + "\n")
     print(path.read_text())
     return 0

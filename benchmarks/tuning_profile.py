@@ -88,7 +88,7 @@ def main(argv=None) -> int:
 
     _wrap(report, "tune", "tuning loop + guard (tune)")
     _wrap(training, "minimise", "tuning loop (minimise)")
-    _wrap(training, "_guard", "validation guard")
+    _wrap(training, "guarded_choice", "validation guard")
     _wrap(report, "classical_designs", "classical designs")
     _wrap(report, "printer_model", "design model")
     _wrap(report, "held_out_terms", "held-out, changed powder, gain ±20 % (held_out_terms)")

@@ -42,7 +42,7 @@ def child(args) -> int:
             tp._wrap(report, name, "design model")
     tp._wrap(report, "tune", "tuning loop + guard (tune)")
     tp._wrap(training, "minimise", "tuning loop (minimise)")
-    tp._wrap(training, "_guard", "validation guard")
+    tp._wrap(training, "guarded_choice", "validation guard")
     tp._wrap(report, "classical_designs", "classical designs")
     tp._wrap(report, "held_out_terms", "held-out, changed powder, gain ±20 % (held_out_terms)")
     tp._wrap(report, "robustness", "robustness (Ms)")
@@ -153,7 +153,7 @@ def main(argv=None) -> int:
     if args.child:
         return child(args)
     out = Path(args.out or ROOT / "benchmarks" / "results"
-               / f"tuning_profile_default_{args.controller}.md")
+               / "tuning_profile_default.md")
     with tempfile.TemporaryDirectory(prefix="jthermo-tune-prof-") as tmp:
         runs = {}
         for name in ("cold", "warm"):

@@ -6,7 +6,7 @@ jax.config.update("jax_enable_x64", len(sys.argv) < 2 or sys.argv[1] != "f32")
 import jax.numpy as jnp, numpy as np, equinox as eqx
 from pathlib import Path; _ROOT = Path(__file__).resolve().parents[1]; sys.path.insert(0, str(_ROOT / "benchmarks")); sys.path.insert(0, str(_ROOT.parent / "shared" / "bench"))
 import workloads as wl
-from _timing import compare_interleaved
+from common import compare_interleaved
 from jthermo.closedloop import rollout_costs, CompactScenario, Events, Scenario, ModelDisturbance
 from jthermo.control.pi import DiagonalPI
 from jthermo.models import StateSpace

@@ -16,7 +16,7 @@
    the best classical design there) and the validation guard (seed + VALIDATION) against every
    classical design of the known model.
 5. Everything is repeated on a printer with another powder (PA11), which no design or tuning saw.
-6. The structured designs of issue 16 on the known model (`--structured`): the firmware relay
+6. The structured designs on the known model (`--structured`): the firmware relay
    auto-tune PID (`pid_relay`), the full-matrix MIMO PI (`pi_mimo`), and the schedule
    feed-forward around it (`pi_ff`) and around the LQG (`lqg_ff`), the taps from the printer's
    response to each event (`tune.ff_init`); `--tune pi_ff,lqg_ff` tunes their taps (the
@@ -66,7 +66,7 @@ LABELS = {"pi_untuned": "original PI (untuned)", "pi_lambda": "diagonal PI (lamb
           "imc": "IMC", "lqg": "LQG + integral", "gated_pi": "gated PI",
           "pid_relay": "relay auto-tune PID (Z–N)", "pi_mimo": "MIMO PI (full matrices)",
           "pi_ff": "MIMO PI + schedule feed-forward", "lqg_ff": "LQG + schedule feed-forward"}
-#: issue 16's structured designs, on the known model only (the feed-forward taps come from the
+#: the structured designs, on the known model only (the feed-forward taps come from the
 #: printer's response to each event, `init_schedule_ff`)
 STRUCTURED = ("pid_relay", "pi_mimo", "pi_ff", "lqg_ff")
 #: the fields tuned per family (default: every array leaf); the LQG keeps its design model and

@@ -1,4 +1,4 @@
-"""Cost-weight sweep (issue 18 item 5): does the effort weight move the tuned controller?
+"""Cost-weight sweep: does the effort weight move the tuned controller?
 
 On the Klipper hot-end's design model (fitted to one record, as in `experiments/own_plant.py`),
 a `pid_relay` PID at 200 °C is tuned on the own-plant scenarios (`tune.own.OWN_SCENARIOS`:
@@ -103,7 +103,7 @@ def sweep(device: str, steps: int, rollouts: int, duration: float, seed: int) ->
 def markdown(res: dict, args) -> str:
     lines = ["# Cost-weight sweep: the effort weight moves the tuned PID", "",
              (f"`python experiments/cost_weight_sweep.py --steps {args.steps} --rollouts "
-             f"{args.rollouts} --duration {args.duration:g} --seed {args.seed}` (issue 18 item 5)."
+             f"{args.rollouts} --duration {args.duration:g} --seed {args.seed}`."
              f" Device {res['device']} design model (Ts {res['ts']:g} s), `pid_relay` start at "
              f"{res['setpoint']} °C, tuned on {', '.join(OWN_SCENARIOS)} with the plain mean cost"
              f" (no guard), other weights {res['weights']}; figures on held-out scenarios. "

@@ -587,7 +587,6 @@ def main(argv=None):
     ap.add_argument("--families-all", action="store_true")
     ap.add_argument("--work", default=None, help="work directory (default: a temporary one)")
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
-    ap.add_argument("--tag", default="", help="suffix of the result files")
     args = ap.parse_args(argv)
     if args.render:
         return render(args.render)
@@ -615,7 +614,7 @@ def main(argv=None):
     load = f"{load0:.1f} -> {os.getloadavg()[0]:.1f}"
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    stem = "default_path_audit" + (f"_{args.tag}" if args.tag else "")
+    stem = "default_path_audit"
     (out / f"{stem}.json").write_text(relative(json.dumps({"argv": args.argv, "rows": a.rows,
                                                    "cpu_s": cpu, "wall_s": wall, "load": load,
                                                    "commit": commit_note()},

@@ -9,7 +9,7 @@ recorded input limits and the minimum switching time; bad options must fail with
 one line on stderr, before the diagnosis runs.
 
     .venv/bin/python experiments/design_experiment_cli.py [--out experiments/results]
-        [--sets virtual,klipper,tclab] [--tag T]
+        [--sets virtual,klipper,tclab]
 
 Writes `experiments/results/design_experiment_cli{T}.md` and `.json`.
 """
@@ -128,7 +128,6 @@ def main(argv=None):
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--skip-real", action="store_true")
     ap.add_argument("--sets", default=",".join(SETS), help=f"comma-separated of {', '.join(SETS)}")
-    ap.add_argument("--tag", default="", help="suffix of the result files")
     args = ap.parse_args(argv)
     sets = [x for x in args.sets.split(",") if x and not (args.skip_real and x != "virtual")]
     out = Path(args.out)
@@ -180,8 +179,8 @@ def main(argv=None):
     for r in bad:
         lines.append(f"| {r['option']} | {r['rc']} | {r['lines']} | {r['seconds']} | `{r['stderr']}` | {yes(r['ok'])} |")
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"design_experiment_cli{args.tag}.md").write_text("\n".join(lines) + "\n")
-    (out / f"design_experiment_cli{args.tag}.json").write_text(json.dumps({"runs": rows, "bad_options": bad},
+    (out / "design_experiment_cli.md").write_text("\n".join(lines) + "\n")
+    (out / "design_experiment_cli.json").write_text(json.dumps({"runs": rows, "bad_options": bad},
                                                                           indent=1))
     return 0 if all(r["ok"] for r in bad) and all(r["rc"] == 0 for r in rows) else 1
 

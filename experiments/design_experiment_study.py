@@ -1,4 +1,4 @@
-"""Designed experiments against PRBS on the virtual printer (issue 14 item 3).
+"""Designed experiments against PRBS on the virtual printer.
 
 For each case the printer hides one mechanism of a rival pair that PRBS records tend to leave
 tied (heater lag / input delay, a slow chamber body / an unmeasured surroundings drift,
@@ -15,7 +15,7 @@ record).
 
     .venv/bin/python experiments/design_experiment_study.py [--cases a,b] [--seeds 0,1,2]
         [--criterion nuisance|nuisance_drift|span] [--duration case|val|est] [--steps 150]
-        [--out experiments/results] [--tag T]
+        [--out experiments/results]
 
 Writes `experiments/results/design_experiment{T}.md`, `.json` and `design_experiment{T}.png`.
 """
@@ -209,13 +209,13 @@ def figure_counts(rows, before, path):
     save_figure(fig, path)
 
 
-def write(rows, out, load, tag, before=None):
+def write(rows, out, load, before=None):
     """The Markdown table and the JSON of `rows`; `before`: (path, rows) of an earlier run to
     compare with, case by case."""
     yes = lambda b: "yes" if b else "no"
     crit = rows[0]["design"].get("criterion", "span")
     arms = [a for a, _, _ in ARMS if f"designed_{a}" in rows[0]]
-    lines = ["# Designed experiments against PRBS (issue 14 item 3)", "",
+    lines = ["# Designed experiments against PRBS", "",
              (f"Made by `experiments/design_experiment_study.py` (criterion `{crit}`). Virtual printer, one "
               "zone, Ts = 1 s, white +"),
              "AR(1) sensor noise (same noise draw in both arms); PRBS estimation + validation records are",
@@ -314,10 +314,10 @@ def write(rows, out, load, tag, before=None):
                          f"{ba('designed_as_validation')} | {ba('prbs_as_validation')} | "
                          f"{ba('designed_as_estimation')} | {ba('prbs_as_estimation')} | "
                          f"{ba('designed_twice')} | {ba('prbs_twice')} |")
-        lines += ["", f"![named truth before and after](design_experiment{tag}_counts.png)"]
-    lines += ["", f"![inputs and rival prediction gaps](design_experiment{tag}.png)", ""]
-    atomic_write_text(out / f"design_experiment{tag}.md", "\n".join(lines))
-    atomic_write_text(out / f"design_experiment{tag}.json", json.dumps(rows, indent=1, default=float))
+        lines += ["", "![named truth before and after](design_experiment_study_counts.png)"]
+    lines += ["", "![inputs and rival prediction gaps](design_experiment_study.png)", ""]
+    atomic_write_text(out / "design_experiment_study.md", "\n".join(lines))
+    atomic_write_text(out / "design_experiment_study.json", json.dumps(rows, indent=1, default=float))
 
 
 def main(argv=None):
@@ -330,7 +330,6 @@ def main(argv=None):
                          "the validation record's or the estimation record's")
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--out", default="experiments/results")
-    ap.add_argument("--tag", default="", help="suffix of the result files")
     ap.add_argument("--rewrite", metavar="LOAD", help="only rewrite the Markdown from the JSON in --out")
     ap.add_argument("--before", metavar="JSON", help="an earlier run's JSON to compare with (before → after)")
     args = ap.parse_args(argv)
@@ -338,10 +337,10 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     before = None if args.before is None else (args.before, json.loads(Path(args.before).read_text()))
     if args.rewrite is not None:
-        rows = json.loads((out / f"design_experiment{args.tag}.json").read_text())
-        write(rows, out, args.rewrite, args.tag, before)
+        rows = json.loads((out / "design_experiment_study.json").read_text())
+        write(rows, out, args.rewrite, before)
         if before is not None:
-            figure_counts(rows, before[1], out / f"design_experiment{args.tag}_counts.png")
+            figure_counts(rows, before[1], out / "design_experiment_study_counts.png")
         return 0
     rows, arrays = [], {}
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -359,10 +358,10 @@ def main(argv=None):
                   f"x{row['design']['separation_ratio']:.2f}; {got} ({row['seconds']:.0f} s)", flush=True)
             load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
             rows.sort(key=lambda r: (list(CASES).index(r["case"]), r["seed"]))
-            write(rows, out, load, args.tag, before)
-    figure([r for r in rows if r["seed"] == seeds[0]], arrays, out / f"design_experiment{args.tag}.png")
+            write(rows, out, load, before)
+    figure([r for r in rows if r["seed"] == seeds[0]], arrays, out / "design_experiment_study.png")
     if before is not None:
-        figure_counts(rows, before[1], out / f"design_experiment{args.tag}_counts.png")
+        figure_counts(rows, before[1], out / "design_experiment_study_counts.png")
     return 0
 
 

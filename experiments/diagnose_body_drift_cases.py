@@ -1,4 +1,4 @@
-"""Why a slow stored-heat body is named an ambient drift (issue 14, `slow_body` class of
+"""Why a slow stored-heat body is named an ambient drift (`slow_body` class of
 `diagnose_heldout_hard.py`): per case, the estimation evidence (whitened likelihood ratio
 against the baseline, `decide.likelihood_ratio`) and the validation statistic of the *true*
 plant (its noise-free simulation against the noisy record, nothing re-estimated) beside those
@@ -7,11 +7,11 @@ time constant and share against the truth. A body candidate whose estimation evi
 below the true plant's is a fit that did not reach the optimum (the truth is in its class:
 the study's body is the library's wall with γ = 1).
 
-    .venv/bin/python experiments/diagnose_body_drift_cases.py 4:8 13:8 4:6 [--tag T] [--n-iter 25]
-    .venv/bin/python experiments/diagnose_body_drift_cases.py --render --tag T --max-zones 9 --n-iter 200
+    .venv/bin/python experiments/diagnose_body_drift_cases.py 4:8 13:8 4:6 [--n-iter 25]
+    .venv/bin/python experiments/diagnose_body_drift_cases.py --render --max-zones 9 --n-iter 200
 
 Each argument is CASE:SEED_SET of `diagnose_heldout_hard.py` (development sets only). Writes
-`experiments/results/diagnose_body_drift_cases[_TAG].{md,json}`.
+`experiments/results/diagnose_body_drift_cases.{md,json}`.
 """
 
 from __future__ import annotations
@@ -105,16 +105,14 @@ def main(argv=None):
     ap.add_argument("cases", nargs="*", help="CASE:SEED_SET")
     ap.add_argument("--max-zones", type=int, default=3)
     ap.add_argument("--n-iter", type=int, default=25)
-    ap.add_argument("--tag", default="")
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--render", action="store_true",
-                    help="rewrite the tables of the tag's JSON (the cases are not run again)")
+                    help="rewrite the tables from the JSON in --out (the cases are not run again)")
     args = ap.parse_args(argv)
-    tag = f"_{args.tag}" if args.tag else ""
     rows = []
     t0 = time.perf_counter()
     if args.render:
-        rows = json.loads((Path(args.out) / f"diagnose_body_drift_cases{tag}.json").read_text())
+        rows = json.loads((Path(args.out) / "diagnose_body_drift_cases.json").read_text())
         args.cases = [f"{int(r['case'])}:{r['set']}" for r in rows]
     for spec in [] if args.render else args.cases:
         rows.append(one(spec, args.max_zones, args.n_iter))
@@ -126,8 +124,8 @@ def main(argv=None):
               f"est LR drift/body {r.get('lr_drift_over_body')} drift/truth {r.get('lr_drift_over_truth')} "
               f"body/truth {r.get('lr_body_over_truth')}", flush=True)
     made = (f"Made by `python experiments/diagnose_body_drift_cases.py {' '.join(args.cases)} --max-zones "
-            f"{args.max_zones} --n-iter {args.n_iter}{' --tag ' + args.tag if args.tag else ''}`")
-    lines = ["# Slow body against drift: the true plant's evidence beside the candidates' (issue 14)", "",
+            f"{args.max_zones} --n-iter {args.n_iter}`")
+    lines = ["# Slow body against drift: the true plant's evidence beside the candidates'", "",
              made + (" (tables rewritten from its JSON by `--render`)." if args.render else
                      f" (wall {time.perf_counter() - t0:.0f} s, load {os.getloadavg()[0]:.2f})."), "",
              "Estimation likelihood ratio against the baseline (truth: the noise-free true plant, nothing "
@@ -151,8 +149,8 @@ def main(argv=None):
                      f"{f(r.get('est_drift_over_body_z'), 2)} {r.get('k_est', '')} | {f(bp.get('time_constant_s'), 0)} "
                      f"({r['physics'].get('body_tau', '-')}) | {f(bp.get('share'), 2)} "
                      f"({r['physics'].get('body_share', '-')}) | {r['cpu_s']:.0f} |")
-    atomic_write_text(Path(args.out) / f"diagnose_body_drift_cases{tag}.md", "\n".join(lines) + "\n")
-    atomic_write_text(Path(args.out) / f"diagnose_body_drift_cases{tag}.json",
+    atomic_write_text(Path(args.out) / "diagnose_body_drift_cases.md", "\n".join(lines) + "\n")
+    atomic_write_text(Path(args.out) / "diagnose_body_drift_cases.json",
                       json.dumps(rows, indent=1, default=float))
     print("\n".join(lines))
     return 0

@@ -1,4 +1,4 @@
-"""Why a slow body's per-zone fit is not significant on some records (issue 14): per zone, the
+"""Why a slow body's per-zone fit is not significant on some records: per zone, the
 validation RMS error of the baseline, the `heat_accumulation` and the `ambient_variation`
 candidates (each simulated coupled, record states re-estimated, as the diagnosis's test), their
 estimation RMS, and the body's fitted wall (τ_w, γ), loss time constant, share c/(a + c), wall
@@ -62,7 +62,7 @@ def one(spec: str) -> list[str]:
 def main(argv=None) -> int:
     specs = (argv if argv is not None else sys.argv[1:]) or ["13:17"]
     t0 = time.perf_counter()
-    lines = ["# A slow body's per-zone fits on validation (issue 14)", "",
+    lines = ["# A slow body's per-zone fits on validation", "",
              f"Made by `python experiments/diagnose_body_validation_zones.py {' '.join(specs)}`.", ""]
     for spec in specs:
         lines += one(spec)

@@ -1,4 +1,4 @@
-"""Is the surroundings drift named on TCLab CACE 2020 (two heaters) real? (issue 14)
+"""Is the surroundings drift named on TCLab CACE 2020 (two heaters) real?
 
 Since 9a11b41 (each zone validated with its own surroundings offset) the diagnosis of the CACE
 2-heater runs names `ambient_variation` beside `heater_lag` + `lateral_conduction`; the published
@@ -106,7 +106,7 @@ def main(argv=None):
     atomic_write_text(out / "diagnose_cace2_drift.json", json.dumps(rec, indent=1, default=float))
     f, dr, p = rec["full"], rec["drift"], rec["published_mechanisms_only"]
     fmt = lambda v: "/".join(f"{x:.1f}" for x in v)
-    lines = ["# TCLab CACE 2020, two heaters: is the named surroundings drift real? (issue 14)", "",
+    lines = ["# TCLab CACE 2020, two heaters: is the named surroundings drift real?", "",
              ("Made by `python experiments/diagnose_cace2_drift.py` (estimation `id_2heaters`, validation "
              "`val_2heaters`, `--actuator resistive-pwm`). Published physics model: validation SAE 840.95."), "",
              "| diagnosis | named | rivals | surroundings | fit % | SAE |", "|---|---|---|---|---|---|",

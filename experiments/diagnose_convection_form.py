@@ -1,4 +1,4 @@
-"""Why `radiative_loss` misses the held-out h(T) convection cases (issue 14): its curvature is capped.
+"""Why `radiative_loss` misses the held-out h(T) convection cases: its curvature is capped.
 
 The held-out generator (`diagnose_heldout_hard.py`) loses heat as $a\\Delta + c\\,\\Delta^{4/3}$
 ($\\Delta = x - T_\\infty$, natural convection $h \\propto \\Delta^{1/3}$). What a loss nonlinearity
@@ -102,7 +102,7 @@ def main(argv=None):
         floor += [best_linear_rms(y[:, z], u, c["ts"]) for z in range(c["zones"])]
     out = Path(args.out)
     atomic_write_text(out / "diagnose_convection_form.json", json.dumps({"rows": rows, "null_floor_C": floor}, indent=1))
-    lines = ["# Convection h(T) against the library's radiation form (issue 14)", "",
+    lines = ["# Convection h(T) against the library's radiation form", "",
              (f"Made by `python experiments/diagnose_convection_form.py --seed-sets {' '.join(map(str, args.seed_sets))}` "
              "(development seed sets of `diagnose_heldout_hard.py`, never the scoring set 3; NumPy only)."),
              "κ: curvature of the loss over its slope at the zone's mean rise. Radiation as a share ρ ≤ 1 of",

@@ -1,4 +1,4 @@
-"""Radiation, lamp exponent and the true convective form, each fitted to its optimum (issue 14).
+"""Radiation, lamp exponent and the true convective form, each fitted to its optimum.
 
 On held-out convection cases (`diagnose_heldout_hard.py` kind `convection_hT`: loss
 $a\\Delta + c\\Delta^{4/3}$) the diagnosis named `input_nonlinearity` ($u^p$) instead of
@@ -22,9 +22,9 @@ diagnosis. Reported: validation MSE reduction against `base` (pooled over zones,
 diagnosis ranks), the Diebold-Mariano $z$ of each pair (`decide.predictive_z`), the fitted
 shares and exponents. Development seed sets only (1-11).
 
-    .venv/bin/python experiments/diagnose_convection_oracle.py 2:8 2:11 17:9 --tag dev
+    .venv/bin/python experiments/diagnose_convection_oracle.py 2:8 2:11 17:9
 
-Writes `experiments/results/diagnose_convection_oracle_<tag>.{md,json}`.
+Writes `experiments/results/diagnose_convection_oracle.{md,json}`.
 """
 
 from __future__ import annotations
@@ -183,14 +183,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("cases", nargs="+")
     ap.add_argument("--max-zones", type=int, default=3)
-    ap.add_argument("--tag", required=True)
     args = ap.parse_args(argv)
     plan = [tuple(int(v) for v in s.split(":")) for s in args.cases]
     if any(s >= 12 for _, s in plan):
         raise SystemExit("seed sets >= 12 are kept for scoring")
     cmd = "python experiments/diagnose_convection_oracle.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
-    lines = [f"# Each form at its optimum on held-out cases ({args.tag})", "",
+    lines = ["# Each form at its optimum on held-out cases ()", "",
              f"Made by `{cmd}` (NumPy/SciPy/JAX, independent of the diagnosis' fitting code).",
              "`z b>a`: Diebold-Mariano z that b predicts the validation record better than a.", "",
              "| case:set | kind | N | val MSE base | val MSE red. rad / conv (oracle) / pow | rad share | conv share | exponent | "
@@ -205,7 +204,7 @@ def main(argv=None):
                      f"{r['params']['rad']} | {r['params']['conv']} | {r['params']['pow']} | {z['conv>rad']} | "
                      f"{z['pow>rad']} | {z['rad>pow']} | {z['conv>pow']} | {r['cpu_s']:.0f} |")
         print(lines[-1], flush=True)
-        out = ROOT / "experiments" / "results" / f"diagnose_convection_oracle_{args.tag}"
+        out = ROOT / "experiments" / "results" / "diagnose_convection_oracle"
         atomic_write_text(out.with_suffix(".md"), "\n".join(lines + ["", f"1-min load {os.getloadavg()[0]:.1f}"]) + "\n")
         atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1))
     return 0

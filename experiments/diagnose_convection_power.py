@@ -1,4 +1,4 @@
-"""Is natural convection detectable at all? The diagnosis' own tests on the true form (issue 14).
+"""Is natural convection detectable at all? The diagnosis' own tests on the true form.
 
 Held-out convection cases (`diagnose_heldout_hard.py` kind `convection_hT`, loss
 $a\\Delta + c\\Delta|\\Delta|^{1/3}$) that the diagnosis names nothing: is that the candidate's
@@ -20,9 +20,9 @@ If the true form passes both tests and T⁴ does not, the candidate's form or fi
 if neither passes, the record is power-limited and naming nothing is right.
 Seed sets 15-19 are reserved for final scoring and refused.
 
-    .venv/bin/python experiments/diagnose_convection_power.py 2:14 17:14 --max-zones 9 --tag s35
+    .venv/bin/python experiments/diagnose_convection_power.py 2:14 17:14 --max-zones 9
 
-Writes `experiments/results/diagnose_convection_power_<tag>.{md,json}` (after every case).
+Writes `experiments/results/diagnose_convection_power.{md,json}` (after every case).
 """
 
 from __future__ import annotations
@@ -135,14 +135,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("cases", nargs="+", help="case:set pairs, e.g. 2:14")
     ap.add_argument("--max-zones", type=int, default=9)
-    ap.add_argument("--tag", required=True)
     args = ap.parse_args(argv)
     plan = [tuple(int(v) for v in s.split(":")) for s in args.cases]
     if any(s in RESERVED for _, s in plan):
         raise SystemExit("seed sets 15-19 are reserved for final scoring")
     cmd = "python experiments/diagnose_convection_power.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
-    lines = [f"# Convection: the diagnosis' tests on the true form and on T⁴ ({args.tag})", "",
+    lines = ["# Convection: the diagnosis' tests on the true form and on T⁴ ()", "",
              f"Made by `{cmd}`. Each cell: estimation likelihood ratio / its critical value, validation "
              "z / its critical value (Bonferroni level ALPHA / K, one parameter per zone), validation MSE "
              "reduction, and whether both tests and `not_worse` pass. `library rad`: the diagnosis' own "
@@ -164,7 +163,7 @@ def main(argv=None):
                      f"{r['share']['conv']} | {r['base_sse_library_vs_oracle'][0]} / {r['base_sse_library_vs_oracle'][1]} | "
                      f"{r['cpu_s']:.0f} |")
         print(lines[-1], flush=True)
-        out = ROOT / "experiments" / "results" / f"diagnose_convection_power_{args.tag}"
+        out = ROOT / "experiments" / "results" / "diagnose_convection_power"
         atomic_write_text(out.with_suffix(".md"), "\n".join(lines + ["", f"1-min load {os.getloadavg()[0]:.1f}"]) + "\n")
         atomic_write_text(out.with_suffix(".json"), json.dumps(rows, indent=1))
     return 0

@@ -1,5 +1,5 @@
 """Which couplings a pruned joint model keeps (`joint.kept_couplings`) on the README tour's kind
-of record at N zones, against the printer's truth, for several shares (issue 13).
+of record at N zones, against the printer's truth, for several shares.
 
 Each N: the records of `diagnose_zone_scaling.py` (`jthermo generate --zones N --effects
 lateral_conduction,radiative_loss,heater_lag`, one hour `--seed 1`, 30 min `--seed 2`), then
@@ -8,9 +8,9 @@ taken: the grid's heater gains and the per-zone `lateral_conduction` fits' excha
 printer's exchanges are between zones that share a grid side (`printer.geometry.grid_edges`),
 its heater gains a Gaussian footprint (own heater 1, side neighbours 0.36, diagonal 0.13).
 
-    .venv/bin/python experiments/diagnose_coupling_weights.py --zones 6,9,16 [--tag T]
+    .venv/bin/python experiments/diagnose_coupling_weights.py --zones 6,9,16
 
-Writes `experiments/results/diagnose_coupling_weights<T>.md`.
+Writes `experiments/results/diagnose_coupling_weights.md`.
 """
 
 from __future__ import annotations
@@ -83,19 +83,18 @@ def rows(n: int, got: dict) -> list[str]:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--zones", default="6,9,16")
-    ap.add_argument("--tag", default="")
     ap.add_argument("--cache", default=None, help="folder to keep / reuse each N's inputs in (.npz)")
     args = ap.parse_args(argv)
-    lines = [f"# Couplings a pruned joint model keeps{args.tag}", "",
+    lines = ["# Couplings a pruned joint model keeps", "",
              (f"Made by `python experiments/diagnose_coupling_weights.py --zones {args.zones}"
-             f"{' --tag ' + args.tag if args.tag else ''}` (see its docstring). Gains weigh "
+             f"` (see its docstring). Gains weigh "
              "grid gain × rms(input), exchanges per-zone fitted rate × rms(temperature difference); "
              "each zone keeps those of at least `share` of its largest, at most its `at most` strongest. "
              "Held gain weight: the share of all gains' weight that the held (not fitted) gains carry."), "",
              ("| N | share | at most | gains kept | own heater kept | held gain weight | exchanges kept (directed) | "
              "grid-side exchanges kept | other exchanges kept |"),
              "|---|---|---|---|---|---|---|---|---|"]
-    out = HERE / "results" / f"diagnose_coupling_weights{args.tag}.md"
+    out = HERE / "results" / "diagnose_coupling_weights.md"
     for n in sorted(int(z) for z in args.zones.split(",")):
         with tempfile.TemporaryDirectory() as tmp:
             lines += rows(n, inputs(n, Path(tmp), None if args.cache is None else Path(args.cache)))

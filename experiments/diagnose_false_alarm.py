@@ -165,7 +165,7 @@ def write(rows, meta, out):
     summ = summarise(rows)
     atomic_write_text(out / "diagnose_false_alarm.json",
                       json.dumps({"meta": meta, "summary": summ, "records": rows}, indent=1, default=float))
-    lines = ["# Diagnosis: false-alarm rate and power (issue 14, item 1)", "",
+    lines = ["# Diagnosis: false-alarm rate and power", "",
              "Made by `experiments/diagnose_false_alarm.py` " + meta["args"] + ". Study plant written in the",
              "script (not the library's forms): h(T) convection, fractional delays, a two-body sensor, a",
              "slow wall body. Nulls: linear zones of the baseline class, N = 1-6, white + AR(1) noise.",

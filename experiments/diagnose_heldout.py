@@ -140,7 +140,7 @@ def write(rows, out):
     nulls = [r for r in rows if r["kind"] == "null"]
     gains = [r["gain"] for r in mech if r["correct"]]
     rec = [v["rel_error"] for r in mech if r["recovered"] for v in r["recovered"].values()]
-    lines = ["# Held-out diagnosis study (issue 14)", "",
+    lines = ["# Held-out diagnosis study", "",
              "Made by `experiments/diagnose_heldout.py`: random printers (N = 1..9, own seeds), fractional",
              "dead times (printer at Ts/4, every 4th sample kept), slow bodies of 20-50 min, white + AR(1)",
              "noise. The decision rule has no threshold fitted to these records (family-wise false-alarm",

@@ -1,5 +1,5 @@
 """One case of the harder held-out diagnosis study in detail: every candidate's tests, the
-dead-time scan and the periodic search (issue 14: why a case is missed).
+dead-time scan and the periodic search (why a case is missed).
 
     .venv/bin/python experiments/diagnose_heldout_case.py --case 12 --seed-set 5 [--max-zones 3]
 
@@ -46,7 +46,7 @@ def main(argv=None):
     cpu = sum(os.times()[:2]) - sum(c0[:2])
     ds = res["localisation"]["delay_scan"]
     k = int(np.argmin(ds["cost"]))
-    name = f"diagnose_heldout_case_{args.case:02d}_set{args.seed_set}"
+    name = "diagnose_heldout_case"
     head = (f"Made by `python experiments/diagnose_heldout_case.py --case {args.case} --seed-set "
             f"{args.seed_set} --max-zones {args.max_zones}`; {wall:.0f} s wall, {cpu:.0f} CPU s, "
             f"1-min load {os.getloadavg()[0]:.1f}.")

@@ -1,10 +1,10 @@
-"""Chosen cases of the harder held-out study, each diagnosed once, one line each (issue 14): a
+"""Chosen cases of the harder held-out study, each diagnosed once, one line each: a
 quick A/B of a change on the cases it is meant to move and on those it could break.
 
-    .venv/bin/python experiments/diagnose_heldout_cases.py 14:9 9:8 ... [--max-zones 3] --tag TAG
+    .venv/bin/python experiments/diagnose_heldout_cases.py 14:9 9:8 ... [--max-zones 3]
 
 A case is `CASE:SET` (`diagnose_heldout_hard.draw_case(CASE, seed_set=SET)`, records as that
-script makes them today). Writes `experiments/results/diagnose_heldout_cases_<TAG>.md`: the top
+script makes them today). Writes `experiments/results/diagnose_heldout_cases.md`: the top
 finding and whether it counts as right (`diagnose_heldout_hard.COUNTED`), its rivals, the
 candidates flagged, the augmented model, the surroundings-drift agreement figures (the zones'
 own drifts against the common one: likelihood ratios, `decide.drift_contradicted`) and the CPU
@@ -50,7 +50,6 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("cases", nargs="+", help="CASE:SET")
     ap.add_argument("--max-zones", type=int, default=3)
-    ap.add_argument("--tag", required=True)
     ap.add_argument("--out", default="experiments/results")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -62,9 +61,9 @@ def main(argv=None):
         print(rows[-1], flush=True)
     fmt = lambda v: "-" if v in (None, []) else (", ".join(v) if isinstance(v, list) and v and isinstance(v[0], str)
                                                  else str(v))
-    lines = [f"# Held-out cases, one line each — {args.tag}", "",
+    lines = ["# Held-out cases, one line each", "",
              (f"Made by `python experiments/diagnose_heldout_cases.py {' '.join(args.cases)} --max-zones "
-             f"{args.max_zones} --tag {args.tag}`: {sum(r['right'] for r in rows)}/{len(rows)} right; "
+             f"{args.max_zones}`: {sum(r['right'] for r in rows)}/{len(rows)} right; "
              f"wall {time.perf_counter() - t0:.0f} s, 1-min load {os.getloadavg()[0]:.1f} at the end."), "",
              ("| case:set | kind | N | named | right | rivals | flagged | augmented | own vs common drift LR "
              "| drift agreement z | CPU s |"), "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -73,7 +72,7 @@ def main(argv=None):
         lines.append(f"| {r['case']} | {r['kind']} | {r['zones']} | {fmt(r['top'])} | {'yes' if r['right'] else 'no'} | "
                      f"{fmt(r['rivals'])} | {fmt(r['flagged'])} | {fmt(r['augmented'])} | "
                      f"{fmt(r['own_vs_common_lr'])} | {z} | {r['cpu_s']:.0f} |")
-    atomic_write_text(Path(args.out) / f"diagnose_heldout_cases_{args.tag}.md", "\n".join(lines) + "\n")
+    atomic_write_text(Path(args.out) / "diagnose_heldout_cases.md", "\n".join(lines) + "\n")
     return 0
 
 

@@ -1,5 +1,5 @@
 """The validation fit the *true* plant reaches on a held-out record (its noise-free simulation
-against the noisy record): the ceiling no diagnosis can beat (issue 14: is a miss at a low
+against the noisy record): the ceiling no diagnosis can beat (is a miss at a low
 baseline fit a failure of the diagnosis or a record whose effect is below the noise?).
 
     .venv/bin/python experiments/diagnose_heldout_ceiling.py 2:6 10:6 4:6 [--max-zones 3]
@@ -31,11 +31,10 @@ def main(argv=None):
     ap.add_argument("cases", nargs="+", help="CASE:SEED_SET")
     ap.add_argument("--max-zones", type=int, default=3)
     ap.add_argument("--out", default="experiments/results")
-    ap.add_argument("--tag", default="", help="writes diagnose_heldout_ceiling_TAG.md")
     args = ap.parse_args(argv)
     lines = ["# Validation fit of the true plant on held-out records (noise ceiling)", "",
              f"Made by `python experiments/diagnose_heldout_ceiling.py {' '.join(args.cases)} "
-             f"--max-zones {args.max_zones}" + (f" --tag {args.tag}" if args.tag else "") + "`.", "",
+             f"--max-zones {args.max_zones}" + "`.", "",
              "| case | set | kind | N | Ts s | true plant's validation fit % (per zone) | mean | noise std °C |",
              "|---|---|---|---|---|---|---|---|"]
     for spec in args.cases:
@@ -50,7 +49,7 @@ def main(argv=None):
         lines.append(f"| {i:02d} | {s} | {c['kind']} | {c['zones']} | {c['ts']:.2f} | "
                      f"{', '.join(f'{v:.2f}' for v in fit)} | {fit.mean():.2f} | "
                      f"{', '.join(f'{v:.3f}' for v in e.std(0))} |")
-    name = "diagnose_heldout_ceiling" + (f"_{args.tag}" if args.tag else "") + ".md"
+    name = "diagnose_heldout_ceiling.md"
     atomic_write_text(Path(args.out) / name, "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

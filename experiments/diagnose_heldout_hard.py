@@ -31,13 +31,13 @@ steps of at most 0.05 s; the sensor reads at the start of each sample ($y_k = x(
 acts; sets 0-3 were made reading it at the end, one sample early: `--sample-at-end`).
 
     .venv/bin/python experiments/diagnose_heldout_hard.py [--cases 19] [--first 0] [--max-zones 9]
-    .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 12 --max-zones 3 --tag nulls
-    .venv/bin/python experiments/diagnose_heldout_hard.py --seed-set 1 --tag fresh   # score once
+    .venv/bin/python experiments/diagnose_heldout_hard.py --nulls 12 --max-zones 3
+    .venv/bin/python experiments/diagnose_heldout_hard.py --seed-set 1   # score once
     .venv/bin/python experiments/diagnose_heldout_hard.py --pooled   # pool every study's JSON
 
-Writes `experiments/results/diagnose_heldout_hard[_TAG].{md,json}` (after every case): top-1,
+Writes `experiments/results/diagnose_heldout_hard.{md,json}` (after every case): top-1,
 nulls, fit gain, parameters against the truth, confidence calibration, wall and CPU seconds and
-the load; `--pooled` writes `diagnose_calibration.{md,json}`: the null records and top findings of
+the load; `--pooled` writes `diagnose_heldout_hard_pooled.{md,json}`: the null records and top findings of
 every diagnosis study in the results folder pooled (measured against stated false-alarm rate,
 confidence calibration).
 """
@@ -330,7 +330,7 @@ def calibration(rows, edges=(0.0, 0.9, 0.99, 0.999, 1.0)):
     return out
 
 
-def write(rows, meta, out, tag):
+def write(rows, meta, out):
     mech = [r for r in rows if r["kind"] != "null"]
     nulls = [r for r in rows if r["kind"] == "null"]
     gains = [r["gain"] for r in mech if r["correct"]]
@@ -348,9 +348,9 @@ def write(rows, meta, out, tag):
                                    for r in rows),
             "truth_among_top_or_rivals": [sum(r["correct"] or any(m in r["counted"] for m in r["rivals"])
                                               for r in mech), len(mech)]}
-    atomic_write_text(out / f"diagnose_heldout_hard{tag}.json",
+    atomic_write_text(out / "diagnose_heldout_hard.json",
                       json.dumps({"meta": meta, "summary": summ, "records": rows}, indent=1, default=float))
-    lines = [f"# Harder held-out diagnosis study (issue 14){' — ' + tag.strip('_') if tag else ''}", "",
+    lines = ["# Harder held-out diagnosis study", "",
              f"Made by `python experiments/diagnose_heldout_hard.py {meta['args']}`. The plant is written",
              "in the script, outside the candidate library's forms (h(T) convection, two-body heaters and",
              "sensors, fractional delays, a warming stored-heat body, unmeasured ambient drift, a saturating",
@@ -386,7 +386,7 @@ def write(rows, meta, out, tag):
     lines += ["", (f"Wall {meta['wall_s']:.0f} s, CPU {meta['cpu_s']:.0f} s (user+sys) for the run; 1/5/15-min "
                    f"load {meta['load']} at the end, on a shared 2-core machine (wall times inflated by other "
                    "jobs)."), ""]
-    atomic_write_text(out / f"diagnose_heldout_hard{tag}.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "diagnose_heldout_hard.md", "\n".join(lines) + "\n")
 
 
 def pooled(res_dir: Path) -> dict:
@@ -435,7 +435,7 @@ def pooled(res_dir: Path) -> dict:
 def write_pooled(res_dir: Path, out: Path):
     p = pooled(res_dir)
     lo, hi = clopper_pearson(p["false_alarms"], p["nulls"]) if p["nulls"] else (float("nan"),) * 2
-    lines = ["# Diagnosis: stated against measured false alarms, and confidence calibration (issue 14)", "",
+    lines = ["# Diagnosis: stated against measured false alarms, and confidence calibration", "",
              "Made by `python experiments/diagnose_heldout_hard.py --pooled`, from the studies' JSON files",
              "in `experiments/results/`: " + "; ".join(p["sources"]) + ".", "",
              (f"- Null records (nothing missing): {p['nulls']}, with a finding: {p['false_alarms']} "
@@ -456,39 +456,9 @@ def write_pooled(res_dir: Path, out: Path):
         lines.append(f"| [{b['bin'][0]:g}, {b['bin'][1]:g}{']' if b['bin'][1] == 1.0 else ')'} | "
                      f"{b['findings']} | {b['correct']} | {b['correct'] / b['findings']:.2f} | "
                      f"{b['mean_confidence']:.3f} |")
-    atomic_write_text(out / "diagnose_calibration.md", "\n".join(lines) + "\n")
-    atomic_write_text(out / "diagnose_calibration.json", json.dumps(p, indent=1, default=float))
+    atomic_write_text(out / "diagnose_heldout_hard_pooled.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "diagnose_heldout_hard_pooled.json", json.dumps(p, indent=1, default=float))
 
-
-def write_compare(out: Path, tags: list[str], name: str):
-    """Side-by-side summary of fresh sets (`diagnose_heldout_hard_TAG.json` for each tag): top-1,
-    nulls, median gain, parameters, uncertain and confident-wrong findings, and per kind what was
-    named first."""
-    sets = {t: json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in tags}
-    kinds = sorted({r["kind"] for d in sets.values() for r in d["records"] if r["kind"] != "null"})
-    lines = ["# Harder held-out diagnosis, fresh sets side by side (issue 14)", "",
-             (f"Made by `python experiments/diagnose_heldout_hard.py --compare {','.join(tags)} --tag {name}` "
-             "from the sets' JSON files (each made by its own command, given in its .md). Files made before"),
-             "3c64345 carry no `uncertain` field: there a confidence below 0.95 stands for it (their rivals",
-             "are those reported then).", "",
-             "| | " + " | ".join(tags) + " |", "|---|" + "---|" * len(tags)]
-    for key, f in (("top-1", lambda d: "{}/{}".format(*_summ(d)["top1"])),
-                   ("nulls quiet", lambda d: "{}/{}".format(*_summ(d)["nulls_quiet"])),
-                   ("median gain (pts)", lambda d: f"{_summ(d)['median_gain']:.2f}"),
-                   ("parameters within 25 %", lambda d: "{}/{}".format(*_summ(d)["params_within_25"])),
-                   ("confident wrong names", lambda d: str(_summ(d)["confident_wrong"])),
-                   ("uncertain (of them wrong)", lambda d: "{} ({})".format(*_summ(d)["uncertain"])),
-                   ("truth first or a rival", lambda d: "{}/{}".format(*_summ(d)["truth_among_top_or_rivals"]))):
-        lines.append(f"| {key} | " + " | ".join(f(d) for d in sets.values()) + " |")
-    lines += ["", "| kind | " + " | ".join(f"{t}: right / cases, named first" for t in tags) + " |",
-              "|---|" + "---|" * len(tags)]
-    for k in kinds:
-        cells = []
-        for d in sets.values():
-            rs = [r for r in d["records"] if r["kind"] == k]
-            cells.append(f"{sum(r['correct'] for r in rs)}/{len(rs)}: " + ", ".join(r["top"] or "-" for r in rs))
-        lines.append(f"| {k} | " + " | ".join(cells) + " |")
-    atomic_write_text(out / f"diagnose_heldout_hard_{name}.md", "\n".join(lines) + "\n")
 
 
 def _summ(d):
@@ -523,13 +493,7 @@ def main(argv=None):
     ap.add_argument("--max-zones", type=int, default=9)
     ap.add_argument("--seed-set", type=int, default=0,
                     help="0: the development seeds; s > 0: a fresh set (score once, never tune on it)")
-    ap.add_argument("--tag", default="")
     ap.add_argument("--out", default="experiments/results")
-    ap.add_argument("--combine", default=None, metavar="TAGS",
-                    help="no diagnosis: merge the records of these comma-separated tags (shards run in "
-                         "parallel) into --tag's files")
-    ap.add_argument("--compare", default=None, metavar="TAGS",
-                    help="no diagnosis: the comma-separated sets' JSON side by side in --tag's .md")
     ap.add_argument("--pooled", action="store_true",
                     help="only pool the studies' JSON in --out: false alarms and confidence calibration")
     ap.add_argument("--sample-at-end", action="store_true",
@@ -553,17 +517,6 @@ def main(argv=None):
     if args.pooled:
         write_pooled(out, out)
         return 0
-    if args.compare:
-        write_compare(out, args.compare.split(","), args.tag or "compare")
-        return 0
-    if args.combine:
-        parts = [json.loads((out / f"diagnose_heldout_hard_{t}.json").read_text()) for t in args.combine.split(",")]
-        rows = sorted((r for p in parts for r in p["records"]), key=lambda r: r["case"])
-        meta = {"args": "; ".join(p["meta"]["args"] for p in parts) + " (shards, merged)",
-                "wall_s": max(p["meta"]["wall_s"] for p in parts), "cpu_s": sum(p["meta"]["cpu_s"] for p in parts),
-                "load": " / ".join(p["meta"]["load"] for p in parts)}
-        write(rows, meta, out, f"_{args.tag}")
-        return 0
     meta = {"args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                              if k != "out" and v not in (None, "", 0) and not (k == "max_zones" and v == 9)
                              and not (k == "cases" and v == len(KINDS)))}
@@ -573,7 +526,6 @@ def main(argv=None):
         keep = None if args.only is None else set(args.only.split(","))
         plan = [(i, KINDS[i % len(KINDS)]) for i in range(args.first, args.first + args.cases)
                 if keep is None or KINDS[i % len(KINDS)] in keep]
-    tag = f"_{args.tag}" if args.tag else ""
     rows = []
     t0, c0 = time.perf_counter(), cpu_s()
     for i, kind in plan:
@@ -617,7 +569,7 @@ def main(argv=None):
               f"load {os.getloadavg()[0]:.1f}", flush=True)
         meta.update(wall_s=time.perf_counter() - t0, cpu_s=cpu_s() - c0,
                     load=" ".join(f"{v:.2f}" for v in os.getloadavg()))
-        write(rows, meta, out, tag)
+        write(rows, meta, out)
     return 0
 
 

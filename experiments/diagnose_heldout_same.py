@@ -2,12 +2,11 @@
 and rivals, the top confidence, the augmented fit, the candidates' estimation LRs (largest
 relative difference) and the CPU seconds.
 
-    python experiments/diagnose_heldout_same.py --a s33_mz9_set12_iter200 --b h34speed_set12
-    python experiments/diagnose_heldout_same.py --real --a diagnose_real_s33 --b diagnose_real_h34speed
+    python experiments/diagnose_heldout_same.py --a A/diagnose_heldout_hard.json --b B/diagnose_heldout_hard.json
+    python experiments/diagnose_heldout_same.py --real --a DIR_A/diagnose_real.json --b DIR_B/diagnose_real.json
 
-Writes `experiments/results/diagnose_heldout_same_{a}_vs_{b}.md`; with `--real` the two
-`diagnose_real.py` tables (JSON files `experiments/results/{a,b}.json`): names, flagged, each
-finding's confidence, fits and SAE.
+Writes `experiments/results/diagnose_heldout_same.md`; with `--real` the two `diagnose_real.py`
+JSON files are compared: names, flagged, each finding's confidence, fits and SAE.
 """
 
 from __future__ import annotations
@@ -28,7 +27,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.real:
         return real(args.a, args.b)
-    a, b = (json.loads((RES / f"diagnose_heldout_hard_{t}.json").read_text()) for t in (args.a, args.b))
+    a, b = (json.loads(Path(t).read_text()) for t in (args.a, args.b))
     ra = {r["case"]: r for r in a["records"]}
     L = [f"# Same answers? {args.a} vs {args.b}", "",
          f"`python experiments/diagnose_heldout_same.py --a {args.a} --b {args.b}`", "",
@@ -48,14 +47,14 @@ def main(argv=None) -> int:
     L += ["", (f"{n_same}/{len(b['records'])} cases name the same mechanisms with the same rivals; run CPU s "
                f"{a['meta']['cpu_s']:.0f} -> {b['meta']['cpu_s']:.0f} (loads at the end: {a['meta']['load']} / "
                f"{b['meta']['load']}).")]
-    out = RES / f"diagnose_heldout_same_{args.a}_vs_{args.b}.md"
+    out = RES / "diagnose_heldout_same.md"
     out.write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 
 
 def real(ta: str, tb: str) -> int:
-    a, b = ({r["data"]: r for r in json.loads((RES / f"{t}.json").read_text())} for t in (ta, tb))
+    a, b = ({r["data"]: r for r in json.loads(Path(t).read_text())} for t in (ta, tb))
     L = [f"# Same answers? {ta} vs {tb}", "",
          f"`python experiments/diagnose_heldout_same.py --real --a {ta} --b {tb}`", "",
          "| data | status | named a / b | flagged a / b | max confidence diff | fit % a / b | SAE a / b | CPU s a -> b |",
@@ -74,7 +73,7 @@ def real(ta: str, tb: str) -> int:
                  f"{y.get('flagged')} | {dc:.1e} | {fit(x)} / {fit(y)} | {sae(x)} / {sae(y)} | "
                  f"{x.get('cpu_seconds', float('nan')):.0f} -> {y.get('cpu_seconds', float('nan')):.0f} |")
     L += ["", f"{n_same}/{len(b)} records: same status, names, flagged, confidences (to 1e-3), fits and SAE (to 0.01)."]
-    (RES / f"diagnose_heldout_same_{ta}_vs_{tb}.md").write_text("\n".join(L) + "\n")
+    (RES / "diagnose_heldout_same.md").write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 

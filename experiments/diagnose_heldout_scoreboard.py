@@ -1,5 +1,5 @@
 """Every fresh held-out set scored so far, side by side, and its misses by kind and by how
-they missed (issue 14: where the 15/16 goal stands and why).
+they missed (where the 15/16 goal stands and why).
 
 Reads the stored JSON of `diagnose_heldout_hard.py` runs (no diagnosis is run). A *fresh* set
 was scored once, with the code of its day, and never tuned on afterwards; later code changed
@@ -10,9 +10,11 @@ threads, committed in 344910e, gave the same 19/19: `diagnose_heldout_same_fresh
 - `tie`: another mechanism named first, the truth among its rivals (reported uncertain);
 - `wrong`: another mechanism named and the truth not among its rivals.
 
-    .venv/bin/python experiments/diagnose_heldout_scoreboard.py [--tags fresh14_mz9,...] [--tag T]
+    .venv/bin/python experiments/diagnose_heldout_hard.py --seed-set S --out DIR_S   # each set
+    .venv/bin/python experiments/diagnose_heldout_scoreboard.py DIR_14/diagnose_heldout_hard.json ...
 
-Writes `experiments/results/diagnose_heldout_scoreboard[_T].md` and `.json`.
+Writes `experiments/results/diagnose_heldout_scoreboard.md` and `.json`; a set is labelled by its
+JSON's seed set.
 """
 
 from __future__ import annotations
@@ -24,9 +26,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
-#: the fresh sets scored at 1-9 zones (`--max-zones 9`), in the order they were scored
-TAGS = ("fresh14_mz9", "fresh15_mz9", "fresh16_mz9", "fresh17_mz9", "fresh18_mz9", "fresh19_mz9",
-        "fresh24_mz9", "fresh25_mz9")
 
 
 def miss_kind(rec: dict) -> str:
@@ -36,14 +35,12 @@ def miss_kind(rec: dict) -> str:
     return "tie" if set(rec["counted"]) & set(rec["rivals"]) else "wrong"
 
 
-def score(tags) -> dict:
+def score(paths) -> dict:
     """Per set: top-1, nulls quiet, confident wrong names; per kind: cases, hits and misses."""
     sets, kinds, misses = [], collections.defaultdict(collections.Counter), []
-    for tag in tags:
-        path = RESULTS / f"diagnose_heldout_hard_{tag}.json"
-        if not path.exists():
-            continue
-        d = json.loads(path.read_text())
+    for path in paths:
+        d = json.loads(Path(path).read_text())
+        tag = f"set {d['records'][0]['seed_set']}" if d["records"] else Path(path).stem
         s = d["summary"]
         sets.append({"tag": tag, "top1": s["top1"], "nulls_quiet": s["nulls_quiet"],
                      "confident_wrong": s["confident_wrong"],
@@ -73,7 +70,7 @@ def total_line(res: dict) -> str:
 
 
 def render(res: dict, argv: str) -> str:
-    out = ["# Fresh held-out sets scored so far (issue 14)", "",
+    out = ["# Fresh held-out sets scored so far", "",
            f"Made by `python experiments/diagnose_heldout_scoreboard.py{argv}` from the stored JSON of "
            "`diagnose_heldout_hard.py` (each set scored once, with the code of its day; see the "
            "script's docstring). Goal: top-1 >= 15/16 per set, nulls 3/3.", "",
@@ -100,15 +97,11 @@ def render(res: dict, argv: str) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tags", default=",".join(TAGS), help="comma-separated result tags")
-    ap.add_argument("--tag", default="")
+    ap.add_argument("results", nargs="+", help="JSON files written by diagnose_heldout_hard.py")
     args = ap.parse_args(argv)
-    res = score([t for t in args.tags.split(",") if t])
-    suffix = f"_{args.tag}" if args.tag else ""
-    shown = "" if args.tags == ",".join(TAGS) else f" --tags {args.tags}"
-    shown += f" --tag {args.tag}" if args.tag else ""
-    (RESULTS / f"diagnose_heldout_scoreboard{suffix}.json").write_text(json.dumps(res, indent=1))
-    (RESULTS / f"diagnose_heldout_scoreboard{suffix}.md").write_text(render(res, shown))
+    res = score(args.results)
+    (RESULTS / "diagnose_heldout_scoreboard.json").write_text(json.dumps(res, indent=1))
+    (RESULTS / "diagnose_heldout_scoreboard.md").write_text(render(res, " " + " ".join(args.results)))
     print(total_line(res))
 
 

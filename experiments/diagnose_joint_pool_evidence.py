@@ -6,7 +6,7 @@ For every record in the given results files (held-out studies' `records`, the in
 candidate table: an addition accepted although its mechanism was not significant alone would be
 lost by a pool restricted to the significant ones.
 
-    python experiments/diagnose_joint_pool_evidence.py [FILES...]   (default: the s30 results)
+    python experiments/diagnose_joint_pool_evidence.py [FILES...]   (default: the current diagnose_heldout_hard and diagnose_study results)
 
 Writes `experiments/results/diagnose_joint_pool_evidence.md`.
 """
@@ -18,8 +18,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ["diagnose_heldout_hard_s30_final9.json", "diagnose_heldout_hard_s30_niter60_8.json",
-           "diagnose_heldout_hard_s30_niter60_nulls.json", "diagnose_study_s30_niter60.json"]
+DEFAULT = ["diagnose_heldout_hard.json", "diagnose_study.json"]
 
 
 def _list(v):

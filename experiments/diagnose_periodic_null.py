@@ -1,6 +1,6 @@
 """Null distribution of the periodic-drop statistic (`localise.detect_periodic`) on residuals
 with no drops: AR(1) noise (phi 0, 0.9, 0.97) plus a slow sine (model error), with and without
-the prewhitening of the differences (issue 14, commit 1ff9ef9), against `PERIOD_THRESHOLD`.
+the prewhitening of the differences (commit 1ff9ef9), against `PERIOD_THRESHOLD`.
 
     .venv/bin/python experiments/diagnose_periodic_null.py [--reps 20]
 

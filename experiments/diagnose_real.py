@@ -1,4 +1,4 @@
-"""Diagnosis on the real recordings in `../shared/data/real/` (issue 14, item 4).
+"""Diagnosis on the real recordings in `../shared/data/real/`.
 
 Each pair is (estimation run, validation run) of the same device, or the two halves of one run.
 The table gives what the diagnosis names, the baseline and augmented validation fits and sums of
@@ -206,7 +206,7 @@ def _secs(r):
 
 def write(rows, out):
     fmt = lambda v: "/".join(f"{x:.1f}" for x in v)
-    lines = ["# Diagnosis on real recordings (issue 14)", "",
+    lines = ["# Diagnosis on real recordings", "",
              "Made by `experiments/diagnose_real.py`. Fits are validation simulation fits (%) per output;",
              "SAE is the validation sum of absolute errors (°C), the CACE 2020 paper's metric (published",
              "physics model, 2 heaters: 840.95; ARX: 3196.26; 1 heater physics: 1991.23).", "",

@@ -1,4 +1,4 @@
-"""Recoat drops at irregular times: does the diagnosis name `recoat_cooling` (issue 14)?
+"""Recoat drops at irregular times: does the diagnosis name `recoat_cooling`?
 
 Real recoats come once per layer, spaced by each layer's scan time, which follows the part's
 cross-section: the drops do not come at a fixed period. The records are the harder held-out
@@ -8,12 +8,13 @@ for every layer or wandering slowly, at any fraction of a sample; each zone its 
 Ts = 0.3-5 s, white + AR(2) noise 0.02-0.12 °C), drawn from seeds of their own
 (`SeedSequence([i, 2026, 1414, 14, 99])`, no held-out set's).
 
-    .venv/bin/python experiments/diagnose_recoat_irregular.py [--cases 12] --tag after
-    PYTHONPATH=/tmp/base .venv/bin/python experiments/diagnose_recoat_irregular.py --tag before
+    .venv/bin/python experiments/diagnose_recoat_irregular.py [--cases 12]
+    PYTHONPATH=/tmp/base .venv/bin/python experiments/diagnose_recoat_irregular.py
 
-Writes `experiments/results/diagnose_recoat_irregular_TAG.{md,json}` (after every case): per
+Writes `experiments/results/diagnose_recoat_irregular.{md,json}` (after every case): per
 record the truth (events, gap range, drops / noise), what was named, the fit gain, the drop
-statistic against its level, and CPU seconds; `--compare A,B` puts two tags side by side.
+statistic against its level, and CPU seconds; `--compare A.json,B.json` puts two runs' JSON side
+by side in `diagnose_recoat_irregular_compare.md`.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ def cpu_s():
 
 def run(args):
     rows = []
-    path = OUT / f"diagnose_recoat_irregular_{args.tag}"
+    path = OUT / "diagnose_recoat_irregular"
     for i in range(args.first, args.first + args.cases):
         c = H.draw_case(i, "recoat_irregular", args.max_zones, seq=seq(i))
         est, val = H.make_record(c)
@@ -81,12 +82,12 @@ def run(args):
 
 def write(rows, args, path):
     ok = sum(r["correct"] for r in rows)
-    meta = {"args": f"--cases {args.cases} --first {args.first} --max-zones {args.max_zones} --tag {args.tag}",
+    meta = {"args": f"--cases {args.cases} --first {args.first} --max-zones {args.max_zones}",
             "jthermo": os.path.relpath(Path(jthermo.__file__).parent), "load": " ".join(f"{v:.2f}" for v in os.getloadavg()),
             "cpu_s": sum(r["cpu_s"] for r in rows)}
     atomic_write_text(path.with_suffix(".json"), json.dumps({"meta": meta, "top1": [ok, len(rows)], "records": rows},
                                                             indent=1, default=float))
-    lines = [f"# Irregular recoat drops — {args.tag}", "",
+    lines = ["# Irregular recoat drops", "",
              (f"Made by `python experiments/diagnose_recoat_irregular.py {meta['args']}` (jthermo from "
               f"`{meta['jthermo']}`; load {meta['load']})."), "",
              f"**top-1 `recoat_cooling`: {ok}/{len(rows)}**; CPU {meta['cpu_s']:.0f} s (user+sys) in all.", "",
@@ -104,10 +105,11 @@ def write(rows, args, path):
     atomic_write_text(path.with_suffix(".md"), "\n".join(lines) + "\n")
 
 
-def compare(tags):
-    data = [json.loads((OUT / f"diagnose_recoat_irregular_{t}.json").read_text()) for t in tags]
+def compare(paths):
+    data = [json.loads(Path(t).read_text()) for t in paths]
+    tags = [Path(t).stem for t in paths]
     lines = [f"# Irregular recoat drops: {' vs '.join(tags)}", "",
-             f"Made by `python experiments/diagnose_recoat_irregular.py --compare {','.join(tags)}`.", "",
+             f"Made by `python experiments/diagnose_recoat_irregular.py --compare {','.join(paths)}`.", "",
              "| " + " | ".join(f"{t}: top-1" for t in tags) + " | " + " | ".join(f"{t}: CPU s" for t in tags) + " |",
              "|" + "---|" * (2 * len(tags)),
              "| " + " | ".join(f"{d['top1'][0]}/{d['top1'][1]}" for d in data) + " | "
@@ -116,7 +118,7 @@ def compare(tags):
     for k in range(min(len(d["records"]) for d in data)):
         lines.append(f"| {data[0]['records'][k]['case']:02d} | " + " | ".join(
             f"{', '.join(d['records'][k]['named']) or '—'} ({d['records'][k]['gain']:.2f})" for d in data) + " |")
-    atomic_write_text(OUT / f"diagnose_recoat_irregular_{'_vs_'.join(tags)}.md", "\n".join(lines) + "\n")
+    atomic_write_text(OUT / "diagnose_recoat_irregular_compare.md", "\n".join(lines) + "\n")
 
 
 def main(argv=None):
@@ -124,8 +126,7 @@ def main(argv=None):
     ap.add_argument("--cases", type=int, default=12)
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--max-zones", type=int, default=4)
-    ap.add_argument("--tag", default="after")
-    ap.add_argument("--compare", default=None, metavar="TAGS")
+    ap.add_argument("--compare", default=None, metavar="JSONS")
     args = ap.parse_args(argv)
     if args.compare:
         compare(args.compare.split(","))

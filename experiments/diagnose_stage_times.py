@@ -4,9 +4,9 @@ cache (`runtime.enable_cache`, `JTHERMO_CACHE_DIR`; run it twice for a warm seco
 wall and CPU seconds from the start to each progress tick (`diagnose(progress=...)`)
 and the joint stage's fits (`joint.JointFits.fit`: calls, models, restricted or not, Jacobian width).
 
-    .venv/bin/python experiments/diagnose_stage_times.py --zones 16 [--tag T]
+    .venv/bin/python experiments/diagnose_stage_times.py --zones 16
 
-Writes `experiments/results/diagnose_stage_times<T>.md`.
+Writes `experiments/results/diagnose_stage_times.md`.
 """
 
 from __future__ import annotations
@@ -39,7 +39,6 @@ def cpu() -> float:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--zones", type=int, default=16)
-    ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     n = args.zones
     cache = runtime.enable_cache()
@@ -74,7 +73,7 @@ def main(argv=None) -> None:
         J.JointFits.fit = fit
     lines = [f"# Diagnosis stage times, N = {n}", "",
              f"Made by `python experiments/diagnose_stage_times.py --zones {n}"
-             f"{' --tag ' + args.tag if args.tag else ''}`; one process, compilation cache "
+             f"`; one process, compilation cache "
              + ("warm (filled by an earlier process)" if warm else "cold (empty or off)")
              + "; CPU: the process's (all threads). Named: "
              + ", ".join(f["mechanism"] for f in res["findings"])
@@ -84,7 +83,7 @@ def main(argv=None) -> None:
     lines += ["", "Joint fits (`JointFits.fit` calls, in order):", "",
               "| models | restricted | Jacobian width | wall s | CPU s |", "|---|---|---|---|---|"]
     lines += [f"| {m} | {r} | {w} | {t:.1f} | {c:.1f} |" for m, r, w, t, c in fits]
-    out = HERE / "results" / f"diagnose_stage_times{args.tag}.md"
+    out = HERE / "results" / "diagnose_stage_times.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -1,4 +1,4 @@
-"""Blind diagnosis study on the virtual printer (issue 5, item 4).
+"""Blind diagnosis study on the virtual printer.
 
 Each case builds a printer with one concealed mechanism (or two, or none), records one hour of
 estimation data and half an hour of validation data at Ts = 1 s (PRBS on every heater), runs
@@ -165,9 +165,8 @@ def main(argv=None):
     ap.add_argument("--real-only", action="store_true")
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--tag", default="", help="suffix of the output files (parallel runs)")
     ap.add_argument("--merge", default=None,
-                    help="comma-separated tags whose JSON results are merged into the report")
+                    help="comma-separated JSON results (of runs with other --only/--out) merged into the report")
     ap.add_argument("--one-thread", action="store_true",
                     help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend), as "
                          "`jthermo simulate` makes it on a busy machine (`jthermo diagnose` does not: "
@@ -188,10 +187,10 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     if a.merge is not None:
         rows, real = [], []
-        for tag in a.merge.split(","):
-            d = json.loads((out / f"diagnose_study{tag}.json").read_text())
+        for path in a.merge.split(","):
+            d = json.loads(Path(path).read_text())
             rows = [r for r in rows if r["case"] not in {c["case"] for c in d["cases"]}]
-            rows += d["cases"]          # a later tag's run of the same case replaces it
+            rows += d["cases"]          # a later file's run of the same case replaces it
             real += [(l, r, r.get("seconds", float("nan"))) for l, r in d.get("real", {}).items()]
         write(rows, real, out / "diagnose_study.md")
         return 0
@@ -216,16 +215,16 @@ def main(argv=None):
                          "seed": seed})
         raw[name] = res
         print(f"{name}: {res['verdict']} top={top} found={found} gain={gain:.2f} {sec:.0f}s", flush=True)
-        write(rows, real, out / f"diagnose_study{a.tag}.md")
-        atomic_write_text(out / f"diagnose_study{a.tag}.json", json.dumps({"cases": rows}, indent=1, default=str))
+        write(rows, real, out / "diagnose_study.md")
+        atomic_write_text(out / "diagnose_study.json", json.dumps({"cases": rows}, indent=1, default=str))
     if not a.no_real:
         real = real_cases()
         for label, res, sec in real:
             print(f"{label}: {res['verdict']} {[f['mechanism'] for f in res['findings']]} "
                   f"{res['baseline']['mean_fit_percent']:.1f} -> {res['augmented']['mean_fit_percent']:.1f}",
                   flush=True)
-        write(rows, real, out / f"diagnose_study{a.tag}.md")
-        atomic_write_text(out / f"diagnose_study{a.tag}.json",
+        write(rows, real, out / "diagnose_study.md")
+        atomic_write_text(out / "diagnose_study.json",
                           json.dumps({"cases": rows, "real": {l: r for l, r, _ in real}}, indent=1, default=str))
     return 0
 

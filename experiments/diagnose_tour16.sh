@@ -2,10 +2,12 @@
 # The README tour's kind of record at N = 16 (lateral conduction, radiation, heater lag concealed):
 # one hour of estimation (--seed 1) and 30 min of validation (--seed 2) of printer 0, diagnosed
 # from the shell with the default options; prints each finding's effect beside the sensor noise.
-#   bash experiments/diagnose_tour16.sh [OUTDIR]      (default experiments/results/tour16)
+#   bash experiments/diagnose_tour16.sh
+# Writes experiments/results/diagnose_tour16.md (the findings table and the command's time); the
+# records and the command's JSON stay in a temporary folder.
 set -eu
-out=${1:-experiments/results/tour16}
-mkdir -p "$out"
+out=$(mktemp -d /tmp/jthermo-tour16.XXXX)
+report=experiments/results/diagnose_tour16.md
 J=.venv/bin/jthermo
 fx=lateral_conduction,radiative_loss,heater_lag
 $J generate --experiment prbs --zones 16 --duration 3600 --effects $fx --seed 1 --out "$out/est.csv" --quiet
@@ -13,7 +15,7 @@ $J generate --experiment prbs --zones 16 --duration 1800 --effects $fx --seed 2 
 la=$(cut -d' ' -f1-3 /proc/loadavg)
 { time $J diagnose "$out/est.csv" --validation "$out/val.csv" --json "$out/diagnose_n16.json" --quiet ; } 2> "$out/time.txt"
 rm -f "$out/est.csv" "$out/val.csv"
-.venv/bin/python - "$out" "$la" <<'PY' | tee "$out/findings.md"
+.venv/bin/python - "$out" "$la" <<'PY' | tee "$report"
 import json, sys
 d = json.load(open(f"{sys.argv[1]}/diagnose_n16.json"))
 print(f"# N = 16 tour record: `bash experiments/diagnose_tour16.sh` (load at start {sys.argv[2]})\n")
@@ -25,4 +27,5 @@ for f in d["findings"]:
     print(f"| {f['mechanism']} | {f['confidence']} | {e['effect_rms_C']} | {e['sensor_noise_C']} | "
           f"{f['below_noise']} | {f['summary'][:120]} |")
 PY
-cat "$out/time.txt"
+{ echo; echo "Time of the command:"; echo; sed 's/^/    /' "$out/time.txt"; } >> "$report"
+rm -rf "$out"

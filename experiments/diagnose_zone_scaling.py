@@ -7,9 +7,9 @@ heater lag concealed (the latency benchmark's effects), then `jthermo diagnose` 
 process on a warm compilation cache (a first diagnosis of the same N fills it, untimed, unless
 `--cold`), killed after `--timeout` seconds.
 
-    .venv/bin/python experiments/diagnose_zone_scaling.py --zones 1,2,4,6,9 [--timeout 900] [--tag T]
+    .venv/bin/python experiments/diagnose_zone_scaling.py --zones 1,2,4,6,9 [--timeout 900]
 
-Writes `experiments/results/diagnose_zone_scaling<T>.md` and `.json`.
+Writes `experiments/results/diagnose_zone_scaling.md` and `.json`.
 """
 
 from __future__ import annotations
@@ -24,19 +24,19 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from common import load1  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 EFFECTS = "lateral_conduction,radiative_loss,heater_lag"
 TRUTH = set(EFFECTS.split(","))
 
 
-def _load() -> float:
-    return float(Path("/proc/loadavg").read_text().split()[0])
-
 
 def _run(argv, env, timeout) -> dict:
     """One `jthermo` process: wall s, CPU s (user + system) and its peak resident memory."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    load, t0 = _load(), time.perf_counter()
+    load, t0 = load1(), time.perf_counter()
     try:
         r = subprocess.run([sys.executable, "-m", "jthermo.cli", *argv, "--quiet"], env=env,
                            capture_output=True, text=True, timeout=timeout, check=False)
@@ -90,9 +90,9 @@ def _named(r) -> str:
 
 
 def write(rows, args, path: Path) -> None:
-    lines = [f"# `jthermo diagnose` against the number of zones{args.tag}", "",
+    lines = ["# `jthermo diagnose` against the number of zones", "",
              f"Made by `python experiments/diagnose_zone_scaling.py --zones {args.zones} --timeout "
-             f"{args.timeout:g}{' --cold' if args.cold else ''}{' --tag ' + args.tag if args.tag else ''}`."
+             f"{args.timeout:g}{' --cold' if args.cold else ''}`."
              " Records: `jthermo generate --zones N --effects " + EFFECTS + " --duration 3600 "
              "--seed 1` (estimation) and `--duration 1800 --seed 2` (validation), one printer. "
              + ("Cold: an empty compilation cache." if args.cold else
@@ -120,11 +120,10 @@ def main(argv=None) -> None:
     ap.add_argument("--zones", default="1,2,4,6,9")
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--cold", action="store_true")
-    ap.add_argument("--tag", default="")
     ap.add_argument("--rewrite", action="store_true", help="rewrite the table from the JSON rows")
     args = ap.parse_args(argv)
     rows = []
-    out = HERE / "results" / f"diagnose_zone_scaling{args.tag}"
+    out = HERE / "results" / "diagnose_zone_scaling"
     if args.rewrite:
         write(json.loads(out.with_suffix(".json").read_text()), args, out)
         return

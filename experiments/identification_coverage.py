@@ -35,7 +35,7 @@ from identification import w1_prbs  # noqa: E402  (the W1 input of the benchmark
 
 from jthermo.data import atomic_write_text, from_arrays  # noqa: E402
 from jthermo.identify.fit import fit  # noqa: E402
-from jthermo.models._base import StateSpace  # noqa: E402
+from jthermo.models import StateSpace  # noqa: E402
 from jthermo.models.polynomial import ARMAX, ARX, OE, BoxJenkins  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""Issue 16: what the LQG's observer should see of a schedule feed-forward. Held-out costs of
+"""What the LQG's observer should see of a schedule feed-forward. Held-out costs of
 the untuned `lqg_ff` start (LQG design + feed-forward taps from `tune.ff_init`) with the
 observer fed the feedback's part of the input (`ScheduleFF`, now) against the whole applied
 input (before), with the LQG and the `pi_ff` start beside them, on the PA12 printer (design)

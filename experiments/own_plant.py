@@ -1,4 +1,4 @@
-"""Tune a user's own device from its recordings (issue 18): TCLab with two heaters and a Klipper
+"""Tune a user's own device from its recordings: TCLab with two heaters and a Klipper
 3D-printer hot-end.
 
 Per device a model is fitted to one record (the design model) and another to a different
@@ -10,10 +10,11 @@ from the lambda PI and from `pid_relay`; a PID also tuned on the start-up step i
 beside them, not for the acceptance). All are run on the evaluation plant in the model's
 own scenarios (set-point changes around the operating point, load, start-up; held-out seed). Reported:
 set-point-change MSE on the evaluation plant, the start-up step's overshoot, and the acceptance of
-issue 18 (tuned MSE ≥ 20 % below the best classical; hot-end overshoot ≤ 2 °C).
+the targets (tuned MSE ≥ 20 % below the best classical; hot-end overshoot ≤ 2 °C).
 
 Usage:  python experiments/own_plant.py [--steps N] [--rollouts N] [--devices tclab,hotend]
-Writes `experiments/results/own_plant.md`, `own_plant.json` and `own_plant_<device>.png`.
+Writes `experiments/results/own_plant.md` and `own_plant.json`; the closed-loop figures go to
+`runs/own_plant/` (untracked).
 """
 
 from __future__ import annotations
@@ -159,14 +160,15 @@ def figure(name, plant, env, setpoint, duration, ctrls, seed):
     for label, c in ctrls.items():
         tr = simulate(plant, c, sc)
         slug = label.replace(" ", "_")
+        (ROOT / "runs" / "own_plant").mkdir(parents=True, exist_ok=True)
         plots.plot_closed_loop(t, np.asarray(tr.y), np.asarray(tr.u), np.asarray(tr.r),
-                               path=OUT / f"own_plant_{name}_{slug}.png")
+                               path=ROOT / "runs" / "own_plant" / f"{name}_{slug}.png")
 
 
 def markdown(results, args) -> str:
     lines = ["# Tuning your own device: TCLab (2 heaters) and a Klipper hot-end", "",
              f"`python experiments/own_plant.py --steps {args.steps} --rollouts {args.rollouts}"
-             f" --seed {args.seed}` (issue 18). Design model fitted to one record, every "
+             f" --seed {args.seed}`. Design model fitted to one record, every "
              "controller designed/tuned on it and run on a model fitted to another record "
              "(held-out seed). Set-point changes: settled at the set point, +δ at 10 % of the "
              "run, -δ at 55 % (closedloop.model_scenario `tracking`), δ at most 10 % of the "

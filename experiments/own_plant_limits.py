@@ -1,4 +1,4 @@
-"""Issue 18: how far below the best classical design any controller can get on a real device's
+"""How far below the best classical design any controller can get on a real device's
 set-point changes, by their size.
 
 Fitted as `experiments/own_plant.py` does (design model from one record, evaluation plant from

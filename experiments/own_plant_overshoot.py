@@ -1,4 +1,4 @@
-"""Issue 18: the hot-end's 200 °C start-up overshoot with a set-point-weighted (2-DOF) PID.
+"""The hot-end's 200 °C start-up overshoot with a set-point-weighted (2-DOF) PID.
 
 Fitted as `experiments/own_plant.py` does (design model from `heattest_200`, evaluation plant
 from `sample_trace`, `ss` order 2, 200 °C). `DiagonalPID`'s proportional part acts on
@@ -12,7 +12,7 @@ the loop (settles, not saturated). `--tune` also runs `tune_own_plant` from `pid
 each b of `--b0` at the start (tracking + load [+ start-up with `--startup`], `--steps`, `--rollouts`).
 
 Usage:  python experiments/own_plant_overshoot.py [--tune --b0 1 0.95 --steps 60 --rollouts 4]
-        ->  experiments/results/own_plant_overshoot.md (and .json)
+        ->  experiments/results/own_plant_overshoot.md (and .json; with --tune own_plant_overshoot_tuned.*)
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Physical plausibility of fits to real heater recordings (issue 18): which model structures
+"""Physical plausibility of fits to real heater recordings: which model structures
 step the wrong way (`validate.plausibility`), and what that costs in validation fit.
 
 The Klipper hot-end's order-2 state-space fits of `experiments/own_plant.py` fall by several °C
@@ -97,9 +97,8 @@ def main(argv=None) -> None:
                                                     "wrong_way_C", "fit_cpu_s")}), flush=True)
     load2 = os.getloadavg()[0]
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    suffix = "_quick" if args.quick else ""
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / f"plausibility_real{suffix}.json").write_text(json.dumps(
+    (OUT / "plausibility_real.json").write_text(json.dumps(
         {"rows": rows, "load_1min": [load1, load2], "peak_rss_mb": rss}, indent=1))
     lines = ["# Plausibility of fits to real heater recordings", "",
              f"`python experiments/plausibility_real.py{' --quick' if args.quick else ''}`; "
@@ -122,7 +121,7 @@ def main(argv=None) -> None:
                      f"{', '.join(f'{f:.2f}' for f in r['fit_percent'])} | {ww} | "
                      f"{len(r['warnings'])} | {r['fit_wall_s']:.1f} | {r['fit_cpu_s']:.1f} | "
                      f"{r['check_cpu_s']:.3f} |")
-    (OUT / f"plausibility_real{suffix}.md").write_text("\n".join(lines) + "\n")
+    (OUT / "plausibility_real.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ of the continuation alone (timed around `extend_rows`), the remaining gain, and 
 looked like (its largest |F pole| over the inputs and that input's gain).
 
 Usage: python experiments/polynomial_converged.py --n 16 [--seed 0] [--engines jax numpy]
-Writes experiments/results/polynomial_converged_n<N>[_seed<S>].md.
+Writes experiments/results/polynomial_converged.md.
 """
 
 from __future__ import annotations
@@ -81,8 +81,7 @@ def main(argv=None) -> int:
     W = load_workloads()
     est, val = W.make_dataset(args.n, 6000, args.seed, 1), W.make_dataset(args.n, 3000, args.seed, 2)
     d, v = from_arrays(est["u"], 25.0 + est["y"]), from_arrays(val["u"], 25.0 + val["y"])
-    tag = f"_seed{args.seed}" if args.seed else ""
-    out = ROOT / "experiments" / "results" / f"polynomial_converged_n{args.n}{tag}.md"
+    out = ROOT / "experiments" / "results" / "polynomial_converged.md"
     command = "python experiments/polynomial_converged.py " + " ".join(argv or sys.argv[1:])
     lines = [f"# `converged` per output row, W1 N = {args.n}, seed {args.seed}", "",
              f"`{command}`; load (1-minute) {os.getloadavg()[0]:.1f} at the start. Cap = "

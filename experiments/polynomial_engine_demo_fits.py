@@ -11,8 +11,8 @@ ran, the validation fit % per output and mean (`validate.compare`, as the demo r
 the estimation cost V (mean squared prediction error, what PEM minimises), CPU s of the fit.
 
     python experiments/polynomial_engine_demo_fits.py [--seeds 0 1 2] [--engines jax auto]
-        [--tag _seeds]
-    -> experiments/results/polynomial_engine_demo_fits<tag>.md
+       
+    -> experiments/results/polynomial_engine_demo_fits.md
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ def main(argv=None) -> int:
     ap.add_argument("--engines", nargs="+", default=list(ENGINES), choices=ENGINES)
     ap.add_argument("--families", nargs="+", default=["armax", "oe", "bj"],
                     choices=("armax", "oe", "bj"))
-    ap.add_argument("--tag", default="")
     ap.add_argument("--jax-draws", action="store_true")
     args = ap.parse_args(argv)
     command = "python experiments/polynomial_engine_demo_fits.py " + " ".join(argv or sys.argv[1:])
@@ -67,7 +66,7 @@ def main(argv=None) -> int:
         est = generate(plant, "prbs", cfg["est_s"], seed=seed)
         val = generate(plant, "prbs", cfg["val_s"], seed=seed + 1)
         lines += _rows(fit, compare, est, val, cfg, seed, args.families, args.engines)
-    atomic_write_text(ROOT / "experiments" / "results" / f"polynomial_engine_demo_fits{args.tag}.md",
+    atomic_write_text(ROOT / "experiments" / "results" / "polynomial_engine_demo_fits.md",
                       "\n".join(lines) + "\n")
     return 0
 

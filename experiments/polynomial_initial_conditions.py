@@ -1,5 +1,5 @@
 """Why SIPPY's seed-0 OE/BJ models validate a few thousandths of a point higher with a higher
-estimation cost (issue 12), and whether another initial-sample handling would be a better default.
+estimation cost, and whether another initial-sample handling would be a better default.
 
 SIPPY (`sippy_unipi.functionset_OPT.opt_id`) pins the simulated output to the measured one
 over the first `n_tr = max(na, nb + nk, nc, nd, nf)` samples (here 1: $\\hat y_0 = y_0$, the
@@ -19,7 +19,7 @@ seed, jthermo's estimator with the criterion changed in three principled ways:
 
 Columns: validation fit % from rest (the benchmark's figure), its change from `rest`, V from
 rest on the estimation record, and SIPPY's fit on that seed (from the committed
-`benchmarks/results/peers_fit_gap_n4.json` and `peers_fit_gap_n4_seeds3_5.json`).
+`benchmarks/results/peers_fit_gap.json` and `peers_fit_gap_n4_seeds3_5.json`).
 
     python experiments/polynomial_initial_conditions.py --seeds 0 1 2 3 4 5
     -> experiments/results/polynomial_initial_conditions.md
@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 VARIANTS = ("rest", "drop 20", "drop 100", "pinned y0")
-PEER_FILES = ("peers_fit_gap_n4.json", "peers_fit_gap_n4_seeds3_5.json")
+PEER_FILES = ("peers_fit_gap.json",)
 
 
 def criterion(variant: str, base):

@@ -1,6 +1,6 @@
 """Is the seed-0 gap of jthermo's fixed-order OE/BJ fits to SIPPY's a stopping, start or
-local-minimum effect? (issue 12: SIPPY's validation fits are 0.004-0.006 points higher there,
-`benchmarks/results/peers_fit_gap_n4.md`, while jthermo's estimation criterion V is the lower.)
+local-minimum effect? (SIPPY's validation fits are 0.004-0.006 points higher there,
+`benchmarks/results/peers_fit_gap.md`, while jthermo's estimation criterion V is the lower.)
 
 For each family and seed: the benchmark's fixed-order fit with the NumPy engine
 (`benchmarks/identification.jthermo_fit`: W1 N = 4, common F, rest level 0, 4 starts) and

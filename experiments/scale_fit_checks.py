@@ -1,4 +1,4 @@
-"""Issue 12 checks on the records of `benchmarks/identification_scale.py` (seed 0).
+"""Checks on the records of `benchmarks/identification_scale.py` (seed 0).
 
 `ss`: is the state-space gap at N = 16 (default: simulation focus; operating point "mean" as in
 `ss_focus_scale.py`) optimisation or variance? Full A (`coupling="full"`, the earlier default)
@@ -13,7 +13,7 @@ parameters); it has not stopped early.
 expected relative gain of a Gauss–Newton step, the smallest heater gain relative to its zone's
 largest (log-parametrised, so it can only approach 0) and the validation fit.
 
-Writes `experiments/results/scale_fit_checks_<what>.md` (`_n<N...>` appended for other `--n`).
+Writes `experiments/results/scale_fit_checks.md`.
 
 Usage: python experiments/scale_fit_checks.py ss|greybox [--n 16] [--steps 100 400]
 """
@@ -120,8 +120,7 @@ def main(argv=None) -> int:
     up = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
     lines += ["", (f"uptime at the end: `{up}` (shared 2-core machine: wall times are inflated "
               "by the load)")]
-    tag = "" if args.n == [16] else "_n" + "_".join(map(str, args.n))
-    out = ROOT / "experiments" / "results" / f"scale_fit_checks_{args.what}{tag}.md"
+    out = ROOT / "experiments" / "results" / "scale_fit_checks.md"
     out.write_text("\n".join(lines) + "\n")
     return 0
 

@@ -1,4 +1,4 @@
-"""Issue 16, reduced study: tune the PI family with schedule feed-forward (`pi_ff`) and the LQG
+"""Reduced study: tune the PI family with schedule feed-forward (`pi_ff`) and the LQG
 with it (`lqg_ff`) on the realistic virtual printer and report them on held-out seeds against
 every classical design (`best_classical`), lambda PI, the unseen powder, Ms and ±20 % gain.
 

@@ -1,4 +1,4 @@
-"""Issue 12: the state-space gap to the true model at N = 4 .. 19 zones — structure, not steps.
+"""The state-space gap to the true model at N = 4 .. 19 zones — structure, not steps.
 
 On the records of `benchmarks/identification_scale.py`, `fit_statespace` with the default
 options (automatic order, simulation focus, operating point "auto") and `coupling` "auto"
@@ -11,8 +11,8 @@ full A). In-process (warm imports, compilation included): wall and process CPU s
 `experiments/identify.py` (its options and validation: `identify.evaluate`; cases as
 `ss_focus_scale.real_cases`), where only models with n = ny are affected.
 
-Writes `experiments/results/ss_coupling_scale_n<N...>_s<seeds...>_<couplings...>.md`
-(`ss_coupling_real.md` with `--real`).
+Writes `experiments/results/ss_coupling_scale.md`
+(`ss_coupling_scale_real.md` with `--real`).
 
 Usage: python experiments/ss_coupling_scale.py [--n 4 9 16 19] [--seeds 0] [--coupling auto]
        python experiments/ss_coupling_scale.py --real [--coupling full auto]
@@ -102,7 +102,7 @@ def main(argv=None) -> int:
         cmd = "python experiments/ss_coupling_scale.py --real --coupling " + " ".join(args.coupling)
         lines = [f"# ss structure on W1 and real recordings (`{cmd}`)", ""]
         lines += real_rows(args.coupling)
-        return _write(lines, "ss_coupling_real.md")
+        return _write(lines, "ss_coupling_scale_real.md")
     cmd = ("python experiments/ss_coupling_scale.py --n " + " ".join(map(str, args.n))
            + " --seeds " + " ".join(map(str, args.seeds)) + " --coupling "
            + " ".join(args.coupling))
@@ -115,9 +115,7 @@ def main(argv=None) -> int:
             for coupling in args.coupling:
                 lines.append(row(N, seed, coupling))
                 print(lines[-1], flush=True)
-    name = (f"ss_coupling_scale_n{'_'.join(map(str, args.n))}_s{'_'.join(map(str, args.seeds))}"
-            f"_{'_'.join(args.coupling)}.md")
-    return _write(lines, name)
+    return _write(lines, "ss_coupling_scale.md")
 
 
 def _write(lines: list[str], name: str) -> int:

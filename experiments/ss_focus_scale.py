@@ -1,4 +1,4 @@
-"""Issue 12 part 3: does the state-space PEM's focus explain its validation gap at scale?
+"""Does the state-space PEM's focus explain its validation gap at scale?
 
 On the records of `benchmarks/identification_scale.py` (seed 0), `fit_statespace` with
 `focus="prediction"` (K estimated) and `focus="simulation"` (K = 0, the default since this
@@ -6,7 +6,7 @@ study), operating point "mean", in-process (warm imports, compilation included);
 simulation fit next to the true model's. `--real` runs the same two focuses on the real
 recordings of `experiments/identify.py` (TCLab CACE SS 2/4, Kuntz–Rawlings SS 2/6, Kantor SS 2,
 its options and validation: `identify.evaluate`). Writes `experiments/results/ss_focus_scale.md`
-(`ss_focus_scale_n<N...>.md` for other `--n`, `ss_focus_real.md` with `--real`).
+(`ss_focus_scale_real.md` with `--real`).
 
 Usage: python experiments/ss_focus_scale.py [--n 4 16] [--real]
 """
@@ -96,13 +96,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.real:
         head = "# ss focus on real recordings (`python experiments/ss_focus_scale.py --real`)"
-        lines, out = real_rows(), "ss_focus_real.md"
+        lines, out = real_rows(), "ss_focus_scale_real.md"
     else:
         head = ("# ss focus at scale (`python experiments/ss_focus_scale.py --n "
                 + " ".join(map(str, args.n)) + "`)")
         lines = bed_rows(args.n)
-        out = ("ss_focus_scale.md" if args.n == [4, 16]
-               else f"ss_focus_scale_n{'_'.join(map(str, args.n))}.md")
+        out = "ss_focus_scale.md"
     up = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
     lines = [head, ""] + lines + ["", (f"uptime at the end: `{up}` (shared 2-core machine: "
                                   "wall times are inflated by the load)")]

@@ -1,4 +1,4 @@
-"""Issue 12: should `ss` use its one-state-per-output structure (diagonal A first) when the
+"""Should `ss` use its one-state-per-output structure (diagonal A first) when the
 operating point is "rest"? (Today rest mode means x0 = 0 and goes to the full-A PEM.) Measured
 on the records it would change: real recordings with n = ny (`ss_focus_scale.real_cases`,
 ss 2) and W1's default-path records (`identification.py --default-path` records) at

@@ -1,4 +1,4 @@
-"""A sweep scripted as an engineer would (issue 18 item 6): an ARX order grid on a real
+"""A sweep scripted as an engineer would: an ARX order grid on a real
 recording (default the DaISy heating system, `../shared/data/real/daisy_heating_system`;
 `--record tclab_apm_mimo_steps` for the two-heater TCLab steps), run in process
 with `jthermo.sweep`, read back as a pandas DataFrame, and checked against `identify.fit` +
@@ -7,7 +7,7 @@ number (its `arx` kind was a separate NumPy ARX before). Also records that the i
 sweep left JAX's global `jax_enable_x64` as the caller had it.
 
     .venv/bin/python experiments/sweep_api.py [--record NAME]
-    -> experiments/results/sweep_api_NAME.{json,md}
+    -> experiments/results/sweep_api.{json,md}
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ nk = [1, 2]
 def main(name: str) -> dict:
     os.chdir(ROOT)           # the record path is repository-relative
     record = REAL / name / "data.csv"
-    out = Path("experiments") / "results" / f"sweep_api_{name}"
+    out = Path("experiments") / "results" / "sweep_api"
     x64_before = bool(jax.config.jax_enable_x64)
     cfg = sweep.parse_config(CONFIG.format(data=record.as_posix()))
     t0 = time.perf_counter()

@@ -1,13 +1,13 @@
-"""Issue 16 acceptance at CLI size: `jthermo tune --controller F --plant printer --json` for the
+"""The feed-forward controllers at CLI size: `jthermo tune --controller F --plant printer --json` for the
 schedule feed-forward families (defaults: 150 Adam steps, 16 rollouts, 600 s scenarios, the
 printer and 2 perturbed copies, Ms <= 2 guard, held-out seed 10000, unseen powder PA11), run as
 the user runs it, timed from outside (wall, CPU s of the command, load before and after).
 
     .venv/bin/python experiments/tune_cli_ff.py [--families pi_ff,lqg_ff] [-- EXTRA CLI ARGS]
 
-Writes experiments/results/tune_cli_<family>[_<extra>].json (the command's own JSON), its
-summary row beside it (`.row.json`) and the table of every row there,
-experiments/results/tune_cli_ff.md (`--table-only`: rebuild the table alone).
+Writes experiments/results/tune_cli_ff.json (one summary row per family and extra arguments; a
+rerun replaces its rows and keeps the others) and its table, experiments/results/tune_cli_ff.md
+(`--table-only`: rebuild the table alone). The commands' own JSON goes to a temporary folder.
 """
 
 import argparse
@@ -16,6 +16,7 @@ import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -27,8 +28,8 @@ def stem(fam: str, extra: list[str]) -> str:
     return f"tune_cli_{fam}" + (f"_{tag}" if tag else "")
 
 
-def run(fam: str, extra: list[str]) -> dict:
-    out = RESULTS / f"{stem(fam, extra)}.json"
+def run(fam: str, extra: list[str], tmp: Path) -> dict:
+    out = tmp / f"{stem(fam, extra)}.json"
     cmd = [".venv/bin/jthermo", "tune", "--controller", fam, "--plant", "printer", "--json",
            str(out), "--quiet", *extra]
     load0 = os.getloadavg()
@@ -64,12 +65,14 @@ def main(argv=None):
     ap.add_argument("--families", default="pi_ff,lqg_ff")
     ap.add_argument("--table-only", action="store_true")
     args = ap.parse_args(argv[:argv.index("--")] if "--" in argv else argv)
-    for fam in [] if args.table_only else args.families.split(","):
-        row = {**run(fam, extra), "extra_args": extra}
-        (RESULTS / f"{stem(fam, extra)}.row.json").write_text(json.dumps(row, indent=1) + "\n")
-        print(json.dumps(row), flush=True)
-    rows = {p.name: json.loads(p.read_text())
-            for p in sorted(RESULTS.glob("tune_cli_*.row.json"))}
+    table = RESULTS / "tune_cli_ff.json"
+    rows = json.loads(table.read_text()) if table.exists() else {}
+    with tempfile.TemporaryDirectory(prefix="jthermo-tune-cli-") as tmp:
+        for fam in [] if args.table_only else args.families.split(","):
+            row = {**run(fam, extra, Path(tmp)), "extra_args": extra}
+            rows[stem(fam, extra)] = row
+            table.write_text(json.dumps(rows, indent=1) + "\n")
+            print(json.dumps(row), flush=True)
 
     def f(v, d=1):
         return "—" if v is None else f"{v:.{d}f}"

@@ -42,7 +42,7 @@ ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
 CONCEALED = ("heater_lag", {"time_constant_s": 25.0})
 
 
-class _Stages:
+class StageRunner:
     """Runs guarded stages and remembers their outcome."""
 
     def __init__(self, total: int, quiet: bool):
@@ -78,7 +78,7 @@ class _Stages:
         return out
 
 
-def _in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
+def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
     """Start `fn()` in a daemon thread (an interrupted demo does not wait for it); returns the
     function that waits for it and returns its result or raises its exception."""
     box: dict[str, Any] = {}
@@ -131,7 +131,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     root = Path(runs_dir) / name
     figs = root / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    st = _Stages(8, quiet)
+    st = StageRunner(8, quiet)
     t_start = time.perf_counter()
     S: dict[str, Any] = {"name": name, "quick": quick, "seed": seed, "settings": cfg}
     figures: dict[str, list[tuple[Path, str]]] = {}
@@ -214,8 +214,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
         except ModuleNotFoundError:
             pass
 
-    diagnosing = _in_background(diagnosis)
-    tuning = _in_background(tune_stage)
+    diagnosing = in_background(diagnosis)
+    tuning = in_background(tune_stage)
 
     # 2 -------------------------------------------------------------- identification + validation
     models: dict[str, Any] = {}
@@ -349,7 +349,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
     # the scenarios' compilations (one program per controller structure) overlap the residual
     # stage's tests and figures: started here, waited for after it
-    scenarios_done = _in_background(scenarios) if controllers else None
+    scenarios_done = in_background(scenarios) if controllers else None
 
     # 5 -------------------------------------------------------------- residual tests
     def residuals():
@@ -393,7 +393,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     S["seconds"] = round(time.perf_counter() - t_start, 1)
 
     def write():
-        path = _write_report(root, S, figures)
+        path = write_demo_report(root, S, figures)
         S["report"] = str(path)
 
     st.run("write the report", write)
@@ -405,7 +405,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     return S
 
 
-def _write_report(root: Path, S: dict, figures: dict) -> Path:
+def write_demo_report(root: Path, S: dict, figures: dict) -> Path:
     from .report import Report, markdown_table
 
     rep = Report(f"jthermo demo — {S['name']}")

@@ -60,14 +60,16 @@ QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 #: `python benchmarks/simulate_compile_options.py`)
 SIMULATE_COMPILE = {**QUICK_COMPILE, "xla_backend_optimization_level": 1}
 #: the options above that an XLA lacking them refuses ("No such compile option")
-_NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
+NEWER_OPTIONS = ("xla_cpu_use_fusion_emitters",)
 
 #: JAX's monitoring events that time compilation (jax/_src/dispatch.py).
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")
 
-_state: dict = {"dir": None, "reason": "not enabled"}
+#: the process's compilation cache: its directory (`dir`, None when off) and why it is off
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
 _listening = False
@@ -135,7 +137,7 @@ def enable_cache(path: str | os.PathLike | None = None) -> Path | None:
         jax.config.update(name, value)
         # worker processes (sweeps) inherit the cache
         os.environ[name.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
-    _state.update(dir=target, reason=None)
+    state.update(dir=target, reason=None)
     return target
 
 
@@ -147,14 +149,14 @@ def disable_cache(reason: str = "disabled") -> None:
     jax.config.update("jax_enable_compilation_cache", False)
     os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
     os.environ[ENV_OFF] = "1"
-    _state.update(dir=None, reason=reason)
+    state.update(dir=None, reason=reason)
 
 
 def cache_info() -> str:
     """One line: the cache directory in use and its entry count, or why there is none."""
-    d = _state["dir"]
+    d = state["dir"]
     if d is None:
-        return f"compilation cache off ({_state['reason']})"
+        return f"compilation cache off ({state['reason']})"
     try:
         n = sum(1 for p in Path(d).iterdir() if p.name.endswith("-cache"))
     except OSError:
@@ -178,10 +180,10 @@ def simulate_compile() -> dict:
 
 
 def accepted(options: dict) -> dict:
-    """`options` less those of `_NEWER_OPTIONS` this XLA refuses: probed once per process and
+    """`options` less those of `NEWER_OPTIONS` this XLA refuses: probed once per process and
     option set on a scalar program, so an XLA without its older CPU fusion emitters (a future
     one, or one predating the flag) compiles with the rest rather than failing."""
-    return dict(_accepted(tuple(options.items())))
+    return dict(accepted_items(tuple(options.items())))
 
 
 def top_level() -> bool:
@@ -196,7 +198,7 @@ def top_level() -> bool:
 
 
 @functools.cache
-def _accepted(items: tuple) -> tuple:
+def accepted_items(items: tuple) -> tuple:
     import jax
     import numpy as np
 
@@ -206,7 +208,7 @@ def _accepted(items: tuple) -> tuple:
         jax.block_until_ready(out)
         return items
     except Exception:  # noqa: BLE001  (JaxRuntimeError: INVALID_ARGUMENT, no such option)
-        return tuple((k, v) for k, v in items if k not in _NEWER_OPTIONS)
+        return tuple((k, v) for k, v in items if k not in NEWER_OPTIONS)
 
 
 # ---------------------------------------------------------------- random bits on the CPU
@@ -230,7 +232,7 @@ def unroll_threefry() -> bool:
     except (ImportError, AttributeError):
         return False
     mlir.register_lowering(prim, rule, platform="cpu")
-    _state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
+    state["threefry"] = "unrolled"   # part of `stored.exported_call`'s key
     return True
 
 
@@ -358,9 +360,9 @@ class Stopwatch:
 
 def cache_dir() -> Path | None:
     """This process's cache directory, None with the cache off (`enable_cache`)."""
-    return _state["dir"]
+    return state["dir"]
 
 
 def threefry_lowering() -> str | None:
     """"unrolled" once `unroll_threefry` swapped the CPU lowering in, else None."""
-    return _state.get("threefry")
+    return state.get("threefry")

@@ -116,8 +116,8 @@ def _exported_program(fn, args: tuple):
     import jax
     from jax import export
 
-    treedef, static, is_array, arrays = _split(args)
-    key = _export_key(fn, treedef, static, arrays)
+    treedef, static, is_array, arrays = split_arguments(args)
+    key = export_key(fn, treedef, static, arrays)
     if key is None:
         return None
     name, digest = key
@@ -127,7 +127,7 @@ def _exported_program(fn, args: tuple):
     stamp = _stamp(path)
     if known is not None and stamp is not None and known[0] == stamp and known[1] == header:
         return known[2], arrays     # this process read or wrote this very file already
-    exp = _read_export(path, header, arrays)
+    exp = read_export(path, header, arrays)
     if exp is None:
         def flat(*xs):
             it = iter(xs)
@@ -142,7 +142,7 @@ def _exported_program(fn, args: tuple):
     return exp, arrays
 
 
-def _split(args: tuple):
+def split_arguments(args: tuple):
     """`(treedef, static leaves (None for an array), is-array flags, array leaves)` of `args`."""
     import jax
 
@@ -154,7 +154,7 @@ def _split(args: tuple):
     return treedef, static, is_array, arrays
 
 
-def _export_key(fn, treedef, static, arrays, extra: str = "") -> tuple[str, str] | None:
+def export_key(fn, treedef, static, arrays, extra: str = "") -> tuple[str, str] | None:
     """`(file name stem, SHA-256 of the key text)`, or None where the key would not be stable.
     `extra` joins the key text (the arrays' bytes, for `cached_arrays`)."""
     import hashlib
@@ -199,7 +199,7 @@ def _versions() -> str:
     return " ".join(out)
 
 
-def _read_export(path: Path, header: bytes, arrays):
+def read_export(path: Path, header: bytes, arrays):
     """The `Exported` in `path` when it starts with `header` (the full key: a file copied from
     another key is refused), deserializes and takes `arrays`, else None."""
     from jax import export
@@ -295,11 +295,11 @@ def _arrays_path(fn, args: tuple):
 
     import numpy as np
 
-    treedef, static, _, arrays = _split(args)
+    treedef, static, _, arrays = split_arguments(args)
     h = hashlib.sha256()
     for a in arrays:
         h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
-    key = _export_key(fn, treedef, static, arrays, extra="bytes " + h.hexdigest())
+    key = export_key(fn, treedef, static, arrays, extra="bytes " + h.hexdigest())
     if key is None:
         return None, None
     name, digest = key

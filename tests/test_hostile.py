@@ -223,7 +223,7 @@ def test_simulate_rejects_malformed_files(bad, which, tmp_path, capsys):
 
 def test_truncated_model_file(tmp_path, capsys):
     from jthermo import io
-    from jthermo.models._base import StateSpace
+    from jthermo.models import StateSpace
 
     m = io.save(StateSpace(0.5 * np.eye(2), np.eye(2), np.eye(2)), tmp_path / "m.jtm")
     raw = m.read_bytes()

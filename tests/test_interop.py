@@ -6,7 +6,7 @@ from scipy import signal
 
 from jthermo import interop
 from jthermo.errors import ConfigError, ModelError
-from jthermo.models._base import StateSpace
+from jthermo.models import StateSpace
 
 control = pytest.importorskip("control")
 

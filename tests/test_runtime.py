@@ -86,21 +86,21 @@ def test_one_shot_options_compile_and_an_unknown_option_is_dropped(monkeypatch):
     import jax
     import numpy as np
 
-    runtime._accepted.cache_clear()
+    runtime.accepted_items.cache_clear()
     opts = runtime.one_shot()   # ONE_SHOT, less what this XLA lacks (-O0 stays)
     assert opts.items() <= runtime.ONE_SHOT.items() and "xla_backend_optimization_level" in opts
     out = jax.jit(lambda x: 2 * x, compiler_options=runtime.one_shot())(np.float64(3))
     assert float(out) == 6.0
     # an XLA without an option refuses to compile: `one_shot` leaves it out instead
     monkeypatch.setattr(runtime, "ONE_SHOT", dict(runtime.ONE_SHOT, xla_cpu_no_such_option=True))
-    monkeypatch.setattr(runtime, "_NEWER_OPTIONS",
-                        runtime._NEWER_OPTIONS + ("xla_cpu_no_such_option",))
-    runtime._accepted.cache_clear()
+    monkeypatch.setattr(runtime, "NEWER_OPTIONS",
+                        runtime.NEWER_OPTIONS + ("xla_cpu_no_such_option",))
+    runtime.accepted_items.cache_clear()
     try:
         assert runtime.one_shot() == {"xla_backend_optimization_level": 0}
         assert runtime.accepted({"xla_cpu_no_such_option": True}) == {}
     finally:
-        runtime._accepted.cache_clear()
+        runtime.accepted_items.cache_clear()
 
 
 def test_top_level_is_false_inside_a_trace():

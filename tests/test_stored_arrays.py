@@ -29,7 +29,7 @@ class Counting:
 
 @pytest.fixture
 def folder(monkeypatch, tmp_path):
-    monkeypatch.setitem(runtime._state, "dir", tmp_path)
+    monkeypatch.setitem(runtime.state, "dir", tmp_path)
     return tmp_path / stored.EXPORT_SUBDIR
 
 
@@ -90,10 +90,10 @@ def test_cache_off_or_inside_a_trace_reads_and_writes_nothing(folder, monkeypatc
     f = Counting()
     stored.cached_arrays(poly, (X, 3), f)
     files = {p: p.read_bytes() for p in _files(folder)}
-    monkeypatch.setitem(runtime._state, "dir", None)
+    monkeypatch.setitem(runtime.state, "dir", None)
     _same(stored.cached_arrays(poly, (X, 3), f), poly(X, 3))
     assert f.calls == 2
-    monkeypatch.setitem(runtime._state, "dir", folder.parent)
+    monkeypatch.setitem(runtime.state, "dir", folder.parent)
     out = jax.jit(lambda x: stored.cached_arrays(poly, (x, 3), f)["y"])(X)
     np.testing.assert_array_equal(np.asarray(out), np.asarray(poly(X, 3)["y"]))
     assert f.calls == 3
@@ -110,7 +110,7 @@ def test_unwritable_folder_still_gives_the_result(folder):
 
 
 def test_printer_design_model_read_back_equal(folder, monkeypatch):
-    """`cli.control._printer_model`: the second call reads the file (the program is not run)
+    """`cli.control.stored_printer_model`: the second call reads the file (the program is not run)
     and gives the same model and the same lambda-PI gains bit for bit as the cache off."""
     from jthermo import closedloop
     from jthermo.cli import control
@@ -119,14 +119,14 @@ def test_printer_design_model_read_back_equal(folder, monkeypatch):
 
     printer = make_printer(2, closedloop.REALISTIC_EFFECTS, powder="PA12", seed=0)
     calls = []
-    program = control._printer_model_program
-    monkeypatch.setattr(control, "_printer_model_program",
+    program = control.printer_model_program
+    monkeypatch.setattr(control, "printer_model_program",
                         lambda p: calls.append(1) or program(p))
-    first = control._printer_model(printer)
-    second = control._printer_model(printer)
+    first = control.stored_printer_model(printer)
+    second = control.stored_printer_model(printer)
     assert len(calls) == 1 and len(_files(folder)) == 1
-    monkeypatch.setitem(runtime._state, "dir", None)
-    off = control._printer_model(printer)
+    monkeypatch.setitem(runtime.state, "dir", None)
+    off = control.stored_printer_model(printer)
     assert len(calls) == 2
     for m in (first, second):
         assert jax.tree.structure(m) == jax.tree.structure(off)

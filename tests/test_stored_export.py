@@ -41,7 +41,7 @@ class Counting:
 def folder(monkeypatch, tmp_path):
     """The export folder of a cache directory in `tmp_path` (the process's compilation cache
     stays where it is: only the files of `exported_call` move)."""
-    monkeypatch.setitem(runtime._state, "dir", tmp_path)
+    monkeypatch.setitem(runtime.state, "dir", tmp_path)
     return tmp_path / stored.EXPORT_SUBDIR
 
 
@@ -74,7 +74,7 @@ def test_miss_writes_a_file_and_a_hit_reads_it_without_tracing(folder, monkeypat
     _same(stored.exported_call(scaled_sums, args, fb), ref)
     assert fb.calls == 0 and len(_files(folder)) == 1
     monkeypatch.undo()
-    monkeypatch.setitem(runtime._state, "dir", folder.parent)
+    monkeypatch.setitem(runtime.state, "dir", folder.parent)
     # another static value, another shape, another static field: other programs, other files
     for other in (_args(n=2), _args(size=6), _args(label="bb")):
         _same(stored.exported_call(scaled_sums, other, fb), scaled_sums(*other))
@@ -102,18 +102,18 @@ def _reads_as(path, args) -> bool:
     leaves, treedef = jax.tree.flatten(args)
     arrays = [v for v in leaves if isinstance(v, jax.Array)]
     static = [None if isinstance(v, jax.Array) else v for v in leaves]
-    name, digest = stored._export_key(scaled_sums, treedef, static, arrays)
+    name, digest = stored.export_key(scaled_sums, treedef, static, arrays)
     header = f"jthermo-export {digest}\n".encode()
-    return path.name.startswith(name) and stored._read_export(path, header, arrays) is not None
+    return path.name.startswith(name) and stored.read_export(path, header, arrays) is not None
 
 
 def test_cache_off_inside_a_trace_or_unstable_key_uses_the_plain_function(folder, monkeypatch):
     args = _args()
     fb = Counting()
-    monkeypatch.setitem(runtime._state, "dir", None)           # --no-cache
+    monkeypatch.setitem(runtime.state, "dir", None)           # --no-cache
     _same(stored.exported_call(scaled_sums, args, fb), scaled_sums(*args))
     assert fb.calls == 1 and not folder.exists()
-    monkeypatch.setitem(runtime._state, "dir", folder.parent)
+    monkeypatch.setitem(runtime.state, "dir", folder.parent)
 
     @jax.jit
     def outer(k):
@@ -175,7 +175,7 @@ def test_a_program_called_again_in_one_process_is_not_read_again(folder, monkeyp
     _same(stored.exported_call(scaled_sums, args, fb), ref)
     assert fb.calls == 0
     monkeypatch.undo()
-    monkeypatch.setitem(runtime._state, "dir", folder.parent)
+    monkeypatch.setitem(runtime.state, "dir", folder.parent)
     (path,) = _files(folder)
     path.write_bytes(b"")                     # replaced: read again, found damaged, rewritten
     _same(stored.exported_call(scaled_sums, args, fb), ref)

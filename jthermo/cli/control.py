@@ -231,7 +231,7 @@ def _printer_model_fields(printer) -> dict:
     return {f: getattr(model, f) for f in _MODEL_FIELDS}
 
 
-def _printer_model(printer):
+def stored_printer_model(printer):
     """`tune.printer_model(printer)` as one compiled program: called eagerly it dispatches
     many small ones, each traced, lowered and looked up in the cache on every run. It runs
     once, so it is compiled with `runtime.one_shot()` options (-O0), and traced once per
@@ -241,11 +241,11 @@ def _printer_model(printer):
     from ..models import StateSpace
     from ..stored import cached_arrays
 
-    fields = cached_arrays(_printer_model_fields, (printer,), _printer_model_program)
+    fields = cached_arrays(_printer_model_fields, (printer,), printer_model_program)
     return StateSpace(**fields, ts=printer.ts)
 
 
-def _printer_model_program(printer) -> dict:
+def printer_model_program(printer) -> dict:
     """`_printer_model_fields(printer)` run as its exported, -O0 compiled program."""
     import equinox as eqx
 
@@ -260,11 +260,11 @@ def _printer_model_program(printer) -> dict:
 
 #: families whose controller structure depends on the design model's values, not only its
 #: shapes (IMC's static `inverse`: whether the model's zeros are stable): not prepared early
-_PREPARE_SKIP = ("imc",)
+PREPARE_SKIP = ("imc",)
 
 
-def _shape_model(printer):
-    """A stand-in for `_printer_model(printer)` with its shapes, dtypes and sample time (a
+def shape_model(printer):
+    """A stand-in for `stored_printer_model(printer)` with its shapes, dtypes and sample time (a
     stable diagonal plant): a controller designed on it has the real one's
     structure, so `closedloop.prepare_run` can compile for it before the real design."""
     import jax
@@ -280,9 +280,9 @@ def _shape_model(printer):
 
 
 def _prepare_in_background(cl, kind: str, family: str, printer, kwargs: dict):
-    """A started thread that designs `family` on `_shape_model(printer)` and compiles `run`'s
+    """A started thread that designs `family` on `shape_model(printer)` and compiles `run`'s
     program for it (`closedloop.prepare_run`): on a cold cache the compile overlaps the
-    design model's (`_printer_model`). The caller joins it before `run`; a failure there only
+    design model's (`stored_printer_model`). The caller joins it before `run`; a failure there only
     leaves the compile to `run`."""
     import threading
 
@@ -290,7 +290,7 @@ def _prepare_in_background(cl, kind: str, family: str, printer, kwargs: dict):
         try:
             from ..control.design import design
 
-            proto = design(family, _shape_model(printer))
+            proto = design(family, shape_model(printer))
             cl.prepare_run(kind, proto, printer, rollouts=kwargs["rollouts"], duration=kwargs["duration"])
         except Exception:  # noqa: BLE001  (an optimisation only: `run` compiles what it needs)
             pass
@@ -342,7 +342,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     kwargs: dict[str, Any] = {"rollouts": args.rollouts, "duration": args.duration,
                               "seed": args.seed, "scenario_kw": scenario_kw}
     prepared = None
-    if (not own and isinstance(controller, str) and controller not in ("untuned", *_PREPARE_SKIP)
+    if (not own and isinstance(controller, str) and controller not in ("untuned", *PREPARE_SKIP)
             and args.model is None):
         # the run program compiles in a thread while the printer's design model is computed
         prepared = _prepare_in_background(cl, args.scenario, controller, plant, kwargs)
@@ -353,7 +353,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
             input_file(args.model, "--model")
             model = io.load_model(args.model)
         else:
-            model = plant if own else _printer_model(plant)
+            model = plant if own else stored_printer_model(plant)
         controller = design(controller, model, **({"setpoint": r} if own else {}))
     if prepared is not None:
         prepared.join()

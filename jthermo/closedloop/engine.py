@@ -381,7 +381,7 @@ def run(kind: str, controller, plant=None, *, rollouts: int = 8, duration: float
     else:
         sc = make_scenario(kind, plant, duration, jax.random.key(int(seed)),
                            n_rollouts=int(rollouts), **dict(scenario_kw or {}))
-        out = _run_metrics(plant, ctrl, sc, kind not in RECOAT_FREE_KINDS)
+        out = run_metrics(plant, ctrl, sc, kind not in RECOAT_FREE_KINDS)
     vals, r0, n_samples = jax.device_get(out)   # one transfer to the host
     J = vals.pop("cost")
     return {"scenario": kind, "controller": type(ctrl).__name__ if not isinstance(controller, str)
@@ -413,7 +413,7 @@ def prepare_run(kind: str, controller, plant: Printer, *, rollouts: int = 8,
 
 
 @eqx.filter_jit
-def _run_metrics(plant, controller, scenarios, recoat=True, noise=None, held=()):
+def run_metrics(plant, controller, scenarios, recoat=True, noise=None, held=()):
     """Means over rollouts of `rollout_metrics` (the figures `run` reports, and the cost), the
     first set point and the run length: one compiled call, no `(B, T, n)` output."""
     vals = rollout_metrics(plant, controller, scenarios, recoat=recoat, noise=noise, held=held)
@@ -447,7 +447,7 @@ def run_scenario(kind: str, plant: Printer, duration, key, n_rollouts: int) -> S
 
 
 def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
-    """`_run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
+    """`run_metrics` of `make_scenario(kind, plant, duration, key, n_rollouts=...)`, the
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
     traced: one compile for every seed). The measurement noise is drawn inside the scan,
     sample by sample (`rollout_noise`: the scenario's noise distribution, about a quarter of
@@ -456,11 +456,11 @@ def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
     `python benchmarks/simulate_stages.py`."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
-    return _run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,
+    return run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,
                         HELD_SIGNALS.get(kind, ()))
 
 
-_scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
+scenario_metrics = eqx.filter_jit(_scenario_metrics_fn)
 
 
 def _seeded_metrics_fn(kind, plant, controller, duration, seed, n_rollouts):
@@ -473,7 +473,7 @@ def _seeded_metrics_fn(kind, plant, controller, duration, seed, n_rollouts):
 
 @functools.cache
 def _quick_scenario_metrics():
-    """`_scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
+    """`scenario_metrics` compiled with `runtime.simulate_compile()` options, as `run` calls
     it where its exported program cannot serve: compiled once per cache and run once per
     command (the same figures to 1e-16 relative)."""
     return eqx.filter_jit(_scenario_metrics_fn, compiler_options=simulate_compile())

@@ -84,7 +84,7 @@ class StepModel(NamedTuple):
     T: np.ndarray
 
 
-def _horizon(ss: StateSpace, max_n: int = 20000) -> int:
+def step_horizon(ss: StateSpace, max_n: int = 20000) -> int:
     """Samples needed for the slowest pole to settle (about 7 time constants)."""
     rho = float(np.max(np.abs(np.linalg.eigvals(np.asarray(ss.A, np.float64)))))
     if rho < 1e-12:
@@ -93,7 +93,7 @@ def _horizon(ss: StateSpace, max_n: int = 20000) -> int:
     return int(min(max(50, math.ceil(7 * tau) + 10), max_n))
 
 
-def _np_step(A, B, C, D, n, until=None, check_every: int = 64):
+def step_responses(A, B, C, D, n, until=None, check_every: int = 64):
     """Unit step responses (n, ny, nu) of a numpy state space (deviation from rest).
 
     `until` (ny,): stop, checking every `check_every` samples, once every diagonal response
@@ -154,7 +154,7 @@ def step_models(model, transform: np.ndarray | None = None) -> StepModel:
     G0 = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
     # `fit_step_model` with K = G0[i, i] reads a response up to its first sample >= 0.632 K
     # (the later crossing): the samples after it, most of the horizon, are not computed
-    S = _np_step(A, B, C, D, _horizon(ss), until=FIT_LEVELS[-1] * np.diag(G0))
+    S = step_responses(A, B, C, D, step_horizon(ss), until=FIT_LEVELS[-1] * np.diag(G0))
     K, L, T = zip(*(fit_step_model(S[:, i, i], ss.ts, G0[i, i]) for i in range(S.shape[1])))
     return StepModel(np.array(K), np.array(L), np.array(T))
 

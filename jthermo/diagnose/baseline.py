@@ -6,7 +6,7 @@ The baseline of `select.diagnose` is the mechanism library's model with every me
 $$ x_{k+1} = e^{-a t_s} x_k + \\frac{1 - e^{-a t_s}}{a}\\,(b^\\top u_{k-d} + a\\,T_s), \\qquad x_0 \\text{ fitted}, $$
 
 (exact zero-order hold; $u_{k-d}$ the input after a dead time of $d$ samples, interpolated
-between the two samples around it as `mechanisms._inputs` does, $d = 0$ for the fit). Its
+between the two samples around it as `mechanisms.delayed_inputs` does, $d = 0$ for the fit). Its
 simulation error is linear in $b \\ge 0$, $x_0$ and (when the surroundings are not measured)
 $T_s$, so the fit is the grey-box identification's variable projection
 (`jthermo.identify.greybox.fit_first_order_zones`: NNLS for the linear part, a grid then Brent

@@ -51,8 +51,8 @@ per thread, because the problems' iteration counts differ (up to `select.N_ITER`
 that is done takes the next problem, and a call's shape no longer depends on the number of
 problems (fewer programs to compile). The joint fits' damped systems are factored one matrix at
 a time in `masked_lm` (`identify/lm.py`): a batched LU is dealt by jaxlib to XLA's CPU pool and
-waited for on a pool thread, and two such waits fill a two-thread pool, a deadlock
-(measured by `python benchmarks/diagnose_shard_devices.py`).
+waited for on a pool thread, and two such waits fill a two-thread pool, a deadlock (the split
+joint fits are measured by `python benchmarks/diagnose_shard_devices.py`).
 
 The coupled programs (`fit_joint`, hence `fit_records`), `sim_zones` and, one problem after
 another, the per-zone fits (`fit_zones`) are compiled with `runtime.quick_compile()` options
@@ -97,7 +97,7 @@ def _compiled(fn, static: tuple, quick: bool = True):
     return jax.jit(fn, static_argnames=static, compiler_options=quick_compile() if quick else None)
 
 
-def _run(fn, static: tuple, *args):
+def run_problems(fn, static: tuple, *args):
     """`fn(*args)` compiled with `runtime.quick_compile()` options (`static` its static argument
     names), through `stored.exported_call`: a process after the first loads the traced program
     from the cache directory instead of tracing it (the same program, the same executable)."""
@@ -138,7 +138,7 @@ def call_rows(budget: np.ndarray, n_calls: int) -> list[np.ndarray]:
 
 
 def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
-    """`_run(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
+    """`run_problems(fn, static, *args)` with the problems spread over `n_threads()` threads, `CALL_SIZE`
     problems per call (one compiled program of that shape, compiled before the threads start),
     each thread taking the next call when its last one is done: `fn` fits its problems one
     after another (`lax.map`), which left the second core idle. `batched`: positions of the
@@ -148,7 +148,7 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
     budget = np.asarray(args[-1])
     k = min(n_threads(), budget.size)
     if k <= 1:
-        return _run(fn, static, *args[:-1], jnp.asarray(budget, jnp.int32))
+        return run_problems(fn, static, *args[:-1], jnp.asarray(budget, jnp.int32))
     host = {i: jax.tree_util.tree_map(np.asarray, args[i]) for i in batched}
     n_calls = k if CALL_SIZE is None else -(-budget.size // CALL_SIZE)
     calls = []
@@ -159,7 +159,7 @@ def _run_spread(fn, static: tuple, args: tuple, batched: tuple):
         for i in batched:
             a[i] = jax.tree_util.tree_map(lambda x: x[take], host[i])
         calls.append((rows, (*a, np.where(pad, 0, budget[take]).astype(np.int32))))
-    run = lambda c: jax.block_until_ready(_run(fn, static, *c[1]))     # noqa: E731
+    run = lambda c: jax.block_until_ready(run_problems(fn, static, *c[1]))     # noqa: E731
     # compiled once, before the threads (without the cache: by the first call, here)
     first = [] if exported_compile(fn, calls[0][1], quick_compile()) else [run(calls[0])]
     pool = ThreadPoolExecutor(k)
@@ -219,7 +219,7 @@ def _sim_zones(theta, on, per, shared, lay):
 
 def sim_zones(theta, on, per, shared, lay):
     """Per-zone (series-parallel) simulations of B problems, `(B, T)`."""
-    return _run(_sim_zones, ("lay",), theta, on, per, shared, lay)
+    return run_problems(_sim_zones, ("lay",), theta, on, per, shared, lay)
 
 
 def _fit_coupled(Theta, on, rec0, mask, budget, y, weight, fp, f_shared, lay, n_iter, n_active):
@@ -250,7 +250,7 @@ def _fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, 
                        (Theta0, on, rec0, mask, budget, f_per))
 
 
-def _first_copies(*trees) -> np.ndarray:
+def first_copies(*trees) -> np.ndarray:
     """For each j of the first axis shared by every array in `trees`, the first index whose
     entries equal j's in every array (j itself where none before it does): `(M,)`. Traced
     arrays cannot be compared: then `arange(M)`."""
@@ -276,7 +276,7 @@ def fit_joint(Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n
     Jacobian only where its parameters moved (`masked_lm(..., budget=...)`: a rejected step
     reuses it) and a model that repeats an earlier one (padding to a fixed number of slots)
     is not fitted again but copied: the same iterates as the vmapped fixed-iteration solve."""
-    src = _first_copies(Theta0, on, rec0, mask, f_per)
+    src = first_copies(Theta0, on, rec0, mask, f_per)
     budget = np.where(src == np.arange(src.size), n_iter, 0).astype(np.int32)
     out = _run_spread(_fit_joint, ("lay", "n_iter", "n_active"),
                       (Theta0, on, rec0, mask, y, weight, f_per, f_shared, lay, n_iter, n_active, budget),

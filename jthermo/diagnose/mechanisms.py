@@ -154,7 +154,7 @@ def lamp_tau(log_tauh):
     return TAUH_MIN + xp.exp(log_tauh)
 
 
-def _zoh(A, Bc, ts, squarings: int = 10, order: int = 10):
+def zoh_blocks(A, Bc, ts, squarings: int = 10, order: int = 10):
     """Exact zero-order-hold matrices of $\\dot s = A s + B_c w$: $(E, B_d, P_1)$ with
     $E = e^{A t_s}$ and $P_1 = \\int_0^{t_s} e^{A\\tau} d\\tau$ (what a rate held over the sample adds).
 
@@ -191,7 +191,7 @@ def delay_samples(delay, dfrac):
     return xp.clip(delay + 2.0 / (1.0 + xp.exp(-dfrac)) - 1.0, 0.0, PAD - 2.0)
 
 
-def _inputs(theta, on, u, u_pad, delay, lay):
+def delayed_inputs(theta, on, u, u_pad, delay, lay):
     """Heater inputs after dead time and lamp nonlinearity: `(T, nu)` per zone model, and the
     (transformed) input before the record `(nu,)`.
 
@@ -268,7 +268,7 @@ def _zone_matrices(theta, on, lay, ts, a_lin):
     Bc = jnp.stack([jnp.stack([1.0 - lag + z, a_lin, 1.0 + z, z]),
                     jnp.stack([z, gam / tauw, z, 1.0 / tauw]),
                     jnp.stack([ih, z, z, z])])
-    E, Bd, P1 = _zoh(A, Bc, ts)
+    E, Bd, P1 = zoh_blocks(A, Bc, ts)
     return E, Bd, P1[:, 0]
 
 
@@ -289,7 +289,7 @@ def simulate_zone(theta, on, z, lay: Layout):
     # heater gains and make each zone's drift a different, meaningless level
     dr = g("drift") - jnp.mean(g("drift"))
     ts_seq = ts_level + on[7] * (z["wdev"] + z["Phi"] @ dr)
-    u, u0 = _inputs(theta, on, z["u"], z["u_pad"], z["delay"], lay)
+    u, u0 = delayed_inputs(theta, on, z["u"], z["u_pad"], z["delay"], lay)
     b = jnp.exp(g("log_b"))
     v = u @ b
     nb = on[0] * (z["ynb"] @ jnp.exp(g("log_k"))[: z["ynb"].shape[1]])
@@ -341,7 +341,7 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     ts_seq = ts_level[None, :] + on[7] * (f["wdev"] + f["Phi"] @ dr)[:, None]    # (T, n)
 
     def zone_input(th):
-        u, u0 = _inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
+        u, u0 = delayed_inputs(th, on, f["u"], f["u_pad"], f["delay"], lay)
         b = jnp.exp(th[lay.sl("log_b")])
         return u @ b, u0 @ b
 
@@ -369,7 +369,7 @@ def simulate_full(Theta, on, f, lay: Layout, rec):
     Bc = jnp.zeros((3 * n, 2 * n), dt)            # inputs: heat rates (n), surroundings (n)
     Bc = Bc.at[iz, iz].set(1.0 - lag).at[iz, n + iz].set(a_lin).at[n + iz, n + iz].set(gam / tauw)
     Bc = Bc.at[2 * n + iz, iz].set(ih)
-    E, Bd, P1 = _zoh(A, Bc, f["ts"])
+    E, Bd, P1 = zoh_blocks(A, Bc, f["ts"])
     Pz = P1[:, :n]
     drop = on[6] * jnp.exp(g("log_drop")[:, 0])
     Fz = jnp.concatenate([V, ts_seq], axis=1) @ Bd.T

@@ -197,7 +197,7 @@ _minimize_jit = eqx.filter_jit(_minimize_impl)
 
 
 @eqx.filter_jit
-def _minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
+def minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
                        covariance, batch, screen_steps=0):
     def one(th, a):
         return _minimize_impl(residual_fn, th, a, solver, max_steps, rtol, atol, learning_rate,
@@ -281,7 +281,7 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     has a leading `M` axis on every field.
     """
     theta0 = _check(theta0, solver, max_steps, 1, batch)
-    res = _minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
+    res = minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
                              float(atol), float(learning_rate), bool(covariance), batch,
                              int(screen_steps))
     if throw and not bool(jnp.all(jnp.isfinite(res.cost))):

@@ -101,7 +101,7 @@ def poly_residual(theta: Float[Array, " p"], args) -> Float[Array, "T 1"]:
     `y_i (T,)` this output, `y_src (T, m)` the outputs in its A row, `u (T, nu)` inputs (all
     deviations), `sel (nu, nb, L+1)` the delay selector, `spec` a `PolySpec`; an optional
     sixth entry `mask (p,)` of 0/1 gives the residual of $\\theta \\odot \\mathrm{mask}$: a smaller
-    structure embedded in `spec` (`_embedding`, zeros for its missing coefficients) then shares
+    structure embedded in `spec` (`parameter_embedding`, zeros for its missing coefficients) then shares
     `spec`'s compiled solve, its masked parameters with a zero Jacobian column (no step).
     """
     yi, ysrc, u, sel, s = args[:5]
@@ -307,9 +307,9 @@ def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **
     `shape_orders`, in the compiled shape of that larger structure (missing coefficients
     masked), the result mapped back to `spec`'s own parameters."""
     ny = dy.shape[1]
-    big = spec if shape_orders is None else _padded_spec(spec, shape_orders, nkt)
+    big = spec if shape_orders is None else padded_spec(spec, shape_orders, nkt)
     args = poly_args(dy, du, big, nkt, spec.m > 1)
-    idx = _embedding(spec, big)
+    idx = parameter_embedding(spec, big)
     if shape_orders is not None:    # the shared compiled shape, missing coefficients masked
         padded = np.zeros(starts.shape[:2] + (big.n_params,))
         padded[..., idx] = starts
@@ -329,7 +329,7 @@ def _minimize_compiled(starts, dy, du, nkt, spec: PolySpec, shape_orders, dt, **
     return res
 
 
-def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
+def padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
     """The structure `spec` enlarged to the orders `orders` (`na`, `nb`, `nc`, `nd`, `nf`; each
     the larger of the two): a compiled shape that `spec` and smaller structures share."""
     o = {n: max(getattr(spec, n), int(orders.get(n, 0))) for n in ("na", "nb", "nc", "nd", "nf")}
@@ -337,7 +337,7 @@ def _padded_spec(spec: PolySpec, orders: dict, nkt) -> PolySpec:
     return spec._replace(**o, L=max(L, spec.L))
 
 
-def _embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
+def parameter_embedding(s: PolySpec, big: PolySpec) -> np.ndarray:
     """Positions of the parameters of `s` in the parameter vector of the larger `big` (same
     m, nu, offset, common_f): each coefficient block `(rows, n)` sits in the first `n`
     columns of `big`'s `(rows, n_big)` block."""

@@ -68,10 +68,10 @@ class NoiseStream(eqx.Module):
         j = k % CHUNK
         buf = jax.lax.cond(j == 0, lambda b: self._draws(k), lambda b: b, buf)
         e = jax.lax.dynamic_index_in_dim(buf, j, keepdims=False).astype(self.dtype)
-        v, c = self._noise(k, c, e)
+        v, c = self.shape_noise(k, c, e)
         return v, (c, buf)
 
-    def _noise(self, k, c, e):
+    def shape_noise(self, k, c, e):
         if self.sensor is None:
             return self.white_std * e, c
         p = self.sensor

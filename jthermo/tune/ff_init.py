@@ -71,7 +71,7 @@ def event_responses(printer: Printer, taps: int, *, preview: int, horizon: int |
     return out
 
 
-def _shifted(G_m: np.ndarray, taps: int) -> np.ndarray:
+def shifted_responses(G_m: np.ndarray, taps: int) -> np.ndarray:
     """Columns: heater m's impulse response (H, ny) delayed by j = 0..taps-1, flattened."""
     H, ny = G_m.shape
     cols = np.zeros((H, ny, taps))
@@ -97,7 +97,7 @@ def init_schedule_ff(ctrl: ScheduleFF, printer: Printer, *, preview_s: float = P
                            f"{printer.n_inputs} inputs and {printer.zones} zones")
     P = round(preview_s / printer.ts)
     R = event_responses(printer, L, preview=P)
-    cols = [_shifted(R["G"][m], L) for m in range(nu)]
+    cols = [shifted_responses(R["G"][m], L) for m in range(nu)]
     g2 = float(np.mean(np.sum(R["G"] ** 2, axis=(1, 2))))
     D = np.eye(L) - np.eye(L, k=-1)                  # first differences of the taps
     reg1 = np.eye(L) + D.T @ D

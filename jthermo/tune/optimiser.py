@@ -171,7 +171,7 @@ def _lbfgs_iterates(objective, z, batch, steps: int, lr: float, memory: int = 10
             return
 
 
-def _adam_iterates(objective, z, batches: Callable[[], list], steps: int, lr: float,
+def adam_iterates(objective, z, batches: Callable[[], list], steps: int, lr: float,
                    template=None):
     """Yield `(z, cost of z on its batch, evaluations so far)` for each Adam iterate (the
     batches, which `batches()` returns, cycled), then the last finite iterate with its cost on
@@ -257,7 +257,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
         obj = (lambda z, bb: sum(objective(z, b) for b in bb) / len(bb)) if many else objective
         its = _lbfgs_iterates(obj, z0, tuple(bs) if many else bs[0], steps, lr)
     else:
-        its = _adam_iterates(objective, z0, resolved, steps, lr, template=template)
+        its = adam_iterates(objective, z0, resolved, steps, lr, template=template)
     iterates, evals = [], 0           # (z_k, f_k), k = 0..K; f_K of Adam on batches[0]
     for z, val, n in its:
         if not iterates and not np.isfinite(val):

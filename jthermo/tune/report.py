@@ -54,7 +54,7 @@ def _evaluate_fn(plant, controller, scenarios, weights):
 
 
 @functools.cache
-def _quick_evaluate():
+def quick_evaluate():
     """`_evaluate_fn` compiled with `runtime.simulate_compile()` options, and the scenario
     builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
     `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
@@ -74,7 +74,7 @@ def evaluate(controller: AbstractController, plant, kind=SCENARIOS, seeds=(HELD_
 
     **Returns:** `{"cost": mean over scenarios, "scenarios": {kind: {"cost", "mse", ...}}}`.
     """
-    run, scenario = _quick_evaluate()
+    run, scenario = quick_evaluate()
     out = {}
     for k in as_kinds(kind):
         costs, mets = [], []
@@ -140,7 +140,7 @@ def _plant_from(plant, *, zones: int, powder: str, plant_seed: int):
     raise ControlError(f"tune: unsupported plant {type(plant).__name__}")
 
 
-def _rescaled(ctrl):
+def rescaled_start(ctrl):
     """A MIMO PI (alone or inside a schedule feed-forward) with its gain matrices stored in
     units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
     moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
@@ -385,7 +385,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         if ff_init and isinstance(start, ScheduleFF) and isinstance(pl, Printer):
             # schedule feed-forward taps from the printer's response to each event (`ff_init`)
             start = init_schedule_ff(start, pl)
-        start = _rescaled(start)
+        start = rescaled_start(start)
         lam_pi = design("pi_lambda", model)
         refs = [design(f, model) for f in references if f != controller_family]
         seeds = (int(seed) + HELD_OUT,)

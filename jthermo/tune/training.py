@@ -87,7 +87,7 @@ def robust_objective(terms: Float[Array, "items 2"], ref: Float[Array, "items 2"
 
 
 @functools.cache
-def _robust_objective_jit():
+def robust_objective_jit():
     """`robust_objective(terms, ref, tau)` as one program (eager, the guard compiled about
     fifteen small ones), at `runtime.one_shot()` options: the same value bit for bit as eager
     (with XLA's default options the fused program differed in the last bit)."""
@@ -172,7 +172,7 @@ def loop_ms(model, controller) -> float | None:
     return float(m["ms"]) if m["stable"] else float("inf")
 
 
-def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms_model=None):
+def guarded_choice(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms_model=None):
     """Pick among `candidates` the one with the lowest robust objective on the validation
     `batch` that beats every reference on mse (by `margin`) in every item (plant × scenario)
     it changes (an item whose mse equals the start's exactly is not judged) and does not raise
@@ -186,7 +186,7 @@ def _guard(candidates, refs, start, batch, weights, margin, tau, ms_max=None, ms
     for i, (it, _, c) in enumerate(candidates):
         v = np.asarray(batch_terms(c, batch, weights))
         ok = bool(np.all(np.isfinite(v)))
-        obj = float(_robust_objective_jit()(v, best, tau)) if ok else np.inf
+        obj = float(robust_objective_jit()(v, best, tau)) if ok else np.inf
         # items where the candidate's mse is the start's exactly are ones the tuned parameters
         # do not act on (a schedule feed-forward in a scenario without events): not judged
         moved = v[:, 1] != start_vals[:, 1]
@@ -232,7 +232,7 @@ def _penalty(ms_model, ms_max, weight) -> Callable:
     return lambda c: ms_penalty(c, z, G, float(ms_max), float(weight))
 
 
-def _caster(dtype: str | None) -> Callable:
+def caster(dtype: str | None) -> Callable:
     """`tree -> tree` with every floating array leaf cast to `dtype` (None: the identity);
     differentiable, so a gradient flows back to the leaves' own precision."""
     if dtype is None:
@@ -251,7 +251,7 @@ def _caster(dtype: str | None) -> Callable:
     return lambda t: jax.tree.map(cast, t)
 
 
-def _field_filter(controller, names):
+def field_filter(controller, names):
     """`eqx.partition` filter selecting the array leaves of the named fields (all: None)."""
     if names is None:
         return eqx.is_inexact_array
@@ -334,14 +334,14 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         check_loop("tune", p, controller)
     if not (0.0 <= margin < 1.0):
         raise ControlError(f"tune: margin must be in [0, 1), got {margin}")
-    spec = _field_filter(controller, params)
+    spec = field_filter(controller, params)
     batches = scenarios if scenarios is not None else make_batches(
         pl, kind, rollouts=rollouts, duration=duration, seed=seed, n_batches=n_batches,
         scenario_kw=scenario_kw)
     batches = [group_batch([tuple(it[:3]) for it in b]) for b in batches]
     refs = [controller, *references]
     pen = _penalty(ms_model, ms_max, ms_weight)
-    low = _caster(train_dtype)
+    low = caster(train_dtype)
     if normalise:
         # the references' best cost and mse per (plant, scenario), fixed (no gradient)
         lows = [low(b) for b in batches]
@@ -382,7 +382,7 @@ def tune(controller: AbstractController, plant, *, kind=SCENARIOS, scenarios=Non
         val = group_batch(make_batches(pl, kind, rollouts=int(B), duration=float(T * sc0.ts),
                                        seed=int(seed) + VALIDATION,
                                        scenario_kw=scenario_kw)[0])
-    chosen, info = _guard(res.snapshots, refs, controller, val, weights, margin, tau,
+    chosen, info = guarded_choice(res.snapshots, refs, controller, val, weights, margin, tau,
                           ms_max=ms_max, ms_model=ms_model)
     info["seconds"] = time.perf_counter() - t0
     idx = [i for i, (_, _, c) in enumerate(res.snapshots) if c is chosen]

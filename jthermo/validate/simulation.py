@@ -201,7 +201,7 @@ def compare(model: AbstractModel, data: IOData, *, k: int | None = None,
     yhat = np.asarray(yhat)
     if not np.all(np.isfinite(yhat)):
         raise ModelError("compare: the model's response is not finite on these data (unstable model?)")
-    fits = np.atleast_1d(_fit_percent_np(np.asarray(data.y, np.float64), yhat))
+    fits = np.atleast_1d(fit_percent_np(np.asarray(data.y, np.float64), yhat))
     return {"fit_percent": [float(f) for f in fits], "mean_fit_percent": float(np.mean(fits)),
             "yhat": yhat, "x0": np.asarray(x_init), "k": k}
 
@@ -220,7 +220,7 @@ def _refuse_flat(flat: np.ndarray) -> None:
                         "is undefined")
 
 
-def _fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
+def fit_percent_np(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     """`fit_percent` of host arrays in NumPy (no compile), same errors."""
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
     _refuse_flat(_flat(den, y, np))

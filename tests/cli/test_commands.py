@@ -382,9 +382,9 @@ def test_demo_background_stage_result_and_error():
     def failing():
         raise FitError("no start point converged")
 
-    waiting_ok, waiting_bad = demo._in_background(slow), demo._in_background(failing)
+    waiting_ok, waiting_bad = demo.in_background(slow), demo.in_background(failing)
     started.set()
-    st = demo._Stages(2, quiet=True)
+    st = demo.StageRunner(2, quiet=True)
     assert st.run("ok", waiting_ok) == "demo-slow"
     assert st.run("bad", waiting_bad) is None
     assert [r["status"] for r in st.records] == ["ok", "failed"]
@@ -395,7 +395,7 @@ def test_demo_stage_guard_and_report(tmp_path):
     from jthermo import demo
     from jthermo.errors import FitError
 
-    st = demo._Stages(3, quiet=True)
+    st = demo.StageRunner(3, quiet=True)
 
     def missing():
         import jthermo.not_written_yet  # noqa: F401
@@ -421,7 +421,7 @@ def test_demo_stage_guard_and_report(tmp_path):
                        "findings": [{"mechanism": "heater_lag", "confidence": 0.99, "zones": [1, 2],
                                      "parameters": {"time_constant_s": 24.0}, "summary": "lamps lag"}],
                        "concealed": {"mechanism": "heater_lag", "time_constant_s": 25.0}}}
-    text = demo._write_report(tmp_path, S, {}).read_text()
+    text = demo.write_demo_report(tmp_path, S, {}).read_text()
     assert "| arx |" in text and "diverged" in text and "heater_lag" in text
     assert "Stages that did not complete" in text and "no start point converged" in text
 

@@ -14,10 +14,10 @@ from jthermo.closedloop import REALISTIC_EFFECTS, make_scenario
 from jthermo.closedloop.engine import (
     RECOAT_FREE_KINDS,
     RUN_NOISE_STD,
-    _run_metrics,
-    _scenario_metrics,
     rollout_noise,
+    run_metrics,
     run_scenario,
+    scenario_metrics,
 )
 from jthermo.control.pi import DiagonalPI
 from jthermo.printer import make_printer
@@ -78,7 +78,7 @@ def test_run_in_scan_equals_materialised(kind):
     pr = make_printer(4, REALISTIC_EFFECTS, seed=0)
     ctrl = DiagonalPI.untuned(4, ts=pr.ts)
     key, B, dur = jax.random.key(2), 3, 200.0
-    lean = _scenario_metrics(kind, pr, ctrl, dur, key, B)[0]
+    lean = scenario_metrics(kind, pr, ctrl, dur, key, B)[0]
     sc = run_scenario(kind, pr, dur, key, B)
     # the scenario of `run` is `make_scenario`'s with the streams' noise in place of its own
     plain = make_scenario(kind, pr, dur, key, n_rollouts=B, noise_std=RUN_NOISE_STD)
@@ -86,7 +86,7 @@ def test_run_in_scan_equals_materialised(kind):
     np.testing.assert_array_equal(np.asarray(sc.r), np.asarray(plain.r))
     np.testing.assert_array_equal(np.asarray(sc.v[1]), np.asarray(
         eqx.filter_jit(lambda s: s.sample(sc.r.shape[1]))(jax.tree.map(lambda a: a[1], streams))))
-    dense = _run_metrics(pr, ctrl, sc, kind not in RECOAT_FREE_KINDS)[0]
+    dense = run_metrics(pr, ctrl, sc, kind not in RECOAT_FREE_KINDS)[0]
     for name in dense:
         np.testing.assert_allclose(float(lean[name]), float(dense[name]), rtol=1e-12, atol=1e-15,
                                    err_msg=name)

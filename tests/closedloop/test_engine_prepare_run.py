@@ -1,6 +1,6 @@
 """`closedloop.prepare_run`: the run program compiled before the real controller exists (the
 simulate command does it in a thread while the printer's design model is computed), for a
-controller designed on `cli.control._shape_model` (the design model's shapes only)."""
+controller designed on `cli.control.shape_model` (the design model's shapes only)."""
 
 from __future__ import annotations
 
@@ -11,24 +11,24 @@ import pytest
 from jax import monitoring
 
 from jthermo import closedloop as cl
-from jthermo.cli.control import _PREPARE_SKIP, _printer_model, _shape_model
+from jthermo.cli.control import PREPARE_SKIP, shape_model, stored_printer_model
 from jthermo.control.design import FAMILIES, design
 from jthermo.printer import make_printer
-from jthermo.stored import _split
+from jthermo.stored import split_arguments
 
 LOWERING = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 
 
 def _structure(controller):
     """What keys the run program besides the values: tree, static leaves, shapes, dtypes."""
-    treedef, static, _, arrays = _split((controller,))
+    treedef, static, _, arrays = split_arguments((controller,))
     return str(treedef), repr(static), [(a.shape, str(a.dtype)) for a in arrays]
 
 
 @pytest.fixture(scope="module")
 def printer_and_model():
     p = make_printer(3, cl.REALISTIC_EFFECTS, powder="PA12", seed=0)
-    return p, _printer_model(p)
+    return p, stored_printer_model(p)
 
 
 def _lowerings(fn) -> int:
@@ -49,7 +49,7 @@ def _lowerings(fn) -> int:
 def test_the_prepared_program_is_the_one_run_calls(printer_and_model):
     p, model = printer_and_model
     kw = {"rollouts": 3, "duration": 47.0}     # shapes no other test uses: new to this process
-    assert cl.prepare_run("tracking", design("pi_lambda", _shape_model(p)), p, **kw)
+    assert cl.prepare_run("tracking", design("pi_lambda", shape_model(p)), p, **kw)
     real = design("pi_lambda", model)
     out = {}
     assert _lowerings(lambda: out.update(cl.run("tracking", real, p, seed=5, **kw))) == 0
@@ -59,18 +59,18 @@ def test_the_prepared_program_is_the_one_run_calls(printer_and_model):
     assert _lowerings(lambda: cl.run("tracking", real, p, seed=5, rollouts=3, duration=53.0)) > 0
 
 
-@pytest.mark.parametrize("family", [f for f in FAMILIES if f not in _PREPARE_SKIP])
-def test_a_controller_designed_on_the_shape_model_has_the_real_structure(printer_and_model, family):
+@pytest.mark.parametrize("family", [f for f in FAMILIES if f not in PREPARE_SKIP])
+def test_a_controller_designed_on_theshape_model_has_the_real_structure(printer_and_model, family):
     p, model = printer_and_model
-    assert _structure(design(family, _shape_model(p))) == _structure(design(family, model))
+    assert _structure(design(family, shape_model(p))) == _structure(design(family, model))
 
 
-@pytest.mark.parametrize("family", _PREPARE_SKIP)
+@pytest.mark.parametrize("family", PREPARE_SKIP)
 def test_the_skipped_families_do_depend_on_the_model_values(printer_and_model, family):
-    """Remove a family from `_PREPARE_SKIP` once this fails: its structure no longer depends
+    """Remove a family from `PREPARE_SKIP` once this fails: its structure no longer depends
     on the design model's values."""
     p, model = printer_and_model
-    assert _structure(design(family, _shape_model(p))) != _structure(design(family, model))
+    assert _structure(design(family, shape_model(p))) != _structure(design(family, model))
 
 
 def test_prepare_run_declines_a_fitted_plant():

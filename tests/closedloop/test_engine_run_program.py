@@ -15,8 +15,8 @@ from jthermo.closedloop.engine import (
     HELD_SIGNALS,
     RECOAT_FREE_KINDS,
     RUN_NOISE_STD,
-    _run_metrics,
     rollout_noise,
+    run_metrics,
 )
 from jthermo.control.pi import DiagonalPI
 from jthermo.printer import make_printer
@@ -30,7 +30,7 @@ def _per_sample(stream, n):
     for k in range(n):
         n_e = stream.ny + (0 if stream.sensor is None else stream.zones)
         e = jax.random.normal(jax.random.fold_in(stream.key, k), (n_e,), jnp.float32)
-        v, c = stream._noise(k, c, e.astype(stream.dtype))
+        v, c = stream.shape_noise(k, c, e.astype(stream.dtype))
         out.append(v)
     return np.stack(out)
 
@@ -57,7 +57,7 @@ def test_held_signals_give_the_scanned_figures(kind):
         assert not np.any(np.asarray(sc.d.laser))
     noise = rollout_noise(pr, key, B)
     recoat = kind not in RECOAT_FREE_KINDS
-    run = eqx.filter_jit(_run_metrics)
+    run = eqx.filter_jit(run_metrics)
     a = run(pr, ctrl, sc, recoat, noise, held)[0]
     b = run(pr, ctrl, sc, recoat, noise, ())[0]
     for k in a:

@@ -64,7 +64,7 @@ def _step_models_full_horizon(ss, transform=None):
     A, B, C, D = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C, ss.D))
     if transform is not None:
         B, D = B @ transform, D @ transform
-    S = rules._np_step(A, B, C, D, rules._horizon(ss))
+    S = rules.step_responses(A, B, C, D, rules.step_horizon(ss))
     G0 = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
     return [np.array(v) for v in zip(*(fit_step_model(S[:, i, i], ss.ts, G0[i, i])
                                        for i in range(S.shape[1])))]

@@ -18,7 +18,7 @@ from scipy.optimize import brentq
 from jthermo.control import FAMILIES, design
 from jthermo.control.relay import DiagonalPID, relay_test, ziegler_nichols
 from jthermo.errors import ControlError
-from jthermo.models._base import StateSpace
+from jthermo.models import StateSpace
 from jthermo.tune.report import CLASSICAL
 
 K, T = 2.0, 10.0          # °C per unit input, s

@@ -89,7 +89,7 @@ def test_event_schedule_preview_jitter_and_wrong_map():
 def test_ff_init_cancels_most_of_the_events_open_loop():
     """The model-based start of the taps (`tune.ff_init`): within ±limit, and on the printer's
     own open-loop responses it removes most of a recoat's and an exposure's effect."""
-    from jthermo.tune.ff_init import _shifted, event_responses, init_schedule_ff
+    from jthermo.tune.ff_init import event_responses, init_schedule_ff, shifted_responses
     from jthermo.tune.report import printer_model
 
     pr = make_printer(2, ["recoat_cooling", "laser_exposure"], seed=0)
@@ -97,7 +97,7 @@ def test_ff_init_cancels_most_of_the_events_open_loop():
     h_rec, h_las = (np.asarray(h) for h in ctrl.effective_taps())
     assert np.max(np.abs(h_rec)) <= 0.3 + 1e-12 and np.max(np.abs(h_las)) <= 0.3 + 1e-12
     R = event_responses(pr, 30, preview=round(PREVIEW_S / pr.ts))
-    cols = [_shifted(R["G"][m], 30) for m in range(2)]
+    cols = [shifted_responses(R["G"][m], 30) for m in range(2)]
     rec = R["recoat"].reshape(-1) + np.concatenate(cols, axis=1) @ h_rec.T.reshape(-1)
     las = R["laser"][0].reshape(-1) + cols[0] @ h_las[:, 0]
     rms = lambda v: float(np.sqrt(np.mean(v ** 2)))
@@ -110,11 +110,11 @@ def test_ff_init_cancels_most_of_the_events_open_loop():
 def test_rescaled_mimo_pi_is_the_same_loop():
     """`MIMOPI.rescaled` (what `tune_report` tunes): gains stored in units of their diagonal,
     the same effective gains and the same input, inside a schedule feed-forward too."""
-    from jthermo.tune.report import _rescaled
+    from jthermo.tune.report import rescaled_start
 
     plant = bed_plant(N, seed=1)
     c = design("pi_ff", plant, taps=L)
-    r = _rescaled(c)
+    r = rescaled_start(c)
     fb = r.feedback
     assert fb.kp_scale > 0 and fb.ki_scale > 0
     np.testing.assert_allclose(np.abs(np.diag(np.asarray(fb.kp))).mean(), 1.0, rtol=1e-12)

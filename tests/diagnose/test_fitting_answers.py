@@ -78,11 +78,11 @@ def test_padded_copies_are_copied_not_refitted():
     pad = jnp.asarray([0, 1, 2, 2, 1])                  # slots 3 and 4 repeat models 2 and 1
     take = lambda x: x[pad]
     padded = (take(Theta0), take(on), take(rec0), take(mask), y, w, jax.tree_util.tree_map(take, per), f, lay)
-    np.testing.assert_array_equal(F._first_copies(*(padded[:4] + (padded[6],))), [0, 1, 2, 2, 1])
+    np.testing.assert_array_equal(F.first_copies(*(padded[:4] + (padded[6],))), [0, 1, 2, 2, 1])
     out = F.fit_joint(*padded, 30, 16)
     ref = F.fit_joint(Theta0, on, rec0, mask, y, w, per, f, lay, 30, 16)
     for a, b in zip(out, ref):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[np.asarray(pad)])
     # a copy that differs in one entry is fitted on its own
     Theta1 = padded[0].at[3, 0, 0].add(0.01)
-    assert F._first_copies(Theta1, *padded[1:4], padded[6])[3] == 3
+    assert F.first_copies(Theta1, *padded[1:4], padded[6])[3] == 3

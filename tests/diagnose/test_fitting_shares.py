@@ -26,8 +26,8 @@ def test_call_rows_deal_the_live_problems_in_turn_and_pad():
 def _one_call_and_spread(monkeypatch, fit, n_problems):
     """`fit()` in one call and spread over two threads: the same arrays, bit for bit, from as
     many compiled calls as the split makes."""
-    calls, run = [], F._run
-    monkeypatch.setattr(F, "_run", lambda *a: calls.append(1) or run(*a))
+    calls, run = [], F.run_problems
+    monkeypatch.setattr(F, "run_problems", lambda *a: calls.append(1) or run(*a))
     monkeypatch.setenv("JTHERMO_FIT_THREADS", "1")
     whole = fit()
     assert len(calls) == 1

@@ -1,4 +1,4 @@
-"""`mechanisms._zoh` on the m × m blocks: equal to the exact hold (scipy's exponential of the
+"""`mechanisms.zoh_blocks` on the m × m blocks: equal to the exact hold (scipy's exponential of the
 block matrix) and to the same Taylor series on the dense 2m × 2m matrix it replaced (`_expm`, here
 as the reference); its forward-mode derivative against central differences."""
 
@@ -20,7 +20,7 @@ def _rates(m, seed):
 
 
 def _expm(Mt, squarings: int = 10, order: int = 10):
-    """$e^{M}$ by the fixed Taylor series and squaring that `_zoh` writes on blocks (dense form)."""
+    """$e^{M}$ by the fixed Taylor series and squaring that `zoh_blocks` writes on blocks (dense form)."""
     n = Mt.shape[-1]
     X = Mt / (2.0 ** squarings)
     eye = jnp.eye(n, dtype=Mt.dtype)
@@ -51,7 +51,7 @@ def _dense(A, Bc, ts):
 def test_zoh_blocks_match_exact_hold_and_dense_series(m, ts):
     A = _rates(m, m)
     Bc = np.random.default_rng(1).standard_normal((m, 4))
-    E, Bd, P1 = M._zoh(jnp.asarray(A), jnp.asarray(Bc), ts)
+    E, Bd, P1 = M.zoh_blocks(jnp.asarray(A), jnp.asarray(Bc), ts)
     F = expm(np.block([[A, np.eye(m)], [np.zeros((m, 2 * m))]]) * ts)
     np.testing.assert_allclose(E, F[:m, :m], rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(P1, F[:m, m:], rtol=1e-12, atol=1e-13 * ts)
@@ -65,7 +65,7 @@ def test_zoh_jvp_matches_central_differences_and_dense_series():
     A, Bc = jnp.asarray(_rates(m, 7)), jnp.asarray(np.random.default_rng(2).standard_normal((m, 3)))
     rng = np.random.default_rng(3)
     dA, dB = jnp.asarray(0.01 * rng.standard_normal((m, m))), jnp.asarray(rng.standard_normal((m, 3)))
-    f = lambda A, B: M._zoh(A, B, 2.0)
+    f = lambda A, B: M.zoh_blocks(A, B, 2.0)
     _, d = jax.jvp(f, (A, Bc), (dA, dB))
     h = 1e-4
     plus, minus = f(A + h * dA, Bc + h * dB), f(A - h * dA, Bc - h * dB)

@@ -36,7 +36,7 @@ def test_fractional_delay_input_interpolates():
     u = jnp.asarray(np.r_[np.zeros(5), np.ones(10)][:, None])
     th = jnp.zeros(lay.size)
     on = jnp.asarray(M.on_vector(["input_delay"]))
-    got, _ = M._inputs(th, on, u, jnp.zeros(1), 2.5, lay)          # d = 2.5 samples (dfrac 0)
+    got, _ = M.delayed_inputs(th, on, u, jnp.zeros(1), 2.5, lay)          # d = 2.5 samples (dfrac 0)
     np.testing.assert_allclose(np.asarray(got[:, 0])[5:10], [0, 0, 0.5, 1, 1])
 
 

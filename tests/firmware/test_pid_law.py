@@ -11,7 +11,7 @@ import pytest
 from jthermo.closedloop import model_scenario, simulate
 from jthermo.firmware import settings
 from jthermo.firmware.pid import KlipperPID, from_standard, pid_calibrate
-from jthermo.models._base import StateSpace
+from jthermo.models import StateSpace
 
 from . import reference as ref
 

@@ -52,7 +52,7 @@ def test_map_holds_one_row_at_a_time():
     theta = jnp.zeros((ny, K, spec.n_params))
     scratch = {}
     for batch in ("vmap", "map"):
-        lowered = pem._minimize_many_jit.lower(poly_residual, theta, args, "lm", 50, 1e-6, 1e-9,
+        lowered = pem.minimize_many_jit.lower(poly_residual, theta, args, "lm", 50, 1e-6, 1e-9,
                                                1e-2, True, batch, 5)
         # equinox's Compiled wraps jax's: `.compiled` has XLA's memory analysis
         scratch[batch] = lowered.compile().compiled.memory_analysis().temp_size_in_bytes

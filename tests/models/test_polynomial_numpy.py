@@ -14,7 +14,7 @@ from tests.helpers import central_difference  # noqa: E402
 
 from jthermo.data import from_arrays  # noqa: E402
 from jthermo.identify.polynomial import (  # noqa: E402
-    PolySpec, _embedding, _padded_spec, fit_polynomial, poly_args, poly_cost,
+    PolySpec, parameter_embedding, padded_spec, fit_polynomial, poly_args, poly_cost,
 )
 from jthermo.models import polynomial_numpy as pn  # noqa: E402
 from jthermo.models.polynomial import OE, Polynomial  # noqa: E402
@@ -74,8 +74,8 @@ def test_masked_cost_in_a_larger_shape_equals_the_own_cost_and_its_gradient(spec
     T = 150
     y = jnp.asarray(np.cumsum(rng.standard_normal((T, 2)), axis=0) * 0.1)
     u = jnp.asarray(rng.uniform(0, 1, (T, spec.nu)))
-    padded = _padded_spec(spec, big, ((1,) * spec.nu,) * 2)
-    idx = _embedding(spec, padded)
+    padded = padded_spec(spec, big, ((1,) * spec.nu,) * 2)
+    idx = parameter_embedding(spec, padded)
     assert padded.n_params > spec.n_params and len(set(idx)) == spec.n_params
     own = tuple(a[0] for a in poly_args(y, u, spec, 1, False)[:4]) + (spec,)
     mask = np.zeros(padded.n_params)

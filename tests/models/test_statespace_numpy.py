@@ -7,7 +7,7 @@ import pytest
 
 from jthermo.data import from_arrays
 from jthermo.models import polynomial
-from jthermo.models._base import StateSpace
+from jthermo.models import StateSpace
 from jthermo.models.greybox import BedModel
 from jthermo.models import statespace_numpy as ssn
 from jthermo.validate import compare, estimate_initial_state

@@ -126,6 +126,6 @@ def test_evaluate_compiles_one_program_for_every_kind():
     for k in kinds:
         sc = compiled_make_scenario()(k, plant, kw["duration"], jax.random.key(7), n_rollouts=2)
         assert sc.kind == k
-        J, m = jax.device_get(report._quick_evaluate()[0](plant, ctrl, sc, None))
+        J, m = jax.device_get(report.quick_evaluate()[0](plant, ctrl, sc, None))
         assert got["scenarios"][k]["cost"] == float(J)
         assert got["scenarios"][k]["mse"] == float(m["mse"])

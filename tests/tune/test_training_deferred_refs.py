@@ -14,7 +14,7 @@ import pytest
 from jthermo.control import design
 from jthermo.errors import ControlError
 from jthermo.tune import group_batch, optimiser, robust_objective, tune
-from jthermo.tune.training import _caster, _robust_objective_jit, best_reference_terms
+from jthermo.tune.training import best_reference_terms, caster, robust_objective_jit
 from tests.control.loop import bed_plant
 from tests.tune.test_optimiser import _scenarios
 
@@ -40,13 +40,13 @@ def test_deferred_references_give_the_same_tuning_with_one_step_program(setup, d
     direct = tune(start, plant, **kw)
     calls: list[int] = []
     best = best_reference_terms([start, *refs], batch, None)
-    inner = optimiser._adam_iterates
+    inner = optimiser.adam_iterates
 
     def spy(objective, z, batches, steps, lr, template=None):
         assert template is not None             # compiled on placeholders first
         return inner(objective, z, lambda: calls.append(1) or batches(), steps, lr, template)
 
-    monkeypatch.setattr(optimiser, "_adam_iterates", spy)
+    monkeypatch.setattr(optimiser, "adam_iterates", spy)
     caplog.clear()
     with jax.log_compiles(True), caplog.at_level(logging.WARNING):
         deferred = tune(start, plant, reference_terms=lambda: best, **kw)
@@ -71,7 +71,7 @@ def test_host_stacking_and_cast_are_the_eager_bits(setup):
     for a, b in zip(got, jax.tree.leaves(want)):
         assert a.dtype == b.dtype and a.weak_type == b.weak_type
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    low = _caster("float32")
+    low = caster("float32")
     for a, b in zip(jax.tree.leaves(low(groups)), jax.tree.leaves(groups)):
         if eqx.is_inexact_array(b):
             assert a.dtype == jnp.float32
@@ -83,4 +83,4 @@ def test_guard_objective_program_is_the_eager_value_bit_for_bit():
     for _ in range(50):
         v, best = rng.uniform(0.2, 3.0, (2, 9, 2))
         eager = float(robust_objective(jnp.asarray(v), jnp.asarray(best), 0.02))
-        assert float(_robust_objective_jit()(v, best, 0.02)) == eager
+        assert float(robust_objective_jit()(v, best, 0.02)) == eager

@@ -12,7 +12,7 @@ from jax.flatten_util import ravel_pytree
 from jthermo.control import design
 from jthermo.errors import ControlError
 from jthermo.tune import batch_terms, group_batch, robust_objective, tune
-from jthermo.tune.training import _caster
+from jthermo.tune.training import caster
 from tests.control.loop import bed_plant
 from tests.helpers import central_difference
 from tests.tune.test_optimiser import _scenarios
@@ -23,7 +23,7 @@ def test_float32_objective_gradient_matches_float64_central_differences():
     groups = group_batch([(plant, "custom", _scenarios(plant, seed=s)) for s in (0, 1)])
     start = design("pi_lambda", plant)
     ref = batch_terms(start, groups, None)
-    low = _caster("float32")
+    low = caster("float32")
     g32, ref32 = low(groups), low(ref)
     params, static = eqx.partition(start, eqx.is_inexact_array)
     flat, unravel = ravel_pytree(params)

@@ -81,9 +81,9 @@ def test_fit_percent_of_a_flat_output_is_undefined():
     """An output whose variation is rounding error of its level has no fit % (it was a ratio to
     that error: -1e291 % in a diagnosis of a constant record)."""
     y = np.full((50, 1), 25.0) + np.r_[np.zeros(49), 1e-13][:, None]
-    from jthermo.validate.simulation import _fit_percent_np
+    from jthermo.validate.simulation import fit_percent_np
 
-    for f in (V.fit_percent, _fit_percent_np):
+    for f in (V.fit_percent, fit_percent_np):
         with pytest.raises(DataError, match="output 0 is constant"):
             f(y, y + 0.1)
     assert float(V.fit_percent(y + np.arange(50)[:, None] * 1e-3, y)[0]) < 100.0
