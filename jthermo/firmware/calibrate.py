@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -64,7 +65,7 @@ FAN = "fan"
 
 def _heater_names(d: data_mod.IOData) -> list[str]:
     """Heater names of the outputs: `extruder_C` (the converted logs' unit suffix) -> `extruder`."""
-    return [n[:-2] if n.endswith("_C") else n for n in d.output_names]
+    return [n.removesuffix("_C") for n in d.output_names]
 
 
 def _prepare(d: data_mod.IOData, heater: str | None, what: str):
@@ -156,8 +157,9 @@ def _load(two: dict | None, r, env) -> tuple:
         rt = two["rates"]
         size = rt["fan_rate"] * (float(np.asarray(r).ravel()[0]) - two["ambient_C"]) / rt["heating_rate"]
         if size > 0:
-            return (np.full(1, size), f"the part-cooling fan from off to full, a heat sink of "
-                    f"{size:.3g} duty (from the two-state fit)")
+            what = (f"the part-cooling fan from off to full, a heat sink of {size:.3g} duty "
+                    "(from the two-state fit)")
+            return np.full(1, size), what
     return None, ("an input-referred heat sink of a quarter of the recorded duty's spread "
                   "(no fan in the record: no fan step)")
 
@@ -194,6 +196,23 @@ def _diagnosis(est, val, seed, say) -> dict:
             "confidence": f[0]["confidence"], "verdict": res["verdict"]}
 
 
+def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
+    """Every controller's `tuning.evaluate` figures on `plant`, controllers of one structure
+    (the Klipper PIDs) simulated as one batch; and `{name: {kind: (y, u, r)}}` of the first
+    rollout, for the figures."""
+    groups: dict = {}
+    for n, c in ctrls.items():
+        groups.setdefault(jax.tree_util.tree_structure(c), []).append(n)
+    table, first = {}, {}
+    for names in groups.values():
+        trajs = tuning.runs([ctrls[n] for n in names], plant, scs)
+        for i, (n, row) in enumerate(zip(names, tuning.rows(trajs, scs, len(names)))):
+            table[n] = row
+            first[n] = {k: tuple(np.asarray(a[i, 0]) for a in (t.y, t.u, t.r))
+                        for k, t in trajs.items()}
+    return table, first
+
+
 def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heater=None,
               setpoint=None, seed: int = 0, steps: int = STEPS, rollouts: int = ROLLOUTS,
               heater_power: float = mpc.HEATER_POWER_W, diagnosis: bool = True,
@@ -204,9 +223,6 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     run the diagnosis, draw the figures; `command`: named in the report beside them. Returns
     the JSON-ready report (`model`, `setpoints`, `finding`, `verdict`, `controllers`,
     `floor_plus_noise`, `load`, `mpc`, `firmware`, `files`)."""
-    from .. import io
-    from .._files import atomic_write_text
-
     say = progress or (lambda s: None)
     if firmware not in settings.FILE_NAMES:
         raise ConfigError(f"--firmware must be one of {', '.join(settings.FILE_NAMES)}")
@@ -234,8 +250,27 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     except JThermoError:
         val_model, plant_name = model, "the design model (the validation record gave no plant)"
     say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
-    diag = _diagnosis(est, val, seed, say) if diagnosis else {"finding": "not run",
-                                                                "mechanism": None}
+    # the diagnosis runs beside the tuning (a second core)
+    pool = ThreadPoolExecutor(1)
+    try:
+        pending = pool.submit(_diagnosis, est, val, seed, say) if diagnosis else None
+        report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
+                                 val_model, plant_name, heaters, firmware=firmware, seed=seed,
+                                 steps=steps, rollouts=rollouts, heater_power=heater_power,
+                                 figures=figures, command=command, say=say, pending=pending)
+    finally:
+        pool.shutdown(wait=True)
+    return report
+
+
+def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
+                    plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
+                    figures, command, say, pending) -> dict:
+    """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
+    (the diagnosis `pending` in another thread, collected before the report)."""
+    from .. import io
+    from .._files import atomic_write_text
+
     two = _two_state(est, val, float(heater_power), say)
     load, load_what = _load(two, r, env)
 
@@ -269,8 +304,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         except JThermoError:
             continue
     say(f"judging {len(ctrls)} controllers on {plant_name}")
-    scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
-    table = {n: tuning.evaluate(c, val_model, scs) for n, c in ctrls.items()}
+    table, first = _judge(ctrls, val_model, tuning.scenarios(val_model, env, r, duration,
+                                                             seed + 1, rollouts, load))
     lim = limits(val_model, env, r, duration, seed)
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
     controllers = [{"name": n, "kind": kinds[n], **{k: table[n][k] for k in keys}} for n in ctrls]
@@ -299,8 +334,9 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
             fits["two-state"] = [two["validation_fit_percent"]]
         figs = report_mod.figures(out, val=val, yhat=yhat, fits=fits,
                                   models={"design": model, "validation": val_model},
-                                  ctrls=ctrls, plant=val_model, env=env, r=r,
-                                  duration=duration, seed=seed)
+                                  runs=first, ts=float(env.ts), duration=duration)
+    diag = pending.result() if pending is not None else {"finding": "not run",
+                                                          "mechanism": None}
     report = {"model": {"family": fam, "orders": dict(getattr(res, "orders", None) or {}),
                         "validation_fit_percent": score},
               "setpoints": np.asarray(r).tolist(), "heaters": heaters, "ts": float(est.ts),
@@ -345,8 +381,9 @@ def _verdict(table: dict, lim: dict) -> str:
         bar = "pi_lambda"
     ref = table.get(bar)
     if ref:
-        parts.append(f"{100 * (1 - fw['mse'] / ref['mse']):+.0f} % below {bar}'s MSE "
-                     f"{ref['mse']:.3g}")
+        pct = 100 * (1 - fw["mse"] / ref["mse"])
+        side = "below" if pct >= 0 else "above"
+        parts.append(f"{abs(pct):.0f} % {side} {bar}'s MSE {ref['mse']:.3g}")
         if bound and ref["mse"] < 1.25 * bound:
             parts.append(f"{bar} is itself within {100 * (ref['mse'] / bound - 1):.0f} % of the "
                          "floor + noise: 20 % below it is below the floor + noise")

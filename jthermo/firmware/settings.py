@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..errors import ConfigError
 from .pid import HOLD_S, MIN_PWM_CHANGE_RATIO, PID_PARAM_BASE, KlipperPID
 
@@ -64,9 +62,9 @@ def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "", mpc: dict | None = N
     a hot end with MPC constants (`mpc`: {heater: constants}) gets its `M306` line as a
     commented-out alternative (for a firmware built with `MPCTEMP`)."""
     out = [f"; {line}" for line in note.splitlines()] if note else []
-    out += ["; Marlin's derivative is filtered by PID_K1 = 0.95 per PID_dT and its PID acts only "
+    out += [("; Marlin's derivative is filtered by PID_K1 = 0.95 per PID_dT and its PID acts only "
             "within PID_FUNCTIONAL_RANGE of the target; these gains were tuned under Klipper's law "
-            "with the same units (PID_MAX = 255)."]
+            "with the same units (PID_MAX = 255).")]
     e = 0
     for h, g in zip(heaters, ctrl.gains()):
         gains = f"P{_f(g['pid_Kp'])} I{_f(g['pid_Ki'])} D{_f(g['pid_Kd'])}"
@@ -109,8 +107,8 @@ def kalico_cfg(ctrl: KlipperPID, heaters, mpc: dict | None = None, note: str = "
                  f"# sensor_responsiveness: {_g(c['sensor_responsiveness'])}",
                  f"# ambient_transfer: {_g(c['ambient_transfer'])}"]
         if c.get("fan_ambient_transfer", c["ambient_transfer"]) != c["ambient_transfer"]:
-            lines += ["# cooling_fan: fan", "# fan_ambient_transfer: "
-                      f"{_g(c['ambient_transfer'])}, {_g(c['fan_ambient_transfer'])}"]
+            pair = f"{_g(c['ambient_transfer'])}, {_g(c['fan_ambient_transfer'])}"
+            lines += ["# cooling_fan: fan", f"# fan_ambient_transfer: {pair}"]
         text += "\n" + "\n".join(lines) + "\n"
     return text
 
@@ -129,7 +127,7 @@ def c_source(ctrl: KlipperPID, name: str = "jthermo_heater") -> str:
     """Klipper's law in C (one state struct per heater, `*_update` once per reading)."""
     g = ctrl.gains()
     n = len(g)
-    arr = lambda k: ", ".join(repr(float(x[k])) for x in g)   # noqa: E731
+    arr = lambda k: ", ".join(repr(float(x[k])) for x in g)
     return f"""/* Klipper's heater PID (klippy/extras/heaters.py, ControlPID), tuned by jthermo.
  * Call {name}_update(state, i, dt, temp, target) once per sensor reading; returns the duty. */
 #include <math.h>

@@ -64,16 +64,26 @@ def _runs(plant, stacked, sc):
     return eqx.filter_vmap(lambda c: run_rollouts(plant, c, sc))(stacked)
 
 
-def evaluate_many(ctrls, plant, scs: dict) -> list[dict]:
-    """`evaluate` of controllers of one structure (e.g. the grid), simulated as one batch."""
+def runs(ctrls, plant, scs: dict) -> dict:
+    """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated as one
+    batch: leading axis the controller, then the rollout."""
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *ctrls)
-    trajs = {k: _runs(plant, stacked, s) for k, s in scs.items()}
+    return {k: _runs(plant, stacked, s) for k, s in scs.items()}
+
+
+def rows(trajs: dict, scs: dict, n: int) -> list[dict]:
+    """`evaluate`'s figures of each of the `n` controllers of `runs`' trajectories."""
     out = []
-    for i in range(len(ctrls)):
-        m = {k: metrics(jax.tree_util.tree_map(lambda x: x[i], t), scs[k])
+    for i in range(n):
+        m = {k: metrics(jax.tree_util.tree_map(lambda x, i=i: x[i], t), scs[k])
              for k, t in trajs.items()}
         out.append(_row(m))
     return out
+
+
+def evaluate_many(ctrls, plant, scs: dict) -> list[dict]:
+    """`evaluate` of controllers of one structure, simulated as one batch."""
+    return rows(runs(ctrls, plant, scs), scs, len(ctrls))
 
 
 def evaluate(ctrl, plant, scs: dict) -> dict:
@@ -162,5 +172,6 @@ def tune_firmware_pid(model, env, r, ku, tu, *, duration: float, seed: int, roll
 
 
 __all__ = ["ALPHAS", "BETAS", "GAMMAS", "KINDS", "LOAD_WEIGHT", "MAX_OVERSHOOT_C",
-           "MAX_SATURATED", "evaluate", "evaluate_many", "grid", "rank", "scenarios", "score",
+           "MAX_SATURATED", "evaluate", "evaluate_many", "grid", "rank", "rows", "runs",
+           "scenarios", "score",
            "tune_firmware_pid", "ultimate", "violation"]

@@ -40,7 +40,7 @@ def test_firmware_file_and_report(calibrated):
                                                "load_mse"))
     cfg = (calibrated / "res" / "firmware.cfg").read_text()
     assert "[extruder]" in cfg and "control: pid" in cfg
-    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]): ([\d.]+)$", cfg, re.M)}
+    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]): ([\d.]+)$", cfg, re.MULTILINE)}
     ctrl = io.load_controller(calibrated / "res" / "controller.jtm")
     assert isinstance(ctrl, KlipperPID)
     assert ctrl.gains()[0] == pytest.approx(gains, abs=0)    # the file runs what was judged
@@ -61,7 +61,7 @@ def test_marlin_file_has_mpc_line(calibrated):
                  "--heater-power", "50", "--json", str(root / "m.json"), "--quiet"]) == 0
     rep = json.loads((root / "m.json").read_text())
     text = (root / "marlin" / "firmware.gcode").read_text()
-    assert re.search(r"^M301 E0 P[\d.]+ I[\d.]+ D[\d.]+ ; extruder$", text, re.M)
+    assert re.search(r"^M301 E0 P[\d.]+ I[\d.]+ D[\d.]+ ; extruder$", text, re.MULTILINE)
     assert rep["mpc"]["constants"]["heater_power"] == 50.0
     m = re.search(r"M306 E0 P50 C([\d.e+-]+) R([\d.e+-]+) A([\d.e+-]+) F", text)
     assert m and float(m.group(1)) == pytest.approx(rep["mpc"]["constants"]["block_heat_capacity"])

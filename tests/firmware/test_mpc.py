@@ -37,7 +37,7 @@ def test_exported_constants_reproduce_step_response(h, a, R, af):
     assert (m["F"] - m["A"]) / m["C"] == pytest.approx(af, abs=1e-9)
     # Kalico's keys (commented-out alternative in the kalico file)
     text = settings.kalico_cfg(KlipperPID(20.0, 1.0, 100.0), ["extruder"], {"extruder": c})
-    k = {kk: v for kk, v in re.findall(r"^# (\w+): ([-\d.e+]+)$", text, re.M)}
+    k = {kk: v for kk, v in re.findall(r"^# (\w+): ([-\d.e+]+)$", text, re.MULTILINE)}
     got = step_closed_form(float(k["heater_power"]) / float(k["block_heat_capacity"]),
                            float(k["ambient_transfer"]) / float(k["block_heat_capacity"]),
                            float(k["sensor_responsiveness"]), t)
@@ -82,6 +82,12 @@ def test_fit_recovers_constants():
     assert c["block_heat_capacity"] == pytest.approx(40.0 / h, rel=0.02)
     sim = mpc.simulate(c, u, fan, ts=0.3, ambient=res["ambient_C"], y0=y[0])
     assert np.sqrt(np.mean((sim - y) ** 2)) < 0.1
+    # the fitted model's own step response against the exported M306 line's
+    t = np.arange(0, 1200.0, 0.3)
+    m = parse_m306(settings.marlin_mpc(c))
+    ref = step_closed_form(rt["heating_rate"], rt["ambient_rate"], rt["sensor_responsiveness"], t)
+    got = step_closed_form(m["P"] / m["C"], m["A"] / m["C"], m["R"], t)
+    assert np.max(np.abs(got - ref)) < 1e-6
 
 
 def test_flat_record_refused():
