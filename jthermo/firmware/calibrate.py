@@ -190,7 +190,7 @@ def _diagnosis(est, val, seed, say) -> dict:
     if not f:
         return {"finding": "the diagnosis finds no significant mismatch among "
                 f"{', '.join(DIAGNOSE_MECHANISMS)} (baseline fit "
-                f"{res['baseline']['mean_fit_percent']:.1f} %)", "mechanism": None,
+                f"{res['baseline']['mean_fit_percent']:.1f} %).", "mechanism": None,
                 "verdict": res["verdict"]}
     return {"finding": f[0]["summary"], "mechanism": f[0]["mechanism"],
             "confidence": f[0]["confidence"], "verdict": res["verdict"]}
