@@ -30,8 +30,8 @@ from .common import (
 
 #: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
 #: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
-#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by `python
-#: benchmarks/tuning_profile_default.py` and `python benchmarks/tuning_optimisers.py`); lqg at
+#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by
+#: `python benchmarks/tuning_optimisers.py`); lqg at
 #: 30 steps of learning rate 0.1 (`SHORT_LR`) does as well below lambda PI as at 60 steps of
 #: 0.05 or at 150 (measured by `python benchmarks/tuning_rollouts.py`); pi at 40 steps of 0.075
 #: falls short
@@ -159,14 +159,14 @@ def setpoints(text: str) -> list[float]:
 
 
 def _own_plant(args, plant, model_file):
-    """The envelope and set point of a fitted plant: the recording stored with `model_file`
-    (else with the plant's file; a stand-in for files without one) and `--setpoint` checked
-    against what the heaters can reach (exit 2 with one line otherwise)."""
+    """The envelope and (printed) operating point of a fitted plant (`models.operating`): the
+    recording stored with the plant's file (else `model_file`'s; a stand-in without one)."""
     from .. import io
-    from ..models.envelope import Envelope, check_reachable
+    from ..models.envelope import Envelope
+    from ..models.operating import operating_point
 
     env = None
-    for f in (model_file, args.plant):
+    for f in (args.plant, model_file):
         if f is not None and f != "printer":
             env = io.load_envelope(f)
             if env is not None:
@@ -176,8 +176,10 @@ def _own_plant(args, plant, model_file):
     if sp is not None and len(sp) not in (1, env.n_outputs):
         raise ConfigError(f"--setpoint: give one value or {env.n_outputs} (one per output), "
                           f"got {len(sp)}")
-    r = check_reachable(plant, env, env.default_setpoint(plant) if sp is None else sp)
-    return env, r
+    op = operating_point(plant, env, sp)
+    info(args, op.line())
+    args.operating_point = op
+    return env, op.r
 
 
 def _controller_family(name: str) -> str:
@@ -371,6 +373,8 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
               "seed": args.seed}
     if plant_desc == "printer":
         report["printer_seed"] = args.printer_seed
+    if own:
+        report["operating_point"] = args.operating_point.to_dict()
     report.setdefault("seconds", seconds)
     if plot is not None and traj is not None:
         from .. import plots
@@ -444,7 +448,7 @@ def cmd_tune(args: argparse.Namespace) -> dict:
             raise ConfigError(f"tune: the model has {model.n_inputs} heater(s) and {model.n_outputs} "
                               "sensor(s); the controllers need one sensor per heater: fit it on "
                               "the heated zones' sensors (`jthermo fit ... --outputs NAME[,NAME...]`)")
-        env, r = _own_plant(args, model, args.model)
+        env, r = _own_plant(args, plant, args.model)
         if args.validation_plant is not None:
             input_file(args.validation_plant, "--validation-plant")
             validation = io.load_model(args.validation_plant)
@@ -476,6 +480,8 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         rep.pop(k)
     costs = rep.get("costs") or rep.get("history")
     report = {"controller": args.controller, **rep, "seed": args.seed}
+    if own:
+        report["operating_point"] = args.operating_point.to_dict()
     report["tuned_vs_start_percent"] = _gain(report.get("start_cost"), report.get("tuned_cost"))
     if not own:
         report["printer_seed"] = args.printer_seed
@@ -491,7 +497,9 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         if tuned is None:
             raise ConfigError("tune: the tuning result holds no controller to save")
         io.save(tuned, out, meta={"family": args.controller, "seed": args.seed,
-                                  "tuned_cost": report.get("tuned_cost")})
+                                  "tuned_cost": report.get("tuned_cost"),
+                                  **({"operating_point": report["operating_point"]}
+                                     if own else {})})
         report["out"] = str(out)
     report = write_report(args, js, report)
     kept = " (the tuning kept its start: no step beat it on held-out rollouts)" \

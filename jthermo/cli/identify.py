@@ -44,6 +44,11 @@ def add_parsers(sub) -> None:
                     "a measured size or on one core, else compiled), jax (compiled: pays its "
                     "compilation, then uses every core) or numpy (nothing compiled, one core; "
                     "diagonal A)")
+    sp.add_argument("--physics", choices=("heat", "none"), default="heat",
+                    help="heat (default: inputs are heat commands, outputs temperatures; the "
+                    "model is stable, no heater lowers a sensor's steady temperature, no "
+                    "inverse step response, logged set points w_*target* left out) or none "
+                    "(any linear system, every column as given)")
     sp.add_argument("--rest-level", metavar="T[,T...]",
                     help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
                     "(e.g. the measured ambient, °C; one number or one per output)")
@@ -118,7 +123,11 @@ def _model_columns(data, model, meta: dict):
     inputs constant in its record, or kept `--outputs`), by the names in the model's header."""
     from ..data import keep_inputs, keep_outputs
 
-    ins, outs = meta.get("inputs"), meta.get("outputs")
+    ins, outs, sig = meta.get("inputs"), meta.get("outputs"), meta.get("signals")
+    if sig is not None and list(data.signal_names) != list(sig) \
+            and all(n in data.signal_names for n in sig):
+        keep = [data.signal_names.index(n) for n in sig]
+        data = data.replace(w=data.w[:, keep], signal_names=tuple(sig))
     if outs and len(outs) == model.n_outputs and data.n_outputs > model.n_outputs:
         data = keep_outputs(data, outs)
     if ins and len(ins) == model.n_inputs and data.n_inputs > model.n_inputs:
@@ -146,7 +155,23 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         names = [n.strip() for n in args.outputs.split(",")]
         est = keep_outputs(est, names, "--outputs")
         val = None if val is None else keep_outputs(val, names, "--outputs (validation data)")
+    signals_dropped = []
+    if args.physics == "heat":
+        from ..identify.heat import heat_data
+
+        est, left = heat_data(est)
+        signals_dropped = left["dropped_signals"]
+        if val is not None and signals_dropped:
+            keep = [j for j, n in enumerate(val.signal_names) if n not in signals_dropped]
+            val = val.replace(w=val.w[:, keep], signal_names=tuple(val.signal_names[j] for j in keep))
+        if left["dropped_inputs"]:      # the same inputs left out of the validation record
+            from ..data import keep_inputs
+
+            val = None if val is None else keep_inputs(val, est.input_names, "validation data")
+    else:
+        left = {"dropped_inputs": []}
     est, val, dropped = _leave_out_idle_inputs(est, val)
+    dropped = left["dropped_inputs"] + dropped
     fit_mod = require("jthermo.identify.fit", "identification (fit)")
     validate = require("jthermo.validate", "validation")
 
@@ -154,15 +179,19 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     t0 = time.perf_counter()
     try:
         res = fit_mod.fit(est, family, None if orders is None else tuple(orders.values()),
-                          seed=args.seed, progress=bar, **extra)
+                          seed=args.seed, progress=bar, physics=args.physics, **extra)
     finally:
         bar.close()
     seconds = time.perf_counter() - t0
     target = val if val is not None else est
     cmp = validate.compare(res.model, target)
-    plausible = require("jthermo.validate.plausibility", "validation").check_fit(
-        res.model, getattr(res, "envelope", None), input_names=est.input_names,
-        output_names=est.output_names)
+    physics = (getattr(res, "extra", None) or {}).get("physics")
+    if physics is not None:
+        plausible = {"warnings": physics["warnings"]}
+    else:
+        plausible = require("jthermo.validate.plausibility", "validation").check_fit(
+            res.model, getattr(res, "envelope", None), input_names=est.input_names,
+            output_names=est.output_names)
     report = {
         "model": family,
         "orders": dict(getattr(res, "orders", None) or orders or {}),
@@ -190,6 +219,10 @@ def cmd_fit(args: argparse.Namespace) -> dict:
         "data_notes": list(est.notes) + (list(val.notes) if val is not None else []),
         "inputs": list(est.input_names),
         "dropped_inputs": dropped,
+        "signals": list(est.signal_names),
+        "dropped_signals": signals_dropped,
+        # the heat path: each candidate tried, why it was kept or passed over, the verdict
+        "physics": physics,
         "outputs": list(est.output_names),
         "seed": args.seed,
     }
@@ -207,6 +240,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
                                       "data": str(args.data), "seed": args.seed,
                                       "inputs": list(est.input_names),
                                       "outputs": list(est.output_names),
+                                      "signals": list(est.signal_names),
+                                      "physics": args.physics,
                                       "fit_percent": cmp["fit_percent"],
                                       **({"envelope": res.envelope.to_dict()}
                                          if getattr(res, "envelope", None) else {})})
@@ -214,8 +249,11 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     report = write_report(args, js, report)
     for w in report["warnings"]:     # physically implausible, not fatal: the fit stands
         print(f"warning: {w}", file=sys.stderr)
+    if signals_dropped:
+        print(f"note: {', '.join('w_' + n for n in signals_dropped)}: a logged set point, left "
+              "out of the model (neither an input nor a disturbance of the plant)", file=sys.stderr)
     if dropped:
-        print(f"note: {', '.join('u_' + n for n in dropped)} constant in the record: left out "
+        print(f"warning: {', '.join('u_' + n for n in dropped)} constant in the record: left out "
               "of the model (a constant input's effect cannot be told from the level)", file=sys.stderr)
     for n in validate.level_offset_notes(report["level_offsets"]):
         print(f"note: on the {report['fit_on']} data, {n}", file=sys.stderr)

@@ -18,12 +18,14 @@ from typing import Callable
 
 import numpy as np
 
+from .. import runtime
 from ..data import IOData, require_excitation, require_output_variation
 from ..errors import ConfigError, DataError, ModelError
 from ..models import polynomial_numpy
 from ..models.envelope import Envelope
 
 # the fitters register themselves in `FITTERS` when their modules load
+from . import heat
 from .greybox import fit_greybox
 from .orders import CRITERIA, DEFAULT_GRIDS, select_orders
 from .polynomial import (
@@ -61,7 +63,7 @@ def _check_orders(family: str, orders) -> dict[str, int]:
 
 def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, seed: int = 0,
         n_starts: int = 8, criterion: str = "aic", progress: Callable | None = None,
-        **kw) -> FitResult:
+        physics: str = "heat", **kw) -> FitResult:
     """Fit a model of `family` to estimation data.
 
     **Arguments:**
@@ -72,12 +74,17 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
     - `seed`, `n_starts`: multi-start (start points solved together with `vmap`).
     - `criterion`: `aic`, `bic` or `fpe` for automatic orders.
     - `progress`: optional callable receiving one-line status strings.
+    - `physics`: `"heat"` (the default: inputs are heat commands, outputs temperatures; the
+      model is fitted as heat behaves, `identify.heat`: logged set points and constant inputs
+      left out, `extra["physics"]` the selection path and verdict) or `"none"` (any linear
+      system, every column as given).
     - `**kw`: passed on (`full_a`, `solver`, `max_steps`, `covariance`, `offset`,
       `rest_level`, `common_f`, ... for polynomial families, see `fit_polynomial`; whatever
       `fit_statespace` / `fit_greybox` accept otherwise); an unknown option is a `ConfigError`.
 
     **Returns:** a `FitResult`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t0 = time.perf_counter()
     if not isinstance(family, str) or family.lower() not in FAMILIES:
         raise ModelError(f"fit: unknown model family {family!r} (expected one of {', '.join(FAMILIES)})")
@@ -88,12 +95,22 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
         raise ConfigError(f"fit: n_starts must be an integer >= 1, got {n_starts!r}")
     if not isinstance(data, IOData):
         raise DataError(f"fit: expected IOData, got {type(data).__name__}")
+    if physics not in heat.PHYSICS:
+        raise ConfigError(f"fit: physics must be one of {', '.join(heat.PHYSICS)}, got {physics!r}")
     o = _check_orders(family, orders) if orders is not None else None
+    if physics == "heat":
+        data, dropped = heat.heat_data(data)
     require_excitation(data)
     require_output_variation(data)
     fitter = FITTERS[family]
     _check_options(fitter.options, kw, family)
     table = None
+    if physics == "heat":
+        res, path, table = _fit_heat(data, family, fitter, o, criterion, seed=seed,
+                                     n_starts=n_starts, progress=progress, **kw)
+        res = heat.with_report(res, data, path, dropped)
+        return dataclasses.replace(_complete(res, family, table, t0),
+                                   envelope=Envelope.from_data(data))
     if o is None and family in DEFAULT_GRIDS and not kw.get("full_a", False):
         if progress:
             progress(f"screening {family} orders by {criterion}")
@@ -107,6 +124,38 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
         res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
     return dataclasses.replace(_complete(res, family, table, t0),
                                envelope=Envelope.from_data(data))
+
+
+def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str, *, seed: int,
+              n_starts: int, progress, **kw):
+    """`(result, path, table)` of the heat path (`identify.heat`)."""
+    if family == "ss":
+        res, path = heat.fit_ss_heat(data, o, criterion, **kw)
+        return res, path, None
+    if family == "greybox":
+        res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress,
+                         **heat.greybox_options(data, kw))
+        return res, [f"greybox: {'surroundings measured' if res.model.n_signals else 'surroundings fitted'}"], None
+    if o is not None or kw.get("full_a", False):
+        table = None
+        if o is None:       # a full A: the PEM grid
+            o, table = select_orders(data, family, criterion=criterion, full_a=True, seed=seed,
+                                     n_starts=1)
+        res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
+        chk = heat.heat_check(res.model, data)
+        if not chk["plausible"]:
+            raise ModelError(f"fit: {family} {','.join(f'{k}={v}' for k, v in (o or {}).items())}"
+                             f" is not a plant heat could be ({chk['warnings'][0]}); leave the "
+                             "orders to the automatic choice, or physics='none'")
+        return res, [f"{family} {','.join(f'{k}={v}' for k, v in o.items())}: plausible"], table
+
+    def screen(d, fam):
+        if progress:
+            progress(f"screening {fam} orders by {criterion}")
+        return screen_orders(d, fam, criterion=criterion)
+
+    return heat.fit_polynomial_heat(data, family, fitter, screen, criterion, seed=seed,
+                                    n_starts=n_starts, progress=progress, **kw)
 
 
 def _confirm(data: IOData, family: str, fitter, candidates: list[dict], table: list[dict],

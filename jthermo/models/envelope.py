@@ -46,7 +46,10 @@ class Envelope:
       surroundings), °C.
     - `noise_std`: the outputs' white measurement noise, °C (median absolute deviation of the
       second differences, which the smooth thermal response hardly reaches).
-    - `w_mean`: mean of each measured signal (the surroundings the scenarios hold), or ().
+    - `w_mean`: mean of each measured signal, or ().
+    - `w_median`: median of each measured signal (the level the operating point and the
+      scenarios hold: a fan run half the time at full speed is held at what it mostly did), or
+      () (a record written without it: `w_mean` is held).
     """
 
     ts: float
@@ -59,6 +62,7 @@ class Envelope:
     rest: tuple[float, ...]
     noise_std: tuple[float, ...]
     w_mean: tuple[float, ...] = ()
+    w_median: tuple[float, ...] = ()
 
     def __post_init__(self):
         ny, nu = len(self.y_min), len(self.u_min)
@@ -105,7 +109,8 @@ class Envelope:
         return cls(ts=float(data.ts), y_min=_floats(y.min(axis=0)), y_max=_floats(y.max(axis=0)),
                    u_min=_floats(lo), u_max=_floats(hi), u_mean=_floats(u.mean(axis=0)),
                    u_std=_floats(u.std(axis=0)), rest=_floats(rest), noise_std=_floats(noise),
-                   w_mean=_floats(w.mean(axis=0)) if w.shape[1] else ())
+                   w_mean=_floats(w.mean(axis=0)) if w.shape[1] else (),
+                   w_median=_floats(np.median(w, axis=0)) if w.shape[1] else ())
 
     @classmethod
     def from_model(cls, model: AbstractModel) -> "Envelope":
@@ -157,10 +162,12 @@ class Envelope:
         return self
 
     def signals(self, model: AbstractModel) -> np.ndarray:
-        """The measured signals the scenarios hold constant: their recorded means (else the
-        model's own `w0`)."""
+        """The measured signals the operating point and the scenarios hold constant: their
+        recorded medians (else means, else the model's own `w0`)."""
         ss = model.to_statespace()
         nw = int(ss.Bw.shape[1])
+        if len(self.w_median) == nw:
+            return np.asarray(self.w_median, np.float64)
         if len(self.w_mean) == nw:
             return np.asarray(self.w_mean, np.float64)
         return np.asarray(ss.w0, np.float64).reshape(nw)

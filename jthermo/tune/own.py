@@ -22,6 +22,7 @@ from ..closedloop import metrics, model_duration, model_scenario
 from ..closedloop import rollouts as run_rollouts
 from ..control.design import design
 from ..control.pi import DiagonalPI, with_setpoint_weight
+from ..models.operating import operating_point
 from ..control.relay import DiagonalPID
 from ..errors import ConfigError, ControlError
 from ..models._base import AbstractModel
@@ -309,8 +310,8 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     term's value for the starting design on the training scenarios (`term_scales`): at the
     start every term contributes its weight, so each weight moves the result.
 
-    **Arguments:**
-    - `setpoint`: °C, scalar or per output (default `envelope.default_setpoint(model)`); one
+    - `setpoint`: °C, scalar or per output (default: the plant's operating point,
+      `models.operating.operating_point`); one
       the heaters cannot hold is a `ConfigError` saying what they can reach.
     - `validation_plant`: a second model (e.g. fitted to another record) on which the tuned
       and classical controllers are judged as well, never tuned on.
@@ -345,9 +346,10 @@ def tune_own_plant(controller_family: str, model: AbstractModel, *, plant=None,
     if validation_plant is not None:
         _same_plant_shape(model, validation_plant, "tune: the validation plant")
     env = (Envelope.from_model(model) if envelope is None else envelope).check(model)
-    r = check_reachable(model, env, env.default_setpoint(model) if setpoint is None else setpoint)
-    for other, what in ((plant, "the plant"), (validation_plant, "the validation plant")):
-        if other is not None and other is not model:
+    # the plant's one operating point (`models.operating`), held by the design model too
+    r = np.asarray(operating_point(plant, env, setpoint).setpoint)
+    for other, what in ((model, "the design model"), (validation_plant, "the validation plant")):
+        if other is not None and other is not plant:
             try:
                 check_reachable(other, env, r)
             except ConfigError as exc:

@@ -72,8 +72,10 @@ def test_heater_cooling_its_own_sensor_and_unstable_model():
 
 @pytest.mark.parametrize("fast_gain", [-30.0, 30.0])
 def test_cli_fit_reports_implausible_models_as_warnings(tmp_path, capsys, fast_gain):
-    """`jthermo fit` on a record of an inverse-response heater: exit 0, the model is written,
-    and the finding is in the text (stderr) and in the JSON `warnings`; none for a normal one."""
+    """`jthermo fit --physics none` on a record of an inverse-response heater: exit 0, the model
+    is written, and the finding is in the text (stderr) and in the JSON `warnings`; none for a
+    normal one. Under the default (`--physics heat`) the given orders' implausible model is
+    refused with the finding, nothing written."""
     import json
 
     from jthermo import cli
@@ -86,8 +88,14 @@ def test_cli_fit_reports_implausible_models_as_warnings(tmp_path, capsys, fast_g
     save_csv(from_arrays(u, y, ts=0.5, input_names=["heater"], output_names=["T"]),
              tmp_path / "d.csv")
     js = tmp_path / "fit.json"
-    assert cli.main(["fit", str(tmp_path / "d.csv"), "--model", "arx", "--orders", "2,2,1",
-                     "--out", str(tmp_path / "m.jtm"), "--json", str(js), "--quiet"]) == 0
+    argv = ["fit", str(tmp_path / "d.csv"), "--model", "arx", "--orders", "2,2,1",
+            "--out", str(tmp_path / "m.jtm"), "--json", str(js), "--quiet"]
+    if fast_gain < 0:
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert "not a plant heat could be" in err and "heater -> T" in err
+        assert not (tmp_path / "m.jtm").exists() and not js.exists()
+    assert cli.main(argv + ["--physics", "none"]) == 0
     rep = json.loads(js.read_text())
     err = capsys.readouterr().err
     assert (tmp_path / "m.jtm").exists() and rep["mean_fit_percent"] > 95

@@ -1,0 +1,212 @@
+"""Fitting under what heat does (`fit(..., physics="heat")`, the default).
+
+When the inputs are heat commands and the outputs temperatures, every family returns a model
+that is stable, whose heaters lower no sensor's steady temperature, whose step responses move
+against their final direction by no more than the noise, and whose steady states over the
+recorded inputs cover the recorded temperatures (`models.plausibility.heat_check`):
+
+- `ss`: the positive (compartmental) state space (`models.positive`, fitted by
+  `positive.fit_positive`): plausible by construction. Automatic orders compare one node per
+  sensor (n = ny) with one more hidden node per sensor (n = 2 ny, the heater's body) by the
+  criterion of their simulation errors.
+- `arx`, `armax`, `oe`, `bj`: the screened candidates are fitted as before and checked; the
+  best plausible one by the criterion is kept. Where none is, the family's first-order model at
+  the estimated delay, then the constrained first-order model (`constrained_polynomial`: a
+  positive, uncoupled one-node-per-sensor fit written as the family's polynomials, so stable
+  with non-negative impulse responses by construction). Every step is reported in
+  `extra["physics"]["path"]`.
+- `greybox`: positive by construction (first-order zones, log-parametrised gains); a measured
+  signal is its surroundings only when its name says so (`SURROUNDINGS_WORDS`).
+
+Before any family: a logged set point (`w_*target*`) is left out (neither an input nor a
+disturbance), so is an input constant over the record (a heater kept off); the remaining
+measured signals (a fan) are disturbances of the plant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..data import IOData, idle_inputs, keep_inputs
+from ..errors import ConfigError, FitError, JThermoError, ModelError
+from ..models.plausibility import heat_check, is_setpoint_signal
+from ..models.polynomial import Polynomial
+from .orders import information_criterion
+from .positive import fit_positive
+from .result import FitResult
+
+PHYSICS = ("heat", "none")
+#: a measured signal whose name holds one of these is the greybox model's surroundings (°C)
+SURROUNDINGS_WORDS = ("amb", "surr", "room", "env")
+#: options of `fit` that the heat path of `ss` takes
+SS_OPTIONS = ("max_steps",)
+
+
+def heat_data(data: IOData) -> tuple[IOData, dict]:
+    """`data` without logged set points and constant inputs (while another input varies), and
+    what was left out: `{"dropped_signals", "dropped_inputs"}`."""
+    keep = [j for j, n in enumerate(data.signal_names) if not is_setpoint_signal(n)]
+    dropped_w = [n for n in data.signal_names if is_setpoint_signal(n)]
+    if dropped_w:
+        data = data.replace(w=np.asarray(data.w)[:, keep],
+                            signal_names=tuple(data.signal_names[j] for j in keep))
+    idle = idle_inputs(data)
+    dropped_u = []
+    if idle and len(idle) < data.n_inputs:
+        dropped_u = [data.input_names[j] for j in idle]
+        data = keep_inputs(data, [n for j, n in enumerate(data.input_names) if j not in idle])
+    return data, {"dropped_signals": dropped_w, "dropped_inputs": dropped_u}
+
+
+def _orders_text(o: dict) -> str:
+    return ",".join(f"{k}={v}" for k, v in o.items())
+
+
+def _criterion(res: FitResult, data: IOData, p: int, criterion: str) -> float:
+    eps = np.asarray(data.y) - np.asarray(res.model.simulate(data.u, data.w[:, :res.model.n_signals]
+                                                             if res.model.n_signals else None))
+    v = information_criterion(eps, p, criterion)
+    return float(v) if np.isfinite(v) else np.inf
+
+
+def _sim_error(r: FitResult, data: IOData) -> np.ndarray:
+    """Simulation errors of a positive fit from its estimated initial state."""
+    ss = r.model
+    A, C = np.asarray(ss.A), np.asarray(ss.C)
+    x = np.asarray(r.x0, np.float64)
+    w = np.asarray(data.w[:, :ss.Bw.shape[1]], np.float64) - np.asarray(ss.w0)
+    drive = np.asarray(data.u) @ np.asarray(ss.B).T + w @ np.asarray(ss.Bw).T
+    out = np.empty((data.n_samples, C.shape[0]))
+    for k in range(data.n_samples):
+        out[k] = C @ x
+        x = A @ x + drive[k]
+    return np.asarray(data.y) - np.asarray(ss.y0) - out
+
+
+def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, **kw) -> tuple[FitResult, list]:
+    """The positive state space of order `orders["n"]` or, automatically, n = ny or 2 ny."""
+    bad = sorted(set(kw) - set(SS_OPTIONS))
+    if bad:
+        raise ConfigError(f"fit: option `{bad[0]}` of ss is for physics='none' (the heat path "
+                          "fits the positive state space)")
+    ny = data.n_outputs
+    if orders is not None and orders["n"] < ny:
+        raise ModelError(f"fit: a positive state space needs n >= {ny} (one node per sensor), "
+                         f"got n = {orders['n']}")
+    cands = [orders["n"]] if orders is not None else [ny, 2 * ny]
+    path, best = [], None
+    for n in cands:
+        try:
+            r = fit_positive(data, n, **kw)
+        except FitError as exc:
+            path.append(f"ss n={n}: {exc}")
+            continue
+        chk = heat_check(r.model, data)
+        p = len(r.extra["positive"]["theta"]) + n + ny
+        v = float(information_criterion(_sim_error(r, data), p, criterion))
+        path.append(f"ss n={n} positive: {criterion} {v:.4g}"
+                    + ("" if chk["plausible"] else f", {chk['warnings'][0]}"))
+        key = (not chk["plausible"], v)
+        if best is None or key < best[0]:
+            best = (key, r)
+    if best is None:
+        raise FitError(f"fit: no positive state space could be fitted ({path[-1]})")
+    return best[1], path
+
+
+def first_order(family: str, nk: int) -> dict:
+    """The family's first-order orders at delay `nk` (MATLAB's naming)."""
+    return {"arx": {"na": 1, "nb": 1, "nk": nk}, "armax": {"na": 1, "nb": 1, "nc": 1, "nk": nk},
+            "oe": {"nb": 1, "nf": 1, "nk": nk},
+            "bj": {"nb": 1, "nc": 1, "nd": 1, "nf": 1, "nk": nk}}[family]
+
+
+def constrained_polynomial(data: IOData, family: str) -> FitResult:
+    """A plausible model of `family` by construction: the positive state space with one node
+    per sensor and no coupling between nodes, from rest (x0 = 0), fitted by simulation error,
+    is per output $y_i = y_{0,i} + \\sum_j \\frac{b_{ij} q^{-1}}{1 - a_i q^{-1}} u_j$ with
+    $0 < a_i < 1$ and $b_{ij} \\ge 0$: ARX/ARMAX take $A_i = 1 - a_i q^{-1}$, OE/BJ
+    $F_{ij} = 1 - a_i q^{-1}$ (noise polynomials C = D = 1)."""
+    r = fit_positive(data, data.n_outputs, free_x0=False, coupled=False)
+    ss = r.model
+    a = np.diag(np.asarray(ss.A))
+    b = (np.asarray(ss.C).diagonal()[:, None] * np.asarray(ss.B))[:, :, None]
+    ny, nu = b.shape[:2]
+    kw = dict(b=b, nk=1, ts=data.ts, u0=np.zeros(nu), y0=np.asarray(ss.y0))
+    if family in ("arx", "armax"):
+        model = Polynomial(a=-a[:, None], **kw)
+        orders = {"na": 1, "nb": 1, "nk": 1} if family == "arx" else \
+            {"na": 1, "nb": 1, "nc": 0, "nk": 1}
+    else:
+        model = Polynomial(f=np.repeat(-a[:, None, None], nu, axis=1), **kw)
+        orders = {"nb": 1, "nf": 1, "nk": 1} if family == "oe" else \
+            {"nb": 1, "nc": 0, "nd": 0, "nf": 1, "nk": 1}
+    return FitResult(model=model, family=family, orders=orders, converged=r.converged,
+                     cost=r.cost, extra={"constrained": True})
+
+
+def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: str,
+                        **kw) -> tuple[FitResult, list, list | None]:
+    """Plausible candidates only (module docstring): `(result, path, order table)`;
+    `screen(data, family)` returns the screened `(candidates, table)`."""
+    from .polynomial import n_params_per_output
+
+    path, table = [], None
+    try:
+        candidates, table = screen(data, family)
+    except JThermoError as exc:
+        candidates = []
+        path.append(f"screening: {exc}")
+    nk = candidates[0]["nk"] if candidates else 1
+    plausible = []
+    for stage, cands in (("screened", candidates), ("first order", [first_order(family, nk)])):
+        for o in cands:
+            if stage != "screened" and o in candidates:
+                continue
+            try:
+                r = fitter.run(data, family, o, **kw)
+            except JThermoError as exc:
+                path.append(f"{family} {_orders_text(o)}: refused ({exc})")
+                continue
+            chk = heat_check(r.model, data)
+            if not chk["plausible"]:
+                path.append(f"{family} {_orders_text(o)}: implausible ({chk['warnings'][0]})")
+                continue
+            p = n_params_per_output(family, o, data.n_inputs, data.n_outputs) * data.n_outputs
+            v = _criterion(r, data, p, criterion)
+            path.append(f"{family} {_orders_text(o)}: plausible, {criterion} {v:.4g}")
+            plausible.append((v, len(plausible), r))
+        if plausible:
+            break
+    if plausible:
+        return min(plausible, key=lambda t: t[:2])[2], path, table
+    r = constrained_polynomial(data, family)
+    chk = heat_check(r.model, data)
+    path.append(f"{family} {_orders_text(r.orders)}: constrained first order (positive "
+                "gains, pole in (0, 1))" + ("" if chk["plausible"] else f", {chk['warnings'][0]}"))
+    return r, path, table
+
+
+def greybox_options(data: IOData, kw: dict) -> dict:
+    """`use_signals` for the greybox model: the first measured signal is its surroundings only
+    when named so (a fan command is no temperature)."""
+    if "use_signals" in kw or data.w.shape[1] == 0:
+        return kw
+    name = data.signal_names[0].lower()
+    return {**kw, "use_signals": any(wd in name for wd in SURROUNDINGS_WORDS)}
+
+
+def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitResult:
+    """`res` with `extra["physics"]`: the mode, the selection path, what was left out, the
+    final verdict and the inputs / signals the model takes."""
+    chk = heat_check(res.model, data)
+    info = {"mode": "heat", "path": path, **dropped, "plausible": chk["plausible"],
+            "warnings": chk["warnings"], "inputs": list(data.input_names),
+            "signals": list(data.signal_names)}
+    return dataclasses.replace(res, extra={**(res.extra or {}), "physics": info})
+
+
+__all__ = ["PHYSICS", "SURROUNDINGS_WORDS", "constrained_polynomial", "first_order",
+           "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "with_report"]

@@ -1,0 +1,118 @@
+"""Fits under what heat does (`fit(..., physics="heat")`, `identify.heat`): every family on a
+recording whose unmodelled cooling drift runs against a slowly rising heater command.
+
+The record: one heater, one sensor, a first-order plant (gain 20 °C, time constant 30 s) plus
+a surroundings drift of -30 °C over the record that nothing measured explains, under a heater
+command that ramps up with a small binary excitation. An unconstrained fit lets the heater take
+the blame for the cooling (a negative static gain or an unstable model); the heat path may
+not."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+from jthermo.data import from_arrays  # noqa: E402
+from jthermo.errors import JThermoError  # noqa: E402
+from jthermo.identify import fit  # noqa: E402
+from jthermo.identify.heat import heat_data  # noqa: E402
+from jthermo.identify.positive import fit_positive  # noqa: E402
+from jthermo.models import positive  # noqa: E402
+from jthermo.models.plausibility import heat_check  # noqa: E402
+
+FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
+
+
+def drift_record(T: int = 500, seed: int = 0, n: int = 1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T, dtype=float)
+    prbs = np.repeat(rng.integers(0, 2, T // 10 + 1), 10)[:T].astype(float)
+    u = np.clip(0.2 + 0.5 * t / T + 0.05 * prbs, 0, 1)[:, None].repeat(n, axis=1)
+    a = np.exp(-1 / 30.0)
+    x = np.zeros(n)
+    y = np.empty((T, n))
+    for k in range(T):
+        y[k] = 25.0 + x - 30.0 * t[k] / T
+        x = a * x + (1 - a) * 20.0 * u[k]
+    y += 0.05 * rng.standard_normal(y.shape)
+    return from_arrays(u, y, ts=1.0)
+
+
+def _step_ok(model, n=400):
+    s = np.asarray(model.step_response(n))
+    return np.all(np.isfinite(s)) and s.min() >= -1e-6 * max(1.0, np.abs(s).max())
+
+
+def _implausible(data, family):
+    try:
+        r = fit(data, family, physics="none")
+    except JThermoError:
+        return True       # refused: no model at all
+    return not heat_check(r.model, data)["plausible"]
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_heat_fit_has_non_negative_step_response(family):
+    data = drift_record()
+    r = fit(data, family)
+    assert _step_ok(r.model), f"{family}: a heater step moves the sensor down"
+    assert r.extra["physics"]["mode"] == "heat" and r.extra["physics"]["path"]
+    if family != "greybox":       # the grey-box bed is positive in both modes
+        assert _implausible(data, family), f"{family}: the unconstrained fit looked plausible"
+
+
+def test_positive_parametrisation_is_metzler_hurwitz_and_positive():
+    rng = np.random.default_rng(3)
+    for n, ny, nu, nw in ((1, 1, 1, 0), (4, 2, 2, 1), (16, 16, 16, 0)):
+        theta = rng.normal(size=positive.n_params(n, ny, nu, nw)) - 2.0
+        A, B, C, _ = (np.asarray(m) for m in positive.matrices(jax.numpy.asarray(theta), n, ny, nu, nw))
+        off = A - np.diag(np.diag(A))
+        assert off.min() >= 0 and B.min() >= 0 and C.min() >= 0
+        assert np.max(np.linalg.eigvals(A).real) < 0
+        Ad, Bd, _, _ = (np.asarray(m) for m in positive.discrete(jax.numpy.asarray(theta), n, ny,
+                                                                 nu, nw, 1.0))
+        assert Ad.min() >= -1e-12 and Bd.min() >= -1e-12
+        # ZOH against an independent quadrature of the integral of e^{As} B
+        s = np.linspace(0, 1, 2001)
+        from scipy.linalg import expm
+
+        integ = np.trapezoid([expm(A * v) @ B for v in s], s, axis=0)
+        assert np.allclose(Bd, integ, atol=1e-6 * max(1, np.abs(integ).max()))
+
+
+@pytest.mark.parametrize("n_zones", [1, 16])
+def test_positive_fit_recovers_gain(n_zones):
+    data = from_arrays(*_clean(n_zones), ts=1.0)
+    r = fit_positive(data, n_zones, coupled=False, free_x0=False)
+    g = np.asarray(r.model.dcgain())
+    assert np.allclose(np.diag(g), 20.0, rtol=0.05)
+    assert g.min() >= 0
+
+
+def _clean(n, T=300, seed=1):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(0, 1, (T // 20 + 1, n)), 20, axis=0)[:T]
+    a = np.exp(-1 / 15.0)
+    x = np.zeros(n)
+    y = np.empty((T, n))
+    for k in range(T):
+        y[k] = 22.0 + x
+        x = a * x + (1 - a) * 20.0 * u[k]
+    return u, y + 0.02 * rng.standard_normal(y.shape)
+
+
+def test_setpoint_signal_left_out_and_constant_input_dropped():
+    u, y = _clean(2)
+    u[:, 1] = 0.0
+    w = np.column_stack([np.full(len(y), 210.0), np.linspace(0, 1, len(y))])
+    data = from_arrays(u, y, ts=1.0, w=w, signal_names=["extruder_target_C", "fan_cmd"])
+    d, dropped = heat_data(data)
+    assert dropped["dropped_signals"] == ["extruder_target_C"]
+    assert dropped["dropped_inputs"] == [data.input_names[1]]
+    assert d.signal_names == ("fan_cmd",) and d.n_inputs == 1
+    r = fit(data, "ss")
+    assert r.model.n_inputs == 1 and r.model.n_signals == 1     # the fan: a disturbance
+    assert r.extra["physics"]["signals"] == ["fan_cmd"]
