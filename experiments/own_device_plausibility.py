@@ -9,9 +9,16 @@ an inverse step response beyond the noise, steady states that do not cover the r
 temperatures), the fit % `jthermo fit` reports (simulation fit on the estimation record), the
 orders and the selection path of the physics constraint (`--json`'s `physics`).
 
+Before and after: `--package DIR --save-models M` runs the fits with the `jthermo` package found
+in DIR (an older checkout, e.g. `git archive <commit> jthermo | tar -x -C DIR`) and keeps each
+fitted model and report in M; a later run with `--before M` judges those models with this
+checkout's `heat_check` and tabulates them beside its own fits (exit, fit %, plausible). Rows
+are kept one a line in `--rows FILE` as they finish, so an interrupted run resumes.
+
 Usage:  python experiments/own_device_plausibility.py [--records all|issue|NAME,...]
             [--families arx,oe,...] [--physics heat|none] [--data-dir DIR]
-Writes `experiments/results/own_device_plausibility.md` (overwritten).
+            [--package DIR] [--save-models M] [--before M] [--rows FILE]
+Writes `experiments/results/own_device_plausibility.md` (overwritten; not with --package).
 """
 
 from __future__ import annotations
@@ -20,18 +27,24 @@ import argparse
 import contextlib
 import io as _io
 import json
+import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+_pkg = [a for k, a in enumerate(sys.argv) if k and sys.argv[k - 1] == "--package"]
+sys.path.insert(0, _pkg[0] if _pkg else str(ROOT))
 
 from jthermo import io as jio  # noqa: E402
 from jthermo.cli import main as cli_main  # noqa: E402
 from jthermo.data import load  # noqa: E402
 from jthermo.families import MODEL_FAMILIES  # noqa: E402
-from jthermo.models.plausibility import heat_check  # noqa: E402
+
+try:
+    from jthermo.models.plausibility import heat_check  # noqa: E402
+except ImportError:         # an older package (--package): its models are judged later
+    heat_check = None
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 OUT = ROOT / "experiments" / "results" / "own_device_plausibility.md"
@@ -61,7 +74,30 @@ def path_of(rec: str) -> Path:
     return p if p.suffix == ".csv" else p / "data.csv"
 
 
-def one(rec: str, family: str, physics: str, tmp: Path) -> dict:
+def slug(rec: str, family: str) -> str:
+    return rec.replace("/", "__").removesuffix(".csv") + f"__{family}"
+
+
+def judge(rec: str, rep: dict, mod: Path) -> dict:
+    """The plausibility of a saved fit, judged on its own recording with the columns it took."""
+    from jthermo.data import keep_inputs, keep_outputs
+
+    model = jio.load_model(mod)
+    data = keep_outputs(load(path_of(rec)), rep["outputs"])
+    sig = rep.get("signals")
+    if sig is not None:
+        keep = [data.signal_names.index(n) for n in sig]
+        data = data.replace(w=data.w[:, keep], signal_names=tuple(sig))
+    if (rep.get("physics") or {}).get("rest_samples"):
+        from jthermo.identify.heat import heat_data
+
+        data = heat_data(data)[0]
+    data = keep_inputs(data, rep["inputs"])
+    chk = heat_check(model, data)
+    return {"warnings": chk["warnings"], "plausible": chk["plausible"]}
+
+
+def one(rec: str, family: str, physics: str, tmp: Path, keep: Path | None) -> dict:
     js, mod = tmp / "fit.json", tmp / "model.jtm"
     for p in (js, mod):
         p.unlink(missing_ok=True)
@@ -74,48 +110,78 @@ def one(rec: str, family: str, physics: str, tmp: Path) -> dict:
         rc = cli_main(argv)
     row = {"record": rec, "family": family, "rc": rc}
     if rc != 0:
-        row["error"] = err.getvalue().strip().splitlines()[-1] if err.getvalue().strip() else ""
+        msg = err.getvalue().strip().splitlines()[-1] if err.getvalue().strip() else ""
+        row["error"] = msg.replace(str(REAL) + "/", "")
         return row
     rep = json.loads(js.read_text())
-    model = jio.load_model(mod)
-    data = load(path_of(rec))
-    from jthermo.data import keep_inputs, keep_outputs
-
-    data = keep_outputs(keep_inputs(data, rep["inputs"]), rep["outputs"])
-    sig = rep.get("signals")
-    if sig is not None:
-        keep = [data.signal_names.index(n) for n in sig]
-        data = data.replace(w=data.w[:, keep], signal_names=tuple(sig))
-    chk = heat_check(model, data)
-    row.update(fit=rep["mean_fit_percent"], orders=rep["orders"], warnings=chk["warnings"],
-               plausible=chk["plausible"], physics=rep.get("physics"),
-               cli_warnings=rep.get("warnings", []))
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        shutil.copy(mod, keep / f"{slug(rec, family)}.jtm")
+        shutil.copy(js, keep / f"{slug(rec, family)}.json")
+    row.update(fit=rep["mean_fit_percent"], orders=rep["orders"], physics=rep.get("physics"))
+    if heat_check is not None:
+        row.update(judge(rec, rep, mod))
     return row
 
 
-def render(rows: list[dict], argv: list[str]) -> str:
+def before_row(rec: str, family: str, models: Path) -> dict:
+    """The fit a `--save-models` run left for this record and family, judged now."""
+    js, mod = models / f"{slug(rec, family)}.json", models / f"{slug(rec, family)}.jtm"
+    if not js.exists():
+        return {"rc": 2}
+    rep = json.loads(js.read_text())
+    return {"rc": 0, "fit": rep["mean_fit_percent"], **judge(rec, rep, mod)}
+
+
+def _cell(r: dict | None) -> str:
+    if r is None:
+        return "not run"
+    if r["rc"] != 0:
+        return "exit 2"
+    return f"{r['fit']:.1f}" + ("" if r["plausible"] else " ✗")
+
+
+def render(rows: list[dict], argv: list[str], before: bool) -> str:
     ok = [r for r in rows if r["rc"] == 0]
     good = [r for r in ok if r["plausible"]]
     lines = ["# Default fits of real heater recordings: plausible?", "",
              f"Command: `python experiments/own_device_plausibility.py {' '.join(argv)}`", "",
              f"**{len(good)} of {len(rows)} default fits give a plausible model** "
              f"({len(rows) - len(ok)} exit non-zero, {len(ok) - len(good)} exit 0 with a "
-             "plausibility finding).", "",
-             "Fit: simulation fit % on the estimation record (what `jthermo fit` reports without "
-             "`--validation`). Findings: `models.plausibility.heat_check` of the fitted model on "
-             "its own recording.", "",
-             "| record | family | exit | fit % | orders | findings | physics path |",
-             "|---|---|---|---|---|---|---|"]
+             "plausibility finding).", ""]
+    if before:
+        b = [r["before"] for r in rows if r.get("before") is not None]
+        b_ok = [r for r in b if r["rc"] == 0]
+        lines += [f"The package before the heat path, on the same rows: **"
+                  f"{sum(r['plausible'] for r in b_ok)} of {len(b)} plausible** "
+                  f"({len(b) - len(b_ok)} exit non-zero, "
+                  f"{sum(not r['plausible'] for r in b_ok)} exit 0 with a finding).", ""]
+        drops = [(r, r["before"]["fit"] - r["fit"]) for r in rows
+                 if r["rc"] == 0 and (r.get("before") or {}).get("rc") == 0
+                 and r["before"]["plausible"]]
+        worst = sorted(drops, key=lambda t: -t[1])[:5]
+        if drops:
+            lines += [f"Of {len(drops)} rows plausible before, {sum(d > 1.0 for _, d in drops)} lose "
+                      "more than 1 point of fit; the largest drops: "
+                      + "; ".join(f"{r['record']} {r['family']} {r['before']['fit']:.1f} → "
+                                  f"{r['fit']:.1f}" for r, _ in worst) + ".", ""]
+    lines += ["Fit: simulation fit % on the estimation record (what `jthermo fit` reports without "
+              "`--validation`). Findings: `models.plausibility.heat_check` of the fitted model on "
+              "its own recording (✗: a finding).", ""]
+    head = "| record | family | " + ("before | " if before else "") + \
+        "exit | fit % | orders | findings | physics path |"
+    lines += [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
+        pre = f"{_cell(r.get('before'))} | " if before else ""
         if r["rc"] != 0:
-            lines.append(f"| {r['record']} | {r['family']} | {r['rc']} | | | "
+            lines.append(f"| {r['record']} | {r['family']} | {pre}{r['rc']} | | | "
                          f"{r.get('error', '')[:160]} | |")
             continue
         f = "; ".join(w[:120] for w in r["warnings"]) or "none"
         ph = r.get("physics") or {}
         path = " → ".join(ph.get("path", [])) if isinstance(ph, dict) else ""
         o = ",".join(f"{k}={v}" for k, v in (r["orders"] or {}).items())
-        lines.append(f"| {r['record']} | {r['family']} | 0 | {r['fit']:.1f} | {o} | {f} | "
+        lines.append(f"| {r['record']} | {r['family']} | {pre}0 | {r['fit']:.1f} | {o} | {f} | "
                      f"{path[:200]} |")
     return "\n".join(lines) + "\n"
 
@@ -129,22 +195,43 @@ def main(argv=None) -> None:
     ap.add_argument("--physics", default="heat", choices=("heat", "none"))
     ap.add_argument("--data-dir", default=None,
                     help="the real recordings (default ../shared/data/real beside the repo)")
+    ap.add_argument("--package", help="run the jthermo package found in this directory")
+    ap.add_argument("--save-models", help="keep each fitted model and report here")
+    ap.add_argument("--before", help="models and reports a --save-models run left: tabulated")
+    ap.add_argument("--rows", help="rows one a line as they finish (resumed when present)")
     args = ap.parse_args(argv)
-    REAL = Path(args.data_dir) if args.data_dir else REAL
-    shown = [a for k, a in enumerate(argv) if a != "--data-dir" and
-             (k == 0 or argv[k - 1] != "--data-dir")]
+    REAL = Path(args.data_dir).resolve() if args.data_dir else REAL
+    hidden = ("--data-dir", "--package", "--save-models", "--before", "--rows")
+    shown = [a for k, a in enumerate(argv) if a not in hidden and
+             (k == 0 or argv[k - 1] not in hidden)]
+    if args.before:
+        shown.append("--before MODELS")
     recs = (all_records() if args.records == "all" else ISSUE if args.records == "issue"
             else args.records.split(","))
+    done = {}
+    rows_file = Path(args.rows) if args.rows else None
+    if rows_file is not None and rows_file.exists():
+        for line in rows_file.read_text().splitlines():
+            r = json.loads(line)
+            done[(r["record"], r["family"])] = r
     rows = []
+    keep = Path(args.save_models) if args.save_models else None
     with tempfile.TemporaryDirectory() as d:
         for rec in recs:
             for fam in args.families.split(","):
-                r = one(rec, fam, args.physics, Path(d))
+                r = done.get((rec, fam)) or one(rec, fam, args.physics, Path(d), keep)
+                if (rec, fam) not in done and rows_file is not None:
+                    with rows_file.open("a") as fh:
+                        fh.write(json.dumps(r) + "\n")
+                if args.before:
+                    r["before"] = before_row(rec, fam, Path(args.before))
                 print(r["record"], fam, r["rc"], r.get("fit"), r.get("warnings") or r.get("error"),
                       flush=True)
                 rows.append(r)
+    if args.package:
+        return
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(render(rows, shown))
+    OUT.write_text(render(rows, shown, bool(args.before)))
     print(OUT.read_text().splitlines()[4])
 
 

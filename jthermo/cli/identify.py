@@ -186,6 +186,10 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     target = val if val is not None else est
     cmp = validate.compare(res.model, target)
     physics = (getattr(res, "extra", None) or {}).get("physics")
+    if physics is not None and left.get("rest_samples"):     # the rest put before a step test
+        physics = {**physics, "rest_samples": left["rest_samples"],
+                   "path": [f"step from rest: {left['rest_samples']} samples of rest put before "
+                            "the record", *physics["path"]]}
     if physics is not None:
         plausible = {"warnings": physics["warnings"]}
     else:
@@ -252,6 +256,10 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     if signals_dropped:
         print(f"note: {', '.join('w_' + n for n in signals_dropped)}: a logged set point, left "
               "out of the model (neither an input nor a disturbance of the plant)", file=sys.stderr)
+    if physics is not None and physics.get("rest_samples"):
+        print(f"note: every input is constant and the record starts at rest: a step from rest, "
+              f"{physics['rest_samples']} samples of rest (heaters off) put before it",
+              file=sys.stderr)
     if dropped:
         print(f"warning: {', '.join('u_' + n for n in dropped)} constant in the record: left out "
               "of the model (a constant input's effect cannot be told from the level)", file=sys.stderr)

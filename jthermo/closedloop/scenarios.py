@@ -349,7 +349,10 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
       test the loop, not the heaters' power), `"load"` (at the set point, an input-referred heat
       sink of `load` per input — default `LOAD_SHARE` of the recorded input std, at most half
       the distance to the input limits — switched on at 20–30 % and off at 60–70 % of the
-      run), `"preheat"` (the start-up step: from the model's equilibrium with the heaters off
+      run; a plant with measured signals whose recording moved them, a fan, instead steps
+      those signals as the recording shows, from their median to their recorded extreme
+      farther from it, `Envelope.signal_step`, over the same span: the disturbance the plant
+      was fitted with, which the controller never drives), `"preheat"` (the start-up step: from the model's equilibrium with the heaters off
       to the set point; power-limited, reported on its own), `"ensemble"` (random set point
       within ±`STEP_SHARE`·range/4, start within `STEP_SHARE`·range below it, and a load of
       random sign; per rollout).
@@ -359,7 +362,8 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     - `window`: half-width of the metrics' window, °C (at least 3 noise std).
 
     The plant starts at steady state (`Scenario.y0`); white measurement noise of the
-    recording's `noise_std`; the measured signals `w` are held at their recorded means.
+    recording's `noise_std`; the measured signals `w` are held at their recorded medians
+    (`Envelope.signals`), stepped only by `load` as above.
     """
     if kind not in MODEL_KINDS:
         raise ConfigError(f"model_scenario: scenario `{kind}` is not one of a fitted model's "
@@ -388,22 +392,24 @@ def model_scenario(kind: str, model: AbstractModel, duration: float | None = Non
     size = LOAD_SHARE * np.asarray(env.u_std) if load is None else np.broadcast_to(
         np.asarray(load, np.float64), u_star.shape)
     size = np.minimum(size, 0.5 * np.minimum(u_star - lo, hi - u_star))
+    w_to = env.signal_step(model) if kind == "load" and load is None else None
     dt = jnp.asarray(model.to_statespace().A).dtype
     S = jnp.asarray(model.step_response(T), dt)                      # (T, ny, nu)
     consts = {k: jnp.asarray(v, dt) for k, v in (("r", r), ("step", step), ("y_off", y_off),
                                                  ("change", np.maximum(change, 0.0)),
                                                  ("size", size), ("w", w),
+                                                 ("w_to", w if w_to is None else w_to),
                                                  ("noise", env.noise_std))}
     key = _as_key(key)
     keys = key if n_rollouts is None else jax.random.split(key, int(n_rollouts))
-    r_, dy, v, y0 = _build_model_scenario(kind, S, consts, T, keys, n_rollouts is not None)
-    wT = jnp.broadcast_to(consts["w"], (*r_.shape[:-2], T, w.shape[0]))
+    r_, dy, v, y0, wT = _build_model_scenario(kind, S, consts, T, keys, n_rollouts is not None,
+                                              w_to is not None)
     return Scenario(r=r_, d=ModelDisturbance(w=wT, dy=dy), v=v, y0=y0, kind=kind,
                     window=max(float(window), 3.0 * float(np.max(env.noise_std))), ts=env.ts)
 
 
 @eqx.filter_jit
-def _build_model_scenario(kind, S, c, T, keys, batched):
+def _build_model_scenario(kind, S, c, T, keys, batched, signal_load=False):
     def shifted(k0):       # the step response delayed to start at sample k0: (T, ny, nu)
         idx = jnp.arange(T) - k0
         return jnp.where((idx >= 0)[:, None, None], S[jnp.clip(idx, 0, T - 1)], 0.0)
@@ -426,15 +432,19 @@ def _build_model_scenario(kind, S, c, T, keys, batched):
             sign = jnp.where(jax.random.bernoulli(k_s), 1.0, -1.0)
         else:   # load
             y0 = r
+        w = jnp.broadcast_to(c["w"], (T, c["w"].shape[0]))
+        dy = jnp.broadcast_to(zero, (T, r.shape[0]))
         if kind in ("load", "ensemble"):
             on = jax.random.randint(k_on, (), int(0.2 * T), max(int(0.3 * T), int(0.2 * T) + 1))
             off = jax.random.randint(k_off, (), int(0.6 * T), max(int(0.7 * T), int(0.6 * T) + 1))
-            dy = (shifted(on) - shifted(off)) @ (sign * c["size"])
-        else:
-            dy = jnp.broadcast_to(zero, (T, r.shape[0]))
+            if signal_load:         # the measured signals stepped, the plant's own response
+                k = jnp.arange(T)[:, None]
+                w = w + jnp.where((k >= on) & (k < off), 1.0, 0.0) * (c["w_to"] - c["w"])
+            else:
+                dy = (shifted(on) - shifted(off)) @ (sign * c["size"])
         v = c["noise"] * jax.random.normal(k_v, (T, r.shape[0]), r.dtype)
         if kind == "tracking":
-            return path, dy, v, y0
-        return jnp.broadcast_to(r, (T, r.shape[0])), dy, v, y0
+            return path, dy, v, y0, w
+        return jnp.broadcast_to(r, (T, r.shape[0])), dy, v, y0, w
 
     return jax.vmap(one)(keys) if batched else one(keys)

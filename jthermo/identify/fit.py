@@ -133,9 +133,9 @@ def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str,
         res, path = heat.fit_ss_heat(data, o, criterion, **kw)
         return res, path, None
     if family == "greybox":
-        res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress,
-                         **heat.greybox_options(data, kw))
-        return res, [f"greybox: {'surroundings measured' if res.model.n_signals else 'surroundings fitted'}"], None
+        res, path = heat.fit_greybox_heat(data, fitter, seed=seed, n_starts=n_starts,
+                                          progress=progress, **kw)
+        return res, path, None
     if o is not None or kw.get("full_a", False):
         table = None
         if o is None:       # a full A: the PEM grid

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar, nnls
 from scipy.signal import lfilter
 
-from ..errors import DataError, FitError
+from ..errors import ConfigError, DataError, FitError
 from ..models.greybox import NOMINAL_CAPACITY, BedModel
 from .pem import EXPECTED_IMPROVEMENT_TOL
 from .result import FitResult, register_fitter
@@ -172,7 +172,7 @@ def fit_first_order_zones(y, u, ts: float, *, surroundings: float | None = None,
 
 
 def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 100,
-                use_signals: bool | None = None):
+                use_signals: bool | None = None, surroundings_max: float | None = None):
     """Fit the bed model (eq. 3.5) to `data` by simulation-error PEM (output-error).
 
     $\\hat\\theta = \\arg\\min \\sum_t \\|y(t) - \\hat y_{sim}(t, \\theta)\\|^2$ over
@@ -204,6 +204,8 @@ def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 10
       measured signal `w[:, 0]` is the surroundings temperature (°C) if present and
       `use_signals` is not False; otherwise the surroundings are a constant fitted parameter.
     - `max_steps`: Brent iterations per zone.
+    - `surroundings_max`: upper bound of the fitted constant surroundings temperature, °C
+      (ignored when the surroundings are measured); default none.
     - The initial state is estimated too (`info["x0"]`): a noisy first sample would
       otherwise bias the fit.
 
@@ -221,6 +223,8 @@ def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 10
     n, nu = y.shape[1], u.shape[1]
     if len(y) < 3 * (n + n * nu):
         raise DataError(f"fit_greybox: {len(y)} samples are too few for {n + n * nu} parameters")
+    if surroundings_max is not None and not np.isfinite(surroundings_max):
+        raise ConfigError(f"fit_greybox: surroundings_max must be finite, got {surroundings_max!r}")
     measured = (data.w.shape[1] > 0) if use_signals is None else bool(use_signals)
     if measured and data.w.shape[1] == 0:
         raise DataError("fit_greybox: `use_signals=True` but the data have no measured signal `w`")
@@ -234,6 +238,8 @@ def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 10
         first = _fit_zones(y, u, w, "free", ts, capacity, max_steps)
         s_zone = np.array([z["c"][1] for z in first])
         s = float(np.median(s_zone))
+        if surroundings_max is not None and s > float(surroundings_max):
+            s = float(surroundings_max)
         s_var = float(np.var(s_zone) / n)
         zones = _fit_zones(y, u, w, "fixed", ts, capacity, max_steps, surr=s)
     log_loss = np.array([z["log_loss"] for z in zones])
@@ -263,7 +269,9 @@ def fit_greybox(data, *, capacity: float = NOMINAL_CAPACITY, max_steps: int = 10
             "zones_not_converged": np.flatnonzero(~converged).tolist(),
             "expected_improvement": [z["improvement"] for z in zones],
             "gains_at_zero": [[i, j] for i, z in enumerate(zones) for j in z["at_zero"]],
-            "surroundings": None if measured else s, "x0": x0.tolist()}
+            "surroundings": None if measured else s, "x0": x0.tolist(),
+            "surroundings_bounded": bool(not measured and surroundings_max is not None
+                                         and s >= float(surroundings_max))}
     return FitResult(model=model, family="greybox", orders={}, converged=bool(np.all(converged)),
                      cost=cost, seconds=time.perf_counter() - t0, covariance=jnp.asarray(cov),
                      std=jnp.sqrt(jnp.clip(jnp.diagonal(jnp.asarray(cov)), 0.0)),

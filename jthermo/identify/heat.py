@@ -30,8 +30,8 @@ import dataclasses
 import numpy as np
 
 from ..data import IOData, idle_inputs, keep_inputs
-from ..errors import ConfigError, FitError, JThermoError, ModelError
-from ..models.plausibility import heat_check, is_setpoint_signal
+from ..errors import ConfigError, DataError, FitError, JThermoError, ModelError
+from ..models.plausibility import heat_check, is_setpoint_signal, starts_at_rest
 from ..models.polynomial import Polynomial
 from .orders import information_criterion
 from .positive import fit_positive
@@ -46,18 +46,75 @@ SS_OPTIONS = ("max_steps",)
 
 def heat_data(data: IOData) -> tuple[IOData, dict]:
     """`data` without logged set points and constant inputs (while another input varies), and
-    what was left out: `{"dropped_signals", "dropped_inputs"}`."""
+    what was left out: `{"dropped_signals", "dropped_inputs", "rest_samples"}`. A record whose
+    inputs are all constant is a step from rest when it starts at rest (`rest_before`); it is
+    returned with that rest put before it (`rest_samples` > 0), else refused."""
     keep = [j for j, n in enumerate(data.signal_names) if not is_setpoint_signal(n)]
     dropped_w = [n for n in data.signal_names if is_setpoint_signal(n)]
     if dropped_w:
         data = data.replace(w=np.asarray(data.w)[:, keep],
                             signal_names=tuple(data.signal_names[j] for j in keep))
     idle = idle_inputs(data)
-    dropped_u = []
+    dropped_u, rest = [], 0
+    if idle and len(idle) == data.n_inputs and data.n_inputs:
+        data, dropped_u, rest = rest_before(data)
+        idle = []
     if idle and len(idle) < data.n_inputs:
         dropped_u = [data.input_names[j] for j in idle]
         data = keep_inputs(data, [n for j, n in enumerate(data.input_names) if j not in idle])
-    return data, {"dropped_signals": dropped_w, "dropped_inputs": dropped_u}
+    return data, {"dropped_signals": dropped_w, "dropped_inputs": dropped_u,
+                  "rest_samples": rest}
+
+
+#: a step from rest gets at least this many samples of rest before it ...
+REST_SAMPLES = 30
+#: ... or this share of the record's length, whichever is more
+REST_SHARE = 0.05
+
+
+def _noise_std(y: np.ndarray) -> np.ndarray:
+    """Each column's noise level from its first differences (median absolute deviation)."""
+    d = np.diff(y, axis=0)
+    return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2.0)
+
+
+def rest_before(data: IOData) -> tuple[IOData, list, int]:
+    """A record whose inputs are all constant: the step from rest it is, or a `DataError`.
+
+    Heaters held at constant powers $u_j \ne 0$ from the first sample on, with every output
+    at its lowest reading there (`models.plausibility.starts_at_rest`),
+    is the step test of a device switched on at rest, as TCLab step tests are logged: the
+    heaters were off before $t_0$ and the outputs at their first reading. That initial
+    condition is what carries the information (the response to $0 \to u$); it is written
+    into the record as `max(REST_SAMPLES, REST_SHARE T)` samples of rest before $t_0$
+    ($u = 0$, $y = y(0)$, $w = w(0)$), so every family's fitter, screening and initial-state
+    handling see the step itself. Inputs constant at 0 are left out.
+
+    **Returns:** `(data, dropped input names, samples put before)`.
+    """
+    u = np.asarray(data.u, np.float64)
+    y = np.asarray(data.y, np.float64)
+    on = [j for j in range(data.n_inputs) if abs(u[0, j]) > 0]
+    if not on:
+        raise DataError("IOData: every input is constant at 0 (no heater was on): the record "
+                        "carries no information on what the heaters do")
+    if not starts_at_rest(y, _noise_std(y)):
+        j = int(np.argmax(y[0] - y.min(axis=0) - 0.05 * np.ptp(y, axis=0)))
+        raise DataError(f"IOData: every input is constant, and the record does not start at rest "
+                        f"(y_{data.output_names[j]} starts at {y[0, j]:.4g}, above its lowest "
+                        f"{y[:, j].min():.4g}): it carries no information on what the heaters do")
+    dropped = [data.input_names[j] for j in range(data.n_inputs) if j not in on]
+    if dropped:
+        data = keep_inputs(data, [data.input_names[j] for j in on])
+    k = max(REST_SAMPLES, int(np.ceil(REST_SHARE * data.n_samples)))
+    w = np.asarray(data.w, np.float64)
+    note = (f"a step from rest: {k} samples of rest (inputs 0, outputs and signals at their "
+            "first reading) put before the record")
+    return data.replace(
+        u=np.concatenate([np.zeros((k, data.n_inputs)), np.asarray(data.u)]),
+        y=np.concatenate([np.repeat(y[:1], k, axis=0), y]),
+        w=np.concatenate([np.repeat(w[:1], k, axis=0), w]),
+        t0=float(data.t0) - k * float(data.ts), notes=(*data.notes, note)), dropped, k
 
 
 def _orders_text(o: dict) -> str:
@@ -167,6 +224,8 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
                 continue
             try:
                 r = fitter.run(data, family, o, **kw)
+            except ConfigError:
+                raise           # a wrong option is the caller's, not a candidate's, failure
             except JThermoError as exc:
                 path.append(f"{family} {_orders_text(o)}: refused ({exc})")
                 continue
@@ -191,17 +250,45 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
 
 def greybox_options(data: IOData, kw: dict) -> dict:
     """`use_signals` for the greybox model: the first measured signal is its surroundings only
-    when named so (a fan command is no temperature)."""
-    if "use_signals" in kw or data.w.shape[1] == 0:
-        return kw
-    name = data.signal_names[0].lower()
-    return {**kw, "use_signals": any(wd in name for wd in SURROUNDINGS_WORDS)}
+    when named so (a fan command is no temperature); fitted surroundings are bounded by the
+    lowest recorded temperature (`fit_greybox`'s `surroundings_max`)."""
+    if "use_signals" not in kw and data.w.shape[1]:
+        name = data.signal_names[0].lower()
+        kw = {**kw, "use_signals": any(wd in name for wd in SURROUNDINGS_WORDS)}
+    if "surroundings_max" not in kw:
+        kw = {**kw, "surroundings_max": float(np.min(np.asarray(data.y)))}
+    return kw
+
+
+def fit_greybox_heat(data: IOData, fitter, **kw) -> tuple[FitResult, list]:
+    """The greybox bed on the heat path: measured surroundings where a signal is named so,
+    else a fitted constant below the coldest reading (`greybox_options`); where measured
+    surroundings give a model that does not pass `heat_check` (a room sensor that is no
+    zone's surroundings), the fitted, bounded constant instead."""
+    opts = greybox_options(data, kw)
+    r = fitter.run(data, "greybox", None, **opts)
+    chk = heat_check(r.model, data)
+    where = ("surroundings measured" if r.model.n_signals else
+             "surroundings fitted" + (", bounded by the coldest reading"
+                                      if r.extra.get("surroundings_bounded") else ""))
+    path = [f"greybox: {where}" + ("" if chk["plausible"] else f", {chk['warnings'][0]}")]
+    if chk["plausible"] or not r.model.n_signals or "use_signals" in kw:
+        return r, path
+    alt = fitter.run(data, "greybox", None, **{**opts, "use_signals": False})
+    alt_chk = heat_check(alt.model, data)
+    path.append("greybox: surroundings fitted" + (
+        ", bounded by the coldest reading" if alt.extra.get("surroundings_bounded") else "")
+        + ("" if alt_chk["plausible"] else f", {alt_chk['warnings'][0]}"))
+    return (alt, path) if alt_chk["plausible"] else (r, path)
 
 
 def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitResult:
     """`res` with `extra["physics"]`: the mode, the selection path, what was left out, the
     final verdict and the inputs / signals the model takes."""
     chk = heat_check(res.model, data)
+    if dropped.get("rest_samples"):
+        path = [f"step from rest: {dropped['rest_samples']} samples of rest put before the "
+                "record", *path]
     info = {"mode": "heat", "path": path, **dropped, "plausible": chk["plausible"],
             "warnings": chk["warnings"], "inputs": list(data.input_names),
             "signals": list(data.signal_names)}
@@ -209,4 +296,4 @@ def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitR
 
 
 __all__ = ["PHYSICS", "SURROUNDINGS_WORDS", "constrained_polynomial", "first_order",
-           "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "with_report"]
+           "fit_greybox_heat", "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "rest_before", "with_report"]

@@ -50,6 +50,8 @@ class Envelope:
     - `w_median`: median of each measured signal (the level the operating point and the
       scenarios hold: a fan run half the time at full speed is held at what it mostly did), or
       () (a record written without it: `w_mean` is held).
+    - `w_min`, `w_max`: the range each measured signal was recorded in, or () (the `load`
+      scenario steps a signal to the end of it farther from its median: `signal_step`).
     """
 
     ts: float
@@ -63,6 +65,8 @@ class Envelope:
     noise_std: tuple[float, ...]
     w_mean: tuple[float, ...] = ()
     w_median: tuple[float, ...] = ()
+    w_min: tuple[float, ...] = ()
+    w_max: tuple[float, ...] = ()
 
     def __post_init__(self):
         ny, nu = len(self.y_min), len(self.u_min)
@@ -110,7 +114,9 @@ class Envelope:
                    u_min=_floats(lo), u_max=_floats(hi), u_mean=_floats(u.mean(axis=0)),
                    u_std=_floats(u.std(axis=0)), rest=_floats(rest), noise_std=_floats(noise),
                    w_mean=_floats(w.mean(axis=0)) if w.shape[1] else (),
-                   w_median=_floats(np.median(w, axis=0)) if w.shape[1] else ())
+                   w_median=_floats(np.median(w, axis=0)) if w.shape[1] else (),
+                   w_min=_floats(w.min(axis=0)) if w.shape[1] else (),
+                   w_max=_floats(w.max(axis=0)) if w.shape[1] else ())
 
     @classmethod
     def from_model(cls, model: AbstractModel) -> "Envelope":
@@ -160,6 +166,19 @@ class Envelope:
                               f"loop drives power fractions {U_LIMITS[0]:g} to {U_LIMITS[1]:g} "
                               "(the data contract): rescale the inputs (e.g. % / 100) and refit")
         return self
+
+    def signal_step(self, model: AbstractModel) -> np.ndarray | None:
+        """The level each measured signal of `model` steps to in a `load` scenario: of its
+        recorded extremes, the one farther from its median (a fan the recording switched on
+        steps from what it mostly did to full speed, as the recording shows); None when the
+        model takes no signal, the envelope has no recorded range for them, or none moved."""
+        nw = int(model.to_statespace().Bw.shape[1])
+        if nw == 0 or len(self.w_min) != nw or len(self.w_max) != nw:
+            return None
+        mid = self.signals(model)
+        lo, hi = np.asarray(self.w_min, np.float64), np.asarray(self.w_max, np.float64)
+        to = np.where(hi - mid >= mid - lo, hi, lo)
+        return to if np.any(np.abs(to - mid) > 0) else None
 
     def signals(self, model: AbstractModel) -> np.ndarray:
         """The measured signals the operating point and the scenarios hold constant: their

@@ -233,11 +233,26 @@ def coverage(model: AbstractModel, u_range, w_range=None, y_range=None, noise_st
             "warnings": warnings}
 
 
+def starts_at_rest(y, noise_std=None) -> bool:
+    """Does the record start at rest: every output's first reading within the coverage
+    tolerance ($3\\sigma_i + 0.05\\,\\mathrm{range}_i$) of its lowest? A heater record that does
+    started with the heaters off, so its first reading is the steady state at zero input (a
+    cold start, a step test from ambient); `heat_check` counts zero input among the recorded
+    ones, or the start would be a temperature the heaters' recorded powers cannot hold."""
+    y = np.asarray(y, np.float64)
+    sigma = np.broadcast_to(np.asarray(0.0 if noise_std is None else noise_std, np.float64),
+                            (y.shape[1],))
+    tau = NOISE_SIGMAS * sigma + COVERAGE_SHARE * np.ptp(y, axis=0)
+    return bool(y.shape[0] and np.all(y[0] <= y.min(axis=0) + tau))
+
+
 def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> dict:
     """Is `model` a plant heat could be, judged on its recording `data` (an `IOData`)?
     The step-response findings of `check_fit` (stable, no heater cooling its sensor, no inverse
     response beyond the noise), the sign of every static gain (no heater lowers any sensor's
-    steady temperature beyond the noise) and `coverage` of the recorded temperatures.
+    steady temperature beyond the noise) and `coverage` of the recorded temperatures, with
+    zero input counted among the recorded ones when the record starts at rest
+    (`starts_at_rest`).
 
     **Returns:** `{"plausible", "warnings"}`.
     """
@@ -256,7 +271,10 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
         u = np.asarray(data.u, np.float64)
         w = np.asarray(data.w, np.float64)
         y = np.asarray(data.y, np.float64)
-        cov = coverage(model, np.stack([u.min(0), u.max(0)]),
+        u_lo = u.min(0)
+        if starts_at_rest(y, sigma):     # its first reading is the heaters-off steady state
+            u_lo = np.minimum(u_lo, 0.0)
+        cov = coverage(model, np.stack([u_lo, u.max(0)]),
                        np.stack([w.min(0), w.max(0)]) if w.shape[1] else None,
                        np.stack([y.min(0), y.max(0)]), sigma, names_y)
         warnings += cov["warnings"]

@@ -143,7 +143,7 @@ def test_fit_leaves_out_a_heater_never_switched_on(tmp_path, capsys):
     rc, _, err = _run(["fit", est, "--model", "arx", "--orders", "1,1,1", "--validation", val,
                        "--out", model, "--json", js, "--quiet"], capsys)
     assert rc == 0, err
-    assert "note: u_3 constant in the record: left out of the model" in err
+    assert "warning: u_3 constant in the record: left out of the model" in err
     rep = json.loads(js.read_text())
     assert rep["inputs"] == ["1", "2"] and rep["dropped_inputs"] == ["3"] and rep["mean_fit_percent"] > 90
     assert io.load_model(model).n_inputs == 2

@@ -116,3 +116,97 @@ def test_setpoint_signal_left_out_and_constant_input_dropped():
     r = fit(data, "ss")
     assert r.model.n_inputs == 1 and r.model.n_signals == 1     # the fan: a disturbance
     assert r.extra["physics"]["signals"] == ["fan_cmd"]
+
+
+def coupled_record(T=600, seed=2):
+    """One heater, two sensors: the second warms only through the first (a lag the grey-box
+    bed's independent zones cannot follow), the kit at rest at 21 °C for the first 30 s."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.choice([0.0, 0.5, 1.0], T // 60 + 1), 60)[:T, None]
+    u[:30] = 0.0
+    x = np.zeros(2)
+    y = np.empty((T, 2))
+    for k in range(T):
+        y[k] = 21.0 + x
+        x = x + np.array([-x[0] / 120.0 + 0.4 * u[k, 0] - (x[0] - x[1]) / 300.0,
+                          (x[0] - x[1]) / 300.0 - x[1] / 900.0])
+    return from_arrays(u, y + 0.05 * rng.standard_normal(y.shape), ts=1.0)
+
+
+def test_greybox_surroundings_no_higher_than_the_coldest_reading():
+    from jthermo.identify.greybox import fit_greybox
+
+    data = coupled_record()
+    free = fit_greybox(data, use_signals=False)
+    assert float(free.model.surroundings) > data.y.min() + 1.0      # carried off by the lag
+    assert not heat_check(free.model, data)["plausible"]
+    r = fit(data, "greybox")
+    assert float(r.model.surroundings) <= data.y.min() + 1e-9
+    assert r.extra["surroundings_bounded"] and "bounded" in r.extra["physics"]["path"][0]
+    assert heat_check(r.model, data)["plausible"] and _step_ok(r.model)
+    assert fit(data, "greybox", physics="none").model.surroundings == free.model.surroundings
+
+
+@pytest.mark.parametrize("n_zones", [1, 16])
+def test_greybox_bound_binds_every_zone(n_zones):
+    """16 zones: the bound holds the one constant surroundings of all of them."""
+    from jthermo.identify.greybox import fit_greybox
+
+    u, y = _clean(n_zones, T=900)
+    y[:, 0] += np.linspace(0.0, 8.0, len(y))      # a drift the first zone reads as warm surroundings
+    data = from_arrays(u, y, ts=1.0)
+    cap = float(y.min()) - 0.5
+    r = fit_greybox(data, use_signals=False, surroundings_max=cap)
+    assert float(r.model.surroundings) <= cap + 1e-9
+    with pytest.raises(JThermoError, match="surroundings_max must be finite"):
+        fit_greybox(data, use_signals=False, surroundings_max=float("nan"))
+
+
+def step_test(T=500, n=1, start=21.0, on=0.5, seed=0):
+    """A heater step test logged as TCLab kits log it: every heater at `on` from the first
+    sample (a second, logged heater held at 0), the sensors at `start` there; first order, gain
+    30 °C per unit input, time constant 100 s."""
+    rng = np.random.default_rng(seed)
+    a = np.exp(-1 / 100.0)
+    u = np.column_stack([np.full((T, n), on), np.zeros((T, 1))])
+    x = np.zeros(n)
+    y = np.empty((T, n))
+    for k in range(T):
+        y[k] = start + x
+        x = a * x + (1 - a) * 30.0 * u[k, :n]
+    return from_arrays(u, y + 0.03 * rng.standard_normal(y.shape), ts=1.0)
+
+
+@pytest.mark.parametrize("n", [1, 16])
+def test_step_from_rest_puts_rest_before_the_record(n):
+    data = step_test(n=n)
+    d, info = heat_data(data)
+    k = info["rest_samples"]
+    assert k >= 30 and d.n_samples == data.n_samples + k and d.t0 == data.t0 - k * data.ts
+    assert info["dropped_inputs"] == [data.input_names[n]] and d.n_inputs == n
+    assert np.all(d.u[:k] == 0) and np.allclose(d.u[k:], 0.5)
+    assert np.all(d.y[:k] == data.y[0]) and np.array_equal(d.y[k:], data.y)
+    assert "step from rest" in d.notes[-1]
+    again, info2 = heat_data(d)         # a record with its rest varies: nothing more put before
+    assert info2["rest_samples"] == 0 and again.n_samples == d.n_samples
+
+
+@pytest.mark.parametrize("family", ["arx", "oe", "ss", "greybox"])
+def test_step_from_rest_fits_its_gain(family):
+    data = step_test()
+    with pytest.raises(JThermoError, match="constant"):
+        fit(data, family, physics="none")       # a constant input: no information as given
+    r = fit(data, family)
+    assert r.extra["physics"]["rest_samples"] > 0 and r.extra["physics"]["plausible"]
+    assert "step from rest" in r.extra["physics"]["path"][0]
+    assert _step_ok(r.model)
+    assert np.asarray(r.model.dcgain()).ravel()[0] == pytest.approx(30.0, rel=0.1)
+
+
+def test_constant_record_without_a_step_is_refused_with_the_reason():
+    with pytest.raises(JThermoError, match="no heater was on"):
+        fit(step_test(on=0.0), "oe")
+    hot = step_test()
+    hot = hot.replace(y=hot.y[::-1].copy())         # starts hot and cools: not a step from rest
+    with pytest.raises(JThermoError, match="does not start at rest"):
+        fit(hot, "oe")
