@@ -254,7 +254,7 @@ def unroll_threefry() -> bool:
 
 
 #: the CPU-lowered LAPACK primitives of `jax._src.lax.linalg` and the core rank of each
-#: operand (the leading dimensions beyond it are batch dimensions)
+#: operand (the dimensions before it are batch dimensions)
 _LAPACK_RANKS = {"cholesky_p": (2,), "eig_p": (2,), "eigh_p": (2,), "geqp3_p": (2, 1),
                  "geqrf_p": (2,), "hessenberg_p": (2,), "householder_product_p": (2, 1),
                  "lu_p": (2,), "ormqr_p": (2, 1, 2), "schur_p": (2,), "svd_p": (2,),
