@@ -1,5 +1,5 @@
 """How far the per-zone candidate fits (`fitting.fit_zones`, `select.N_ITER`) run, and what
-stopping them earlier would change (measured at 607f8f9): every problem (zone x candidate x start) of a diagnosis
+stopping them earlier would change: every problem (zone x candidate x start) of a diagnosis
 refitted with the same masked Levenberg–Marquardt for a fixed `--ref` iterations (no early
 stop: the iterates are those of the early-stopping loop, `identify.lm.masked_lm`), its cost
 trajectory kept; the stopping rule (fall over `lm.STALL` iterations <= rtol x cost, at most the
@@ -68,11 +68,17 @@ def load_record(spec: str, max_zones: int):
     return H.make_record(c)
 
 
+def zone_residual(theta, on, z, lay):
+    """A per-zone problem's residual, as `fitting.fit_zones` fits it: the zone's record less
+    its simulation (`mechanisms.simulate_zone`)."""
+    return z["y"] - M.simulate_zone(theta, on, z, lay)
+
+
 def _fixed(theta0, mask, on, per, shared, lay, n_iter, n_active):
     def one(a):
         t, m, o, p = a
         z = {**shared, **p}
-        return masked_lm(lambda th: fitting._zone_residual(th, o, z, lay), t, m, n_iter, n_active)
+        return masked_lm(lambda th: zone_residual(th, o, z, lay), t, m, n_iter, n_active)
 
     return jax.lax.map(one, (theta0, mask, on, per))
 
@@ -139,7 +145,7 @@ def main(argv=None) -> int:
         hist = np.asarray(hist)
         call["ref_cpu_s"] = cpu_seconds() - c1
         c0s = np.asarray(jax.vmap(lambda t, o, p, sh=shared, ly=lay:
-                                  jnp.mean(fitting._zone_residual(t, o, {**sh, **p}, ly) ** 2))(theta0, on, per))
+                                  jnp.mean(zone_residual(t, o, {**sh, **p}, ly) ** 2))(theta0, on, per))
         for b, (nm, zone) in enumerate(labels(cands, theta0.shape[0], n, ci)):
             h, cref = hist[b], hist[b, -1]
             k, _, stopped = stop_at(h, c0s[b], fitting.RTOL, n_iter)

@@ -1,8 +1,10 @@
-"""Every fresh held-out set scored so far, side by side, and its misses by kind and by how
-they missed (where the 15/16 goal stands and why).
+"""Every seed set scored so far, side by side, and its misses by kind and by how they missed
+(where the 15/16 goal stands and why).
 
 Reads the stored JSON of `diagnose_heldout_hard.py` runs (no diagnosis is run). A *fresh* set
-was scored once, with the code of its day, and never tuned on afterwards; later code changed
+was scored once, with the code of its day; sets 14-19 and 21 then fed constants or rules of the
+diagnosis (`diagnose_heldout_hard.DEVELOPMENT_SETS`): they are development sets, their rows
+development scores, not held-out ones, and a sum over sets adds different code versions; later code changed
 some answers, so a row is that day's score, not today's (set 24 rerun with the fits spread over
 threads, committed in 344910e, gave the same 19/19: `diagnose_heldout_same_fresh24_mz9_vs_s42shares_set24.md`). A miss is
 
@@ -70,9 +72,9 @@ def total_line(res: dict) -> str:
 
 
 def render(res: dict, argv: str) -> str:
-    out = ["# Fresh held-out sets scored so far", "",
+    out = ["# Seed sets scored so far (development sets 14-19 and 21 fed constants or rules)", "",
            f"Made by `python experiments/diagnose_heldout_scoreboard.py{argv}` from the stored JSON of "
-           "`diagnose_heldout_hard.py` (each set scored once, with the code of its day; see the "
+           "`diagnose_heldout_hard.py` (each set scored once, with the code of its day, not one code; see the "
            "script's docstring). Goal: top-1 >= 15/16 per set, nulls 3/3.", "",
            total_line(res), "",
            "| set | top-1 | nulls quiet | truth first or a rival | confident wrong names | median gain pts |",

@@ -80,7 +80,12 @@ class StageRunner:
 
 def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
     """Start `fn()` in a daemon thread (an interrupted demo does not wait for it); returns the
-    function that waits for it and returns its result or raises its exception."""
+    function that waits for it and returns its result or raises its exception. Batched
+    LAPACK calls are lowered one matrix at a time first (`runtime.one_matrix_at_a_time`): two
+    threads' programs must never both wait on XLA's CPU pool."""
+    from .runtime import one_matrix_at_a_time
+
+    one_matrix_at_a_time()
     box: dict[str, Any] = {}
 
     def target():
@@ -105,8 +110,7 @@ def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
 def _quick_simulate():
     """`closedloop.simulate` as one program with `runtime.simulate_compile()` options (the
     scenario figures' runs; their scenarios from `closedloop.compiled_make_scenario`): cold,
-    the three take a fraction of their CPU time eager with default options (measured by
-    `python benchmarks/evaluate_compile.py`)."""
+    the three take less CPU time than eager runs with default options."""
     import equinox as eqx
 
     from .closedloop import simulate

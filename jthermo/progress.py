@@ -12,18 +12,72 @@ with Progress(200, "tuning") as bar:
     for k in range(200):
         bar.update(1, cost=float(cost))
 ```
+
+**Heartbeat.** Every `Progress` update, every `stage` entered and every `beat()` marks the
+process as making progress (`last_beat`), and `stage(name)` names what the calling thread is
+doing (`stages`): the CLI's watchdog (`jthermo.cli.watchdog`) ends a command that has made no
+progress for its limit with the stage each thread was in. A long loop without a bar calls
+`beat()`; JAX's compile events beat too, once the watchdog listens to them.
+
+```python
+with stage("tune: held-out evaluation"):
+    for c in controllers:
+        simulate(c)
+        beat()
+```
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 ProgressCallback = Callable[[int, int, dict], None]
 
 _QUIET = False
+
+
+#: monotonic time of the last sign of progress, and the stage of each thread that named one
+_beat = {"t": time.monotonic()}
+_stages: dict[int, tuple[str, str]] = {}
+
+
+def beat() -> None:
+    """Mark the process as making progress now (thread-safe, costs a clock read)."""
+    _beat["t"] = time.monotonic()
+
+
+def last_beat() -> float:
+    """`time.monotonic()` at the last `beat` (or stage change, or bar update)."""
+    return _beat["t"]
+
+
+@contextlib.contextmanager
+def stage(name: str):
+    """Name what the calling thread does inside the block (its previous stage comes back
+    after it); entering and leaving beat."""
+    tid = threading.get_ident()
+    before = _stages.get(tid)
+    _stages[tid] = (threading.current_thread().name, str(name))
+    beat()
+    try:
+        yield
+    finally:
+        if before is None:
+            _stages.pop(tid, None)
+        else:
+            _stages[tid] = before
+        beat()
+
+
+def stages() -> list[tuple[str, str]]:
+    """`(thread name, stage)` of every thread inside a `stage` block now."""
+    return list(_stages.values())
 
 
 def set_quiet(quiet: bool = True) -> None:
@@ -63,8 +117,17 @@ def progress(iterable: Iterable | int, desc: str = "", quiet: bool | None = None
 
     if isinstance(iterable, int):
         iterable = range(iterable)
-    return tqdm(iterable, desc=desc, disable=not enabled(quiet), leave=False,
+    if "total" not in kwargs and hasattr(iterable, "__len__"):
+        kwargs["total"] = len(iterable)
+    return tqdm(_beating(iterable), desc=desc, disable=not enabled(quiet), leave=False,
                 dynamic_ncols=True, file=sys.stderr, **kwargs)
+
+
+def _beating(iterable: Iterable):
+    """`iterable`'s items, a `beat` before each."""
+    for item in iterable:
+        beat()
+        yield item
 
 
 class Progress:
@@ -94,6 +157,7 @@ class Progress:
 
     def update(self, n: int = 1, **postfix: Any) -> None:
         """Advance by `n` iterations and show `postfix` values (e.g. `cost=0.12`)."""
+        beat()
         self.n += n
         if postfix:
             self.info.update(postfix)
@@ -107,6 +171,7 @@ class Progress:
 
         A one-line status string in place of `i` is shown as the bar's description, and the
         `(i, value)` form (iteration `i`, 0-based, ended with a cost `value`) is accepted too."""
+        beat()
         if isinstance(i, str):
             self.info["status"] = i
             if self._bar is not None:

@@ -19,6 +19,17 @@ be read or written (a lock timeout, a full disk) makes JAX compile as if it were
 A directory that cannot be created or written (a read-only home) turns the cache off for the
 process: the command runs as without it.
 
+**LAPACK on the CPU, one matrix at a time.** `one_matrix_at_a_time()` lowers every batched
+factorisation or solve to a loop over single matrices, so that no LAPACK kernel waits on XLA's
+CPU thread pool: two programs running at once (threads) can then never deadlock there. The
+command, the test suite and every library function that runs programs on two threads switch it
+on (`python experiments/printer_scale.py --ab` compares it with running `tune_report`'s two
+threads' work one after the other).
+
+**Compiled programs.** `guard`, called where the library's fits, diagnoses and sweep trials
+start, drops the process's compiled programs (JAX's caches, `program_factory`'s) once its
+memory maps reach `map_bound()`: a long-lived process never nears Linux's limit.
+
 **Timing.** `Stopwatch` listens to JAX's monitoring events for tracing, lowering and backend
 compilation and sums the union of their time spans (nested traces count once); `run_s` is the
 rest of the wall time.
@@ -27,6 +38,7 @@ rest of the wall time.
 from __future__ import annotations
 
 import functools
+import gc
 import os
 import tempfile
 import threading
@@ -68,10 +80,12 @@ COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
                   "/jax/core/compile/backend_compile_duration")
 
 #: the process's compilation cache: its directory (`dir`, None when off) and why it is off
-#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering
+#: (`reason`); `threefry` once `unroll_threefry` swapped the lowering, `lapack` once
+#: `one_matrix_at_a_time` did, `looped` the batched LAPACK calls it has lowered to loops
 state: dict = {"dir": None, "reason": "not enabled"}
 _spans: list[tuple[float, float]] = []
 _lock = threading.Lock()
+_install_lock = threading.Lock()
 _listening = False
 
 
@@ -236,6 +250,107 @@ def unroll_threefry() -> bool:
     return True
 
 
+# ---------------------------------------------------------------- LAPACK, one matrix at a time
+
+
+#: the CPU-lowered LAPACK primitives of `jax._src.lax.linalg` and the core rank of each
+#: operand (the dimensions before it are batch dimensions)
+_LAPACK_RANKS = {"cholesky_p": (2,), "eig_p": (2,), "eigh_p": (2,), "geqp3_p": (2, 1),
+                 "geqrf_p": (2,), "hessenberg_p": (2,), "householder_product_p": (2, 1),
+                 "lu_p": (2,), "ormqr_p": (2, 1, 2), "schur_p": (2,), "svd_p": (2,),
+                 "triangular_solve_p": (2, 2), "tridiagonal_p": (2,),
+                 "tridiagonal_solve_p": (1, 1, 1, 2)}
+
+
+def one_matrix_at_a_time() -> bool:
+    """Lower every LAPACK call on the CPU with batch dimensions (a factorisation or solve
+    under `jax.vmap`, or of a stack of matrices) to a loop (`lax.map`) over single matrices.
+
+    Why: jaxlib's CPU LAPACK kernels (LU, triangular solve, Cholesky, QR, eig, eigh, SVD,
+    Schur, ...) deal a batch whose work exceeds 2e5 flops to XLA's intra-op thread pool in
+    chunks and block the pool thread they run on until the chunks are done
+    (`ParallelBatchMap` in jaxlib 0.10's `cpu/lapack_kernels.cc`). Two such kernels running
+    at once, from two programs on two Python threads or from two independent operations of
+    one program, hold both threads of a two-thread pool (two cores) and wait for good: the
+    hang of `jthermo tune --plant printer --zones 16` (gdb: both `tf_XLAEigen` threads in
+    `LuDecomposition::Kernel` -> `ParallelBatchMap` -> `BlockingCounter::Wait`), as of the
+    diagnosis's split fits before (`identify/lm.py`). A kernel given one matrix runs it in
+    its own thread and never schedules onto the pool, so no factorisation can wait on the
+    pool whatever runs beside it: deadlock-free by construction, for every caller, not only
+    the call sites known today. Same results: each matrix goes through the same LAPACK
+    routine; transformations (grad, vmap) are unaffected (the rule acts at lowering).
+
+    Changes the lowering of every program compiled afterwards in this process (and the keys
+    of `stored.exported_call`, `lowering_tags`); on first use it empties JAX's in-memory
+    caches, so that no program compiled before (with a batched kernel) runs again. Idempotent
+    and cheap after the first call: the CLI calls it at start-up, and every library function
+    that runs compiled programs on more than one thread calls it before it starts them.
+    Returns False, changing nothing, where this JAX lacks the internals it relies on."""
+    if state.get("lapack") == "one matrix at a time":
+        return True
+    with _install_lock:
+        if state.get("lapack") == "one matrix at a time":
+            return True
+        try:
+            from jax._src.interpreters import mlir
+            from jax._src.lax import linalg
+
+            cpu = mlir._platform_specific_lowerings["cpu"]
+            rules = {getattr(linalg, name): (ranks, cpu[getattr(linalg, name)].rule)
+                     for name, ranks in _LAPACK_RANKS.items()
+                     if getattr(linalg, name, None) in cpu}
+        except (ImportError, AttributeError, KeyError):
+            return False
+        for prim, (ranks, rule) in rules.items():
+            mlir.register_lowering(prim, _looped_lowering(prim, ranks, rule), platform="cpu")
+        state["lapack"] = "one matrix at a time"
+    import jax
+
+    jax.clear_caches()   # nothing compiled before the rule runs again
+    return True
+
+
+def _looped_lowering(prim, ranks, rule):
+    """The CPU lowering of `prim`: `rule` itself for an unbatched call, else a `lax.map` of
+    `prim` over the flattened batch (each inner call lowers through `rule`, one matrix)."""
+    import math
+
+    import jax
+
+    from jax._src.interpreters import mlir
+
+    def lower(ctx, *args, **params):
+        shape0 = ctx.avals_in[0].shape
+        batch = tuple(shape0[:len(shape0) - ranks[0]])
+        count = math.prod(batch)
+        if count <= 1 or not all(isinstance(d, int) for d in batch):
+            return rule(ctx, *args, **params)
+        state["looped"] = state.get("looped", 0) + 1
+
+        def looped(*ops):
+            flat = [o.reshape((count, *o.shape[len(batch):])) for o in ops]
+            out = jax.lax.map(lambda xs: prim.bind(*xs, **params), flat)
+            outs = out if prim.multiple_results else [out]
+            outs = [o.reshape((*batch, *o.shape[1:])) for o in outs]
+            return outs if prim.multiple_results else outs[0]
+
+        return mlir.lower_fun(looped, multiple_results=prim.multiple_results)(ctx, *args)
+
+    return lower
+
+
+def looped_calls() -> int:
+    """How many batched LAPACK calls `one_matrix_at_a_time` has lowered to a loop so far in
+    this process (a lowering loaded from the persistent cache is not counted)."""
+    return int(state.get("looped", 0))
+
+
+def lowering_tags() -> str:
+    """The lowering swaps of this process (`unroll_threefry`, `one_matrix_at_a_time`), as
+    one string: part of `stored.exported_call`'s key."""
+    return f"threefry={state.get('threefry')} lapack={state.get('lapack')}"
+
+
 # ---------------------------------------------------------------- the CPU backend's threads
 
 
@@ -245,8 +360,7 @@ ONE_THREAD_MAX_CPUS = 2
 
 #: 1-minute load average, per schedulable CPU beyond the first, from which a machine counts
 #: as busy (`busy`): on an idle machine two threads run `jthermo simulate` slightly faster in
-#: wall time for more CPU time, on a busy one a single thread is faster (measured by
-#: `python benchmarks/simulate_threads.py`)
+#: wall time for more CPU time, on a busy one a single thread is faster
 BUSY_LOAD_PER_CPU = 1.0
 
 
@@ -267,8 +381,7 @@ def one_thread_backend() -> bool:
     made, then every thread of the process is given all its CPUs back. `jthermo simulate`'s
     programs are loops of small operations (B x n = 256 x 33) that a second thread only
     slows: on 2 shared cores both the run program and its first call (trace, compile, run)
-    take less CPU time with one thread, the same figures bit for bit (measured by `python
-    benchmarks/simulate_threads.py`).
+    take less CPU time with one thread, the same figures bit for bit.
 
     Returns False, changing nothing, where the backend exists already, the platform cannot
     set CPU affinities, or the process may use more than `ONE_THREAD_MAX_CPUS` CPUs."""
@@ -366,3 +479,130 @@ def cache_dir() -> Path | None:
 def threefry_lowering() -> str | None:
     """"unrolled" once `unroll_threefry` swapped the CPU lowering in, else None."""
     return state.get("threefry")
+
+
+# ---------------------------------------------------------------- the process's compiled programs
+
+#: memory maps at which `guard` drops the process's compiled programs (or a third of the
+#: system's limit if lower). Every XLA CPU executable keeps memory maps of its code; past
+#: `vm.max_map_count` (65,530 by default) LLVM aborts the process with no Python exception.
+#: What one job adds between two guards (a state-space fit ~1,300, a generated record ~300:
+#: `python benchmarks/memory_maps.py`) then leaves a process well below 30,000.
+MAP_BOUND = 20_000
+#: entries of the library's one cache of program factories (`program_factory`)
+FACTORY_CACHE_SIZE = 64
+#: JAX's duration events of a program made: compiled, or read from the persistent cache
+_PROGRAM_EVENTS = ("/jax/core/compile/backend_compile_duration",
+                   "/jax/compilation_cache/cache_retrieval_time_sec")
+
+_guard = {"compiled": 0, "checked_at": -1, "clears": 0, "maps": None, "listening": False}
+_factories: "dict[tuple, object]" = {}   # an LRU: insertion order, most recent last
+_factory_lock = threading.Lock()
+
+
+def _on_duration(event: str, duration: float, **_) -> None:
+    if event in _PROGRAM_EVENTS:
+        _guard["compiled"] += 1
+
+
+def count_compiles() -> None:
+    """Count the programs this process compiles or loads from the persistent cache from now on."""
+    with _factory_lock:
+        if _guard["listening"]:
+            return
+        _guard["listening"] = True
+    import jax.monitoring
+
+    jax.monitoring.register_event_duration_secs_listener(_on_duration)
+
+
+def compiled_programs() -> int:
+    """Programs compiled (or loaded) since `count_compiles` was first called."""
+    return _guard["compiled"]
+
+
+def memory_maps() -> int | None:
+    """The process's memory maps (lines of `/proc/self/maps`); None where there are none."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return None
+
+
+@functools.cache
+def map_bound() -> int:
+    """`MAP_BOUND`, or a third of `/proc/sys/vm/max_map_count` where that is lower."""
+    try:
+        limit = int(Path("/proc/sys/vm/max_map_count").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return MAP_BOUND
+    return min(MAP_BOUND, max(limit // 3, 1))
+
+
+def program_factory(fn):
+    """Decorator: `fn(*key)` (a function that builds a compiled program, e.g. returns an
+    `eqx.filter_jit`) memoised in the library's one cache of program factories, bounded to
+    `FACTORY_CACHE_SIZE` entries over all factories (least recently used dropped first) and
+    emptied by `clear_programs` (or, for `fn`'s entries, `cache_clear`). Arguments must be
+    hashable (as for `functools.cache`)."""
+    name = (fn.__module__, fn.__qualname__)
+
+    @functools.wraps(fn)
+    def get(*args):
+        key = name + args
+        with _factory_lock:
+            if key in _factories:
+                _factories[key] = _factories.pop(key)
+                return _factories[key]
+        value = fn(*args)
+        with _factory_lock:
+            _factories[key] = value
+            while len(_factories) > FACTORY_CACHE_SIZE:
+                _factories.pop(next(iter(_factories)))
+        return value
+
+    def cache_clear():
+        with _factory_lock:
+            for key in [k for k in _factories if k[:2] == name]:
+                del _factories[key]
+
+    get.cache_clear = cache_clear
+    return get
+
+
+def clear_programs() -> None:
+    """Drop every compiled program of the process: JAX's caches (`jax.clear_caches`) and the
+    library's program factories. Nothing is lost but time: a program needed again is traced
+    again and compiled, or loaded from the persistent cache (`enable_cache`)."""
+    import jax
+
+    with _factory_lock:
+        _factories.clear()
+    jax.clear_caches()
+    gc.collect()
+
+
+def guard() -> bool:
+    """Keep the process below `map_bound()` memory maps: where programs were compiled since
+    the last look and the maps reach the bound, `clear_programs()` (never inside a trace).
+    Called where fits, diagnoses and sweep trials start: a long-lived process (a notebook, a
+    study, a sweep worker) needs no cache clearing of its own. One read of `/proc/self/maps`
+    after a compile, none otherwise. True when it cleared."""
+    count_compiles()
+    if _guard["compiled"] == _guard["checked_at"] or not top_level():
+        return False
+    _guard["checked_at"] = _guard["compiled"]
+    n = _guard["maps"] = memory_maps()
+    if n is not None and n >= map_bound():
+        clear_programs()
+        _guard["clears"] += 1
+        _guard["maps"] = memory_maps()
+        return True
+    return False
+
+
+def guard_info() -> dict:
+    """`{"bound", "clears", "maps" (at the last look), "compiled"}` of this process's guard."""
+    return {"bound": map_bound(), "clears": _guard["clears"], "maps": _guard["maps"],
+            "compiled": _guard["compiled"]}

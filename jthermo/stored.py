@@ -15,7 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from .runtime import cache_dir, threefry_lowering, top_level
+from .runtime import cache_dir, lowering_tags, top_level
 
 #: subdirectory of the cache directory holding serialized `jax.export` programs (JAX's own
 #: cache reads and evicts only its `*-cache` entries, so it leaves these alone)
@@ -163,7 +163,7 @@ def export_key(fn, treedef, static, arrays, extra: str = "") -> tuple[str, str] 
 
     flags = [f"{k}={getattr(jax.config, k, None)}" for k in _TRACE_FLAGS]
     parts = [_EXPORT_FORMAT, f"{fn.__module__}.{fn.__qualname__}", _source_hash(),
-             _versions(), " ".join(flags), str(threefry_lowering()),
+             _versions(), " ".join(flags), lowering_tags(),
              jax.default_backend(), str(treedef), repr(static),
              repr([(tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False)))
                    for a in arrays]), extra]

@@ -18,6 +18,9 @@ from jthermo import runtime  # noqa: E402
 
 runtime.enable_cache(None if os.environ.get(runtime.ENV_DIR)
                      else runtime.default_cache_dir().with_name("jax-tests"))
+runtime.one_matrix_at_a_time()   # as the command does: no LAPACK kernel waits on XLA's pool
+# programs this process compiles (or loads from the persistent cache), reported at the end
+runtime.count_compiles()
 
 
 @pytest.fixture
@@ -40,3 +43,31 @@ def _release_compiled_code():
     if not os.environ.get("JTHERMO_TESTS_KEEP_COMPILED"):    # benchmarks/memory_maps_tests.py
         jax.clear_caches()
         gc.collect()
+
+
+def pytest_sessionfinish(session):
+    """An xdist worker hands its compiled-program count to the controller."""
+    out = getattr(session.config, "workeroutput", None)
+    if out is not None:
+        out["jthermo_compiled"] = runtime.compiled_programs()
+        out["jthermo_clears"] = runtime.guard_info()["clears"]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    out = getattr(node, "workeroutput", None) or {}
+    counts = node.config.stash.setdefault(_WORKER_COUNTS, [])
+    counts.append((out.get("jthermo_compiled", 0), out.get("jthermo_clears", 0)))
+
+
+_WORKER_COUNTS = pytest.StashKey[list]()
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """The programs the suite compiled (or loaded from the persistent cache), all processes."""
+    workers = config.stash.get(_WORKER_COUNTS, [])
+    compiled = runtime.compiled_programs() + sum(c for c, _ in workers)
+    clears = runtime.guard_info()["clears"] + sum(k for _, k in workers)
+    terminalreporter.write_line(
+        f"jthermo: {compiled} programs compiled or loaded in {max(len(workers), 1)} "
+        f"process(es); memory-map guard cleared {clears} time(s)")

@@ -4,7 +4,9 @@ Every command takes `--json PATH` (a JSON report written atomically, with the wa
 `seconds` split into `compile_s` and `run_s`), `--seed`, `--quiet`, `--verbose` and `--no-cache`:
 compiled code is kept in a persistent cache between runs (`jthermo.runtime`).
 Errors are one line on stderr and exit status 2, never a traceback and never a partial
-output file; Ctrl-C prints one line and exits with 130, leaving saved files intact.
+output file; Ctrl-C prints one line and exits with 130, leaving saved files intact. A command
+that makes no progress for `--timeout S` seconds (default 1200, before or after the command's
+name; 0: never) says so with the stage it is in and exits with 2 (`watchdog`).
 Imports of the library are lazy (inside each command), so `jthermo --help` is fast.
 
     jthermo fit EST.csv --model {arx,armax,oe,bj,ss,greybox} [--orders ...] [--validation VAL.csv]
@@ -39,7 +41,7 @@ import warnings
 
 from ..errors import JThermoError
 from . import batch, control, diagnose, export, firmware, identify
-from .common import Parser, UsageError, exit_now
+from .common import Parser, UsageError, add_timeout, exit_now
 
 EXIT_OK = 0
 EXIT_ERROR = 2
@@ -58,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
     p.add_argument("--version", action="version", version=f"jthermo {__version__}")
+    add_timeout(p, default=None)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for family in (identify, control, diagnose, batch, export, firmware):
         family.add_parsers(sub)
@@ -107,8 +110,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_ERROR
     debug = bool(os.environ.get("JTHERMO_DEBUG"))
+    from .. import progress
+    from .watchdog import DEFAULT_LIMIT_S, Watchdog, listen_to_compiles
+
+    limit = DEFAULT_LIMIT_S if args.timeout is None else args.timeout
+    dog = Watchdog(limit, f"jthermo {args.command}").start()
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), progress.stage(args.command):
             if not debug:
                 warnings.simplefilter("ignore")
             from .. import runtime
@@ -119,11 +127,13 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 runtime.enable_cache()
             runtime.unroll_threefry()   # the same random bits, fewer CPU seconds
+            runtime.one_matrix_at_a_time()   # no LAPACK kernel waits on XLA's pool
             if getattr(args, "verbose", False):
                 print(f"jthermo: {runtime.cache_info()}", file=sys.stderr)
             import jax
 
             jax.config.update("jax_enable_x64", True)
+            listen_to_compiles()   # a compile is progress: the watchdog hears of each
             if args.quiet:
                 from ..progress import set_quiet
 
@@ -145,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             return _fail(f"{exc.filename}: {exc.strerror}")
         return _fail(f"internal error ({type(exc).__name__}): {exc}")
     finally:
+        dog.stop()
         if args.command is not None and getattr(args, "quiet", False):
             from ..progress import set_quiet
 

@@ -64,9 +64,27 @@ def duration(text: str) -> float:
     return v
 
 
+def timeout(text: str) -> float:
+    v = number(text, float, "seconds")
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"timeout must be a number of seconds >= 0, got {text}")
+    return v
+
+
+TIMEOUT_HELP = ("end the command (exit status 2, naming its stage) once it has made no "
+                "progress for S seconds (default 1200; 0: never)")
+
+
+def add_timeout(sp: argparse.ArgumentParser, default=argparse.SUPPRESS) -> None:
+    """`--timeout S` (`watchdog`): on the command line before the command or after it (a
+    command's parser leaves the value alone unless given there)."""
+    sp.add_argument("--timeout", type=timeout, default=default, metavar="S", help=TIMEOUT_HELP)
+
+
 def add_common(sp: argparse.ArgumentParser, plot: bool = True) -> None:
     """The options every command takes: `--json`, `--seed`, `--quiet`, `--verbose`,
-    `--no-cache` (and `--plot`)."""
+    `--no-cache`, `--timeout` (and `--plot`)."""
+    add_timeout(sp)
     sp.add_argument("--json", metavar="PATH", help="write a JSON report here (atomically)")
     sp.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     sp.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -30,8 +30,8 @@ from .common import (
 
 #: `jthermo tune`'s default Adam iterations on the virtual printer for the families where
 #: fewer were measured as good: with 150 the validation guard (Ms <= 2) chose iteration 60
-#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by `python
-#: benchmarks/tuning_profile_default.py` and `python benchmarks/tuning_optimisers.py`); lqg at
+#: for pi and 30 for lqg; with 60, pi returns the same controller (measured by
+#: `python benchmarks/tuning_optimisers.py`); lqg at
 #: 30 steps of learning rate 0.1 (`SHORT_LR`) does as well below lambda PI as at 60 steps of
 #: 0.05 or at 150 (measured by `python benchmarks/tuning_rollouts.py`); pi at 40 steps of 0.075
 #: falls short

@@ -23,16 +23,18 @@ from .common import (
 
 def add_parsers(sub) -> None:
     sp = sub.add_parser("diagnose", help="locate and name the physics a model left out")
-    sp.add_argument("data", metavar="EST.csv")
+    sp.add_argument("data", metavar="EST.csv", nargs="+",
+                    help="estimation record(s) of one plant: several are fitted jointly (pooled evidence)")
     sp.add_argument("--validation", required=True, metavar="VAL.csv")
     sp.add_argument("--model", default="greybox", choices=("greybox",))
     sp.add_argument("--report", metavar="DIR", help="write a Markdown report with figures")
     sp.add_argument("--actuator", default="any", choices=("any", "resistive-pwm"),
                     help="declared actuator: findings that contradict it are flagged, not named")
     sp.add_argument("--design-experiment", metavar="OUT.csv",
-                    help="write the input that best separates the rival explanations (data format)")
+                    help="when a finding is uncertain, write the input that best separates it from its "
+                         "rivals (data format); otherwise say that no experiment is needed and write nothing")
     sp.add_argument("--design-duration", type=float, metavar="S",
-                    help="designed record's length in s (default: the estimation record's)")
+                    help="designed record's length in s (default: the (longest) estimation record's)")
     sp.add_argument("--design-hold", type=float, default=10.0, metavar="S",
                     help="designed input's minimum switching time in s (default 10)")
     sp.add_argument("--design-max-temp", type=float, metavar="C",
@@ -48,10 +50,14 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     distinct_outputs(js, design)
     if args.report is not None and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f"--report {args.report}: exists and is not a directory")
-    est = load_data(args.data, "estimation data")
+    ests = [load_data(p, "estimation data") for p in args.data]
     val = load_data(args.validation, "validation data")
-    same_layout(est, val)
-    sizes = _design_samples(args, float(est.ts)) if design is not None else None
+    for j, e in enumerate(ests):
+        same_layout(e, val)
+        if j:
+            same_layout(ests[0], e, f"estimation record {j + 1} ({args.data[j]})")
+    est = ests[0] if len(ests) == 1 else ests
+    sizes = _design_samples(args, float(ests[0].ts)) if design is not None else None
     diag = require("jthermo.diagnose", "diagnosis")
     if not hasattr(diag, "diagnose"):
         raise ConfigError("diagnosis is not available in this jthermo build")
@@ -65,8 +71,12 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
         bar.close()
     result = dict(result)
     result.setdefault("seconds", time.perf_counter() - t0)
-    if design is not None:
+    step = _next_step(result)
+    if design is not None and step["experiment_needed"]:
         result["experiment"] = _design(result, est, val, args, design, *sizes)
+    elif design is not None:
+        info(args, f"{step['why']}; wrote nothing to {design}")
+    result["next_step"] = step
     if args.report is not None:
         written = diag.write_report(result, args.report, est, val)
         result["report"] = str(written) if written is not None else str(Path(args.report) / "report.md")
@@ -77,10 +87,30 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     findings = result.get("findings", [])
     names = [_finding_label(f) for f in findings]
     info(args, f"verdict: {result.get('verdict')}" + (f"; findings: {', '.join(names)}" if names else ""))
-    if design is None and any(f.get("uncertain") and f.get("rivals") for f in findings):
-        info(args, "an uncertain finding has rivals the records do not separate: --design-experiment OUT.csv "
-                   "designs a record that would")
+    info(args, "next: " + _what_next(args, step, result.get("experiment")))
     return result
+
+
+def _next_step(result: dict) -> dict:
+    """`diagnose.next_step` (a stand-in diagnosis without it: any uncertain or tied finding)."""
+    try:
+        from ..diagnose.loop import next_step
+    except ImportError:        # a build without the loop
+        tied = [f for f in result.get("findings", []) if f.get("uncertain") or f.get("rivals")]
+        return {"experiment_needed": bool(tied), "rivals": [], "why": "an uncertain finding"}
+    return next_step(result)
+
+
+def _what_next(args, step: dict, exp: dict | None) -> str:
+    """The summary line's advice: what the user does next."""
+    if not step["experiment_needed"]:
+        return step["why"]
+    if exp is not None:
+        more = " ".join(args.data)
+        return (f"{step['why']}: run the inputs of {exp['path']} on the plant, then pool the measured "
+                f"record with the others: jthermo diagnose {more} MEASURED.csv --validation {args.validation}")
+    return (f"{step['why']}: --design-experiment OUT.csv designs the record that separates them "
+            "(pool its measurement with these records)")
 
 
 def _finding_label(f: dict) -> str:
@@ -119,7 +149,8 @@ def _design(result, est, val, args, path, duration, hold) -> dict:
     if y_max is None:
         import numpy as np
 
-        y_max = np.maximum(np.max(np.asarray(est.y, float), axis=0), np.max(np.asarray(val.y, float), axis=0))
+        recs = est if isinstance(est, list) else [est]
+        y_max = np.max(np.concatenate([np.asarray(d.y, float) for d in recs + [val]]), axis=0)
     d = experiment.design_experiment(result, est, val, duration=duration, hold=hold, seed=args.seed, y_max=y_max)
     save_csv(d["record"], path)
     js = experiment.to_json(d, path)

@@ -33,9 +33,12 @@ def add_parsers(sub) -> None:
     sp.add_argument("--setpoint", type=float, metavar="C", help="set point, °C (default: the "
                     "record's most common target, else its operating point)")
     sp.add_argument("--steps", type=int, default=None, metavar="K",
-                    help="tuning iterations (default 60)")
+                    help="refinement iterations after the grid of starts (default 20)")
     sp.add_argument("--rollouts", type=int, default=None, metavar="B",
                     help="rollouts per scenario (default 4)")
+    sp.add_argument("--heater-power", type=float, default=None, metavar="W",
+                    help="the heater's rated power, W, the scale of the MPC constants "
+                    "(default 40, Marlin's MPC_HEATER_POWER)")
     add_common(sp, plot=False)
 
 
@@ -78,10 +81,17 @@ def cmd_calibrate(args: argparse.Namespace) -> dict:
         if not args.quiet:
             print(f"calibrate: {text}", file=sys.stderr)
 
-    kw = {k: getattr(args, k) for k in ("steps", "rollouts") if getattr(args, k) is not None}
+    kw = {k: getattr(args, k) for k in ("steps", "rollouts", "heater_power")
+          if getattr(args, k) is not None}
+    command = " ".join(["jthermo calibrate", args.data]
+                       + (["--validation", args.validation] if args.validation else [])
+                       + ["--out", args.out, "--firmware", args.firmware]
+                       + (["--heater", args.heater] if args.heater else [])
+                       + ([f"--setpoint {args.setpoint:g}"] if args.setpoint is not None else []))
     report = calibrate.calibrate(args.data, out, validation=args.validation,
                                  firmware=args.firmware, heater=args.heater,
-                                 setpoint=args.setpoint, seed=args.seed, progress=say, **kw)
+                                 setpoint=args.setpoint, seed=args.seed, progress=say,
+                                 command=command, **kw)
     report = write_report(args, js, report)
     info(args, f"wrote {', '.join(report['files'])}")
     return report

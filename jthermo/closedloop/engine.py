@@ -451,9 +451,7 @@ def _scenario_metrics_fn(kind, plant, controller, duration, key, n_rollouts):
     scenarios drawn inside the same program (`kind`, `duration`, `n_rollouts` static; the key
     traced: one compile for every seed). The measurement noise is drawn inside the scan,
     sample by sample (`rollout_noise`: the scenario's noise distribution, about a quarter of
-    its cost): the scenario's `(B, T, ny)` noise is never formed (XLA drops it unread):
-    `jthermo simulate`'s run program's stages are measured by
-    `python benchmarks/simulate_stages.py`."""
+    its cost): the scenario's `(B, T, ny)` noise is never formed (XLA drops it unread)."""
     sc = make_scenario(kind, plant, duration, key, n_rollouts=n_rollouts, noise_std=RUN_NOISE_STD)
     noise = rollout_noise(plant, key, n_rollouts)
     return run_metrics(plant, controller, sc, kind not in RECOAT_FREE_KINDS, noise,

@@ -270,10 +270,9 @@ def compiled_make_scenario():
     """`make_scenario` (the same arguments) with a printer's scenarios built as one compiled
     program with `runtime.one_shot()` options (non-array arguments static), for scenarios built
     once per process: -O0 compiles the scenario program in a fraction of the default options'
-    time (`runtime.ONE_SHOT`); with `demo`'s jitted runs, the demo's three figure runs take a
-    fraction of their eager CPU time cold (measured by `python benchmarks/evaluate_compile.py`).
-    A fitted
-    model's scenarios (which check their envelope in Python) are built by `make_scenario`."""
+    time (`runtime.ONE_SHOT`), and a program run once does not repay a slower, optimised
+    compile. A fitted model's scenarios (which check their envelope in Python) are built by
+    `make_scenario`."""
     jitted = _jitted_make_scenario()
 
     def build(kind, plant, *args, **kw):

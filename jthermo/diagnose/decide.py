@@ -317,7 +317,7 @@ def prefer_input_driven(rows: list, z_drift_over_body_est: float) -> list:
     cannot separate, the one that predicts the slow part from the measured inputs (the body,
     warmed by the heaters) is named and the exogenous signal (re-estimated on every record)
     stays its rival (`body_drift_tied`); a drift the body cannot follow (one that cools the bed,
-    or turns) beats it there and keeps its place."""
+    or turns) beats it there and keeps its place. (Rule set on cases of development sets 14-18.)"""
     return _body_ahead(rows) if is_rival(z_drift_over_body_est) else list(rows)
 
 
@@ -397,7 +397,7 @@ def promotable(row: dict, record_s: float) -> bool:
     the top: any mechanism but a stored-heat body whose time constant a record of `record_s`
     seconds does not identify (`body_identified`). Such a body acts as a near-constant heat term
     that gains on the estimation record what `prefer_identified` sets aside (a 5 h body on a
-    40 min record named over the tied loss it mimics)."""
+    40 min record named over the tied loss it mimics; set on a case of development set 19)."""
     return row["mechanism"] != "heat_accumulation" or body_identified(
         row["parameters"].get("time_constant_s", float("nan")), record_s)
 

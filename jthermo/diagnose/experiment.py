@@ -22,9 +22,9 @@ nuisances, linearised (weighted least squares); a transient from an unknown star
 nothing. Criterion `"nuisance_drift"` lets every model re-estimate a drift
 in every case: with the drift among the rivals, a slow body's input-driven warming then
 separated nothing from the baseline either, and the design avoided exactly the slow power swings
-that make a body significant (`experiments/results/design_experiment.md`, body case); with the
-drift not among them, letting it follow nothing made the design's slow swings go to a drift
-(radiation case, `design_experiment_own_drift.md`). (The first criterion, `"span"`, projected
+that make a body significant (`experiments/results/design_experiment_study.md`, body case);
+with the drift not among them, letting it follow nothing made the design's slow swings go to a
+drift (radiation case). (The first criterion, `"span"`, projected
 onto a constant per zone and the raw drift hats only: it counted the decay of an unknown initial
 state as separation.) With three models (the top finding and two rivals, or with no rival the
 runner-up and the baseline) the design maximises $\\sum_{a<b} \\log S_{ab}$, so that every pair
@@ -58,6 +58,7 @@ from ..data import IOData, from_arrays
 from ..errors import ConfigError
 from ..inputs import prbs
 from . import mechanisms as M
+from .checks import as_records, concatenate
 from .localise import event_matrix
 
 #: samples held at the mean input before the designed record (left out of the objective)
@@ -307,8 +308,10 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
     **Arguments:**
     - `result`: the dict `diagnose(est, val)` returned (before `to_json`: it carries the fitted
       models under `_models`).
-    - `est`, `val`: the records it was run on (`val` gives the noise level σ per zone).
-    - `duration`: samples of the designed record (default: the estimation record's length).
+    - `est`, `val`: the records it was run on (`val` gives the noise level σ per zone); `est`
+      may be the list of pooled estimation records.
+    - `duration`: samples of the designed record (default: the (longest) estimation record's
+      length).
     - `hold`: minimum switching time, samples. `u_min`, `u_max`: actuator limits per input
       (default: the range the two records' inputs span); inputs the diagnosis left out (idle)
       stay at their recorded value.
@@ -339,7 +342,9 @@ def design_experiment(result: dict, est: IOData, val: IOData, *, duration: int |
                           "before `to_json`")
     if not (isinstance(hold, (int, np.integer)) and hold >= 1):
         raise ConfigError(f"design_experiment: hold must be a positive integer of samples, got {hold!r}")
-    T = est.n_samples if duration is None else duration
+    records = as_records(est)
+    est = concatenate(records)
+    T = max(d.n_samples for d in records) if duration is None else duration
     if not (isinstance(T, (int, np.integer)) and T >= 2 * hold):
         raise ConfigError(f"design_experiment: duration must be an integer of at least two holds, got {T!r}")
     U = np.concatenate([np.asarray(est.u, float), np.asarray(val.u, float)])

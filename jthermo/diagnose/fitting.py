@@ -20,8 +20,7 @@ T = 3600 record) against at most 68 free parameters, so reverse mode would need 
 residual against one tangent per parameter. Every call of a stage has one static width (its
 widest problem's free-parameter count) rather than each call its own: each distinct width is
 one more compiled program, whose compile costs more than the narrower Jacobian saves cold
-(measured by `python benchmarks/diagnose_fit_variants.py` and
-`python benchmarks/diagnose_zone_width.py`).
+(measured by `python benchmarks/diagnose_zone_width.py`).
 
 The iteration caps (`select.N_ITER`, `JOINT_ITER`) and `RTOL` are set by the answers, not the
 time: fewer iterations or a looser `RTOL` stop the fits of many heater gains and of slow bodies
@@ -30,12 +29,12 @@ thousands (measured by `python benchmarks/diagnose_zone_convergence.py`).
 
 A fourth damping trial with geodesic acceleration (`masked_lm(..., geodesic=True)`, `GEODESIC`)
 follows the curved valleys (log gains and rates) that the plain steps crawl along, in fewer
-iterations and to no higher cost (measured by `python benchmarks/lm_variants.py`); it stays off
-because it flips a drift named with a stored-heat body as its rival to `heat_accumulation` on a
-held-out record (`python experiments/diagnose_heldout_same.py`). Nielsen's gain-ratio damping,
-five trials instead of three, a step scaled instead of clipped, acceleration on all three trials
-and an extrapolated step were measured and rejected (some final costs above the plain solver's,
-or no less work).
+iterations and to no higher cost; it stays off because it flips a drift named with a
+stored-heat body as its rival to `heat_accumulation` on a development-set record
+(`python experiments/diagnose_heldout_same.py`). Nielsen's gain-ratio damping, five trials
+instead of three, a step scaled instead of clipped, acceleration on all three trials and an
+extrapolated step were measured and rejected (some final costs above the plain solver's, or no
+less work).
 
 The traced programs are kept in the cache directory (`stored.exported_call`): a later process
 neither traces them nor lowers them again (the same programs, the same executables). The
@@ -51,13 +50,12 @@ per thread, because the problems' iteration counts differ (up to `select.N_ITER`
 that is done takes the next problem, and a call's shape no longer depends on the number of
 problems (fewer programs to compile). The joint fits' damped systems are factored one matrix at
 a time in `masked_lm` (`identify/lm.py`): a batched LU is dealt by jaxlib to XLA's CPU pool and
-waited for on a pool thread, and two such waits fill a two-thread pool, a deadlock (the split
-joint fits are measured by `python benchmarks/diagnose_shard_devices.py`).
+waited for on a pool thread, and two such waits fill a two-thread pool, a deadlock.
 
 The coupled programs (`fit_joint`, hence `fit_records`), `sim_zones` and, one problem after
 another, the per-zone fits (`fit_zones`) are compiled with `runtime.quick_compile()` options
 (XLA's older CPU fusion emitters): they compile in less time and run in the same time, with the
-same fits to 5e-13 (measured by `python benchmarks/diagnose_compile_options.py`).
+same fits.
 """
 
 from __future__ import annotations
@@ -74,7 +72,7 @@ import numpy as np
 from ..identify.lm import masked_lm
 from ..runtime import quick_compile
 from ..stored import exported_call, exported_compile
-from .mechanisms import simulate_full, simulate_zone
+from .pool import simulate_full, simulate_zone
 
 #: every fit stops once its cost fell by less than this share of itself over the last
 #: `identify.lm.STALL` iterations (at most `n_iter`); such a fit has converged to about this
@@ -86,7 +84,8 @@ FALL_LR = 1.0
 FALL_WINDOW = 20
 
 #: the per-zone fits' fourth damping trial with geodesic acceleration (`masked_lm(...,
-#: geodesic=...)`); off until the checks in the module docstring are done
+#: geodesic=...)`); off until the checks in the module docstring are done (kept off on a case
+#: of development set 16)
 GEODESIC = False
 
 

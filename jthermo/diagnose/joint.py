@@ -52,6 +52,7 @@ import numpy as np
 
 from . import decide as D
 from . import mechanisms as M
+from . import pool as PL
 from .fitting import FALL_LR, fit_joint
 
 #: largest number of mechanisms in the augmented model
@@ -103,7 +104,7 @@ def grid_start(y, u, ts, level, ts_free, n_grid: int = 40):
 #: parameter groups of the joint fit's zone models (a zone's initial state, wall state and drift
 #: are the record's, in `simulate_full`'s record vector; the level offset too)
 JOINT_BASE = ("log_a", "log_b")
-RECORD_GROUPS = ("x0", "xw0", "ts0", "drift")
+RECORD_GROUPS = ("x0", "xw0", "ts0", "drift", "x0_rec", "xw0_rec", "ts0_rec")
 
 
 def joint_groups(mechs) -> tuple:
@@ -188,7 +189,8 @@ class JointFits:
         `cur` fitted them."""
         rec = np.array(cur["rec"], float)
         if "heat_accumulation" not in cur["set"]:
-            rec[self.n:2 * self.n] = np.nan
+            for r in range(max(len(self.lay.records), 1)):
+                rec[PL.record_entries(self.n, self.lay, r)[1]] = np.nan
         return self.start(cur["theta"], add), tuple(cur["set"]) + ((add,) if add else ()), cur["free"], rec
 
     def extend(self, cur: dict, pool, validate) -> tuple:
@@ -215,7 +217,7 @@ class JointFits:
         nd = lay.n_drift
         S = self.slots
         models = list(models) + [models[-1]] * (S - len(models))
-        R = 2 * n + nd + 1
+        R = PL.record_size(n, lay)
         size = n * lay.size
         rec0, mask = np.zeros((S, R)), np.zeros((S, size + R))
         setups = [self.setup(m[2]) for m in models]
@@ -224,6 +226,7 @@ class JointFits:
             _, gam = M.wall_parameters(th[:, lay.sl("log_tauw")][:, 0], th[:, lay.sl("log_gamma")][:, 0])
             rec0[j, :n] = self.y[0]
             rec0[j, n:2 * n] = su["ts_level"] + (rec0[j, :n].mean() - su["ts_level"]) / (1.0 + gam)
+            rec0[j] = PL.record_start(rec0[j], self.y, lay, su["ts_level"], gam)
             if len(model) > 3:
                 rec0[j] = np.where(np.isnan(model[3]), rec0[j], model[3])
             groups = ("log_a",) + joint_groups(st[-1:])[len(JOINT_BASE):] if restricted else joint_groups(st)
@@ -231,7 +234,9 @@ class JointFits:
             mask[j, size:size + n] = 1.0
             mask[j, size + n:size + 2 * n] = float("heat_accumulation" in st)
             mask[j, size + 2 * n:size + 2 * n + nd] = float("ambient_variation" in st and not self.measured_var)
-            mask[j, -1] = su["ts_free"]
+            mask[j, size + 2 * n + nd] = su["ts_free"]
+            # later pooled records: their own states, and their own level unless it is measured
+            PL.record_mask(mask[j], lay, size, "heat_accumulation" in st, not self.measured)
         fper = {"events": jnp.asarray(np.stack([self.ev] * S)),
                 "delay": jnp.asarray([self.delay if "input_delay" in m[1] else 0.0 for m in models]),
                 **{k: jnp.asarray(np.stack([su[k] for su in setups])) for k in setups[0]}}
@@ -244,8 +249,9 @@ class JointFits:
         th, rec, yh = np.array(th), np.asarray(rec), np.asarray(yh)
         # the record parameters, written where the per-zone models keep them (for the report)
         th[:, :, lay.sl("x0")] = rec[:, :n, None]
-        th[:, :, lay.sl("ts0")] = rec[:, -1:, None] * free[:, None, None]
+        th[:, :, lay.sl("ts0")] = rec[:, 2 * n + nd:2 * n + nd + 1, None] * free[:, None, None]
         th[:, :, lay.sl("drift")] = rec[:, None, 2 * n:2 * n + nd]
+        th = PL.write_records(th, rec, lay)
         yhv = validate([(th[j], m[1], self.setup(m[2], True)) for j, m in enumerate(models)]
                        + [(th[-1], models[-1][1], self.setup(models[-1][2], True))] * (self.val_slots - S))
         return [{"theta": th[j], "rec": rec[j], "set": m[1], "free": bool(free[j]), "res": self.y - yh[j],
@@ -269,7 +275,7 @@ def _added_size(lay, mech, keep=None) -> int:
 
 def _width(n, lay, free) -> int:
     """Static Jacobian width: `free` zone parameters and the record parameters, to a multiple of 4."""
-    return 4 * math.ceil((free + 2 * n + lay.n_drift + 1) / 4)
+    return 4 * math.ceil((free + PL.record_size(n, lay)) / 4)
 
 
 def joint_active(n, lay, first, pool, keep=None) -> int:
@@ -467,15 +473,22 @@ def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter, rounds: int = 0)
     th = np.array(theta, float)
     T = y.shape[0]
     dr = th[:, lay.sl("drift")]
-    R = 2 * n + nd + 1
+    R = PL.record_size(n, lay)
     rec0 = np.zeros((1, R))
     rec0[0, :n] = th[:, lay.sl("x0")][:, 0]
     rec0[0, 2 * n:2 * n + nd] = np.median(dr - dr.mean(axis=1, keepdims=True), axis=0)
+    for r in range(1, len(lay.records)):        # later pooled records: their zones' own fits
+        sx, _sw, il = PL.record_entries(n, lay, r)
+        rec0[0, sx] = th[:, lay.sl("x0_rec")][:, r - 1]
+        rec0[0, il] = float(np.median(th[:, lay.sl("ts0_rec")][:, r - 1] - th[:, lay.sl("ts0")][:, 0])) * ts_free
     zone = ("log_a", "log_b") + (("ts0",) if ts_free else ())
-    mask = np.concatenate([np.tile(lay.mask(zone), n), np.ones(n), np.zeros(n), np.ones(nd), [0.0]])
+    mask = np.concatenate([np.tile(lay.mask(zone), n), np.ones(n), np.zeros(n), np.ones(nd), [0.0],
+                           np.zeros(R - 2 * n - nd - 1)])
+    mask = PL.record_mask(mask, lay, n * lay.size, False, bool(ts_free))
+    more = len(lay.records) - 1 if lay.records else 0
     fper = {"events": jnp.zeros((1, T, n)), "delay": jnp.zeros(1), "ts_level": jnp.asarray([float(level)]),
             "ts_free": jnp.asarray([float(ts_free)]), "u_pad": jnp.asarray(sh["u_pad"])[None]}
-    n_act = 4 * math.ceil((n * (1 + lay.nu + int(bool(ts_free))) + n + nd) / 4)
+    n_act = 4 * math.ceil((n * (1 + lay.nu + int(bool(ts_free))) + n + nd + more * (n + int(bool(ts_free)))) / 4)
     on = jnp.asarray(M.on_vector(("ambient_variation",))[None])
     sse = np.inf
     for _ in range(1 + rounds):
@@ -493,4 +506,9 @@ def common_drift_fit(theta, y, sh, level, ts_free, lay, n_iter, rounds: int = 0)
         thj[:, lay.sl("ts0")] += d.mean()
     else:
         thj[:, lay.sl("drift")] = d[None, :]
+    for r in range(1, len(lay.records)):
+        sx, _sw, il = PL.record_entries(n, lay, r)
+        thj[:, lay.sl("x0_rec").start + r - 1] = rec[sx]
+        if ts_free:                 # as `pool.simulate_full` sees record r's surroundings
+            thj[:, lay.sl("ts0_rec").start + r - 1] = thj[:, lay.sl("ts0")][:, 0] + rec[il]
     return thj, y - np.asarray(yh[0])

@@ -56,8 +56,9 @@ class Layout:
 
     n: int                   # zones
     nu: int                  # heaters
-    n_drift: int             # drift knots
+    n_drift: int             # drift knots (of every estimation record: `pool.drift_basis`)
     sections: tuple          # ((name, start, size), ...)
+    records: tuple = ()      # samples of each pooled estimation record (`pool.py`); () one record
 
     @property
     def size(self) -> int:
@@ -76,24 +77,28 @@ class Layout:
         return m
 
 
-def make_layout(n: int, nu: int, n_drift: int) -> Layout:
+def make_layout(n: int, nu: int, n_drift: int, records: tuple = ()) -> Layout:
     """Per-zone parameter layout: zone i's model is fitted on its own (its neighbours enter
-    through their measured temperatures), so every zone has the same vector."""
+    through their measured temperatures), so every zone has the same vector. With pooled
+    `records` (their lengths), the second and later records' initial states and level offsets
+    follow (`*_rec`, one entry per record after the first; empty for one record)."""
+    more = max(len(records) - 1, 0)
     sizes = [("log_a", 1), ("log_b", nu), ("x0", 1), ("ts0", 1), ("log_k", max(n - 1, 1)),
              ("rad_share", 1), ("log_tauw", 1), ("log_gamma", 1), ("log_c", 1), ("xw0", 1),
-             ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("dfrac", 1), ("drift", n_drift)]
+             ("log_tauh", 1), ("log_e", 1), ("log_drop", 1), ("dfrac", 1), ("drift", n_drift),
+             ("x0_rec", more), ("ts0_rec", more), ("xw0_rec", more)]
     out, a = [], 0
     for nm, s in sizes:
         out.append((nm, a, s))
         a += s
-    return Layout(n, nu, n_drift, tuple(out))
+    return Layout(n, nu, n_drift, tuple(out), tuple(int(t) for t in records) if more else ())
 
 
 #: parameter groups each mechanism adds (beyond the baseline's log_a, log_b, x0 [, ts0])
 MECH_PARAMS = {
     "lateral_conduction": ("log_k",),
     "radiative_loss": ("rad_share",),
-    "heat_accumulation": ("log_tauw", "log_gamma", "log_c", "xw0"),
+    "heat_accumulation": ("log_tauw", "log_gamma", "log_c", "xw0", "xw0_rec"),
     "heater_lag": ("log_tauh",),
     "input_delay": ("dfrac",),
     "input_nonlinearity": ("log_e",),
@@ -429,7 +434,8 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
 
 #: effective time constants $\tau_w / (1 + \gamma)$ (s) of a stored-heat body's extra starts
 #: (`body_starts`): a body slower than the neutral start's 500 s (chamber walls, 20-60 min) is
-#: otherwise lost to the local optimum at the shortest time constant the model allows
+#: otherwise lost to the local optimum at the shortest time constant the model allows (set on
+#: development set 6's slow bodies)
 BODY_START_TAUS = (1500.0, 4000.0)
 
 

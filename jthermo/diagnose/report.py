@@ -63,6 +63,27 @@ def _evidence_figure(result, est, path):
     return fig
 
 
+def _pooled_lines(result: dict) -> list[str]:
+    """The pooled records' table: each record's share of every finding's estimation evidence."""
+    recs = result.get("estimation_records", [])
+    shown = [f for f in result["findings"] if f["evidence"].get("records")]
+    if len(recs) < 2:
+        return []
+    lines = ["## Pooled estimation records", "",
+             f"{len(recs)} records fitted jointly (shared physical parameters; each record its own "
+             "initial state, surroundings level and drift); the tests are on their pooled residuals.", ""]
+    if not shown:
+        return lines
+    lines += ["| record | samples | " + " | ".join(f"`{f['mechanism']}` share (LR)" for f in shown) + " |",
+              "| --- | --- | " + " | ".join("---" for _ in shown) + " |"]
+    for r, rec in enumerate(recs):
+        cells = [f"{f['evidence']['records'][r]['sse_share']:.2f} "
+                 f"({f['evidence']['records'][r]['likelihood_ratio']:.1f})" for f in shown]
+        lines.append(f"| {r + 1} | {rec['samples']} | " + " | ".join(cells) + " |")
+    return lines + ["", "Share: the record's part of the pooled squared error the mechanism removes "
+                        "on the estimation records; LR: its own likelihood ratio.", ""]
+
+
 def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
     """Write `report.md`, `diagnosis.json` and PNG figures for a `diagnose` result.
 
@@ -72,6 +93,7 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
 
     if not isinstance(result, dict) or "verdict" not in result:
         raise ConfigError("write_report: `result` must be the dict returned by `diagnose`")
+    est = est[0] if isinstance(est, (list, tuple)) else est       # pooled: their common sample time
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     arrays = result.get("_arrays", {})
@@ -109,6 +131,7 @@ def write_report(result: dict, directory: str | os.PathLike, est, val) -> Path:
         if result["findings"][0].get("rivals"):
             lines += ["Within the test's resolution of the top finding (rivals): "
                       + ", ".join(f"`{m}`" for m in result["findings"][0]["rivals"]) + ".", ""]
+    lines += _pooled_lines(result)
     exp = result.get("experiment")
     if exp:
         lines += ["## Next experiment", "",

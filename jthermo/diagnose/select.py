@@ -47,12 +47,13 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
+from .. import runtime
 from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
-from . import baseline
 from . import decide as D
 from . import mechanisms as M
-from .checks import check_records, drop_idle_inputs
+from . import pool as PL
+from .checks import as_records, check_records, pool_records
 from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones, still_falling
 from .joint import (
@@ -70,6 +71,9 @@ from .joint import (
 from .localise import localise
 from .recoat import estimation_events, validation_events
 from .slowbody import order_by_estimation, order_by_parsimony, refit_body_from_drift
+from .stages import (ambient_column as _ambient_column, fit_baseline, fit_percent as _fit_percent,
+                     problems as _problems, record_arrays, record_starts, shared as _shared,
+                     simulate_baseline)
 
 #: longest dead time tried, in samples (and at least `MAX_DELAY_S` seconds when that is more)
 MAX_DELAY = 12
@@ -110,57 +114,6 @@ BODY_ITER_FACTOR = 2
 TS_TOLERANCE = 0.01
 
 
-def _fit_percent(y, yhat):
-    y = np.asarray(y)
-    num = np.linalg.norm(y - yhat, axis=0)
-    den = np.linalg.norm(y - y.mean(axis=0), axis=0) + 1e-300
-    return 100.0 * (1.0 - num / den)
-
-
-def _ambient_column(data):
-    for j, name in enumerate(data.signal_names):
-        low = name.lower()
-        if "ambient" in low or "surround" in low:
-            return j
-    return None
-
-
-def _record_arrays(data, amb_col, level, lay, n_knots):
-    y = np.asarray(data.y, float)
-    T, n = y.shape
-    if amb_col is not None:
-        wa = np.asarray(data.w[:, amb_col], float)
-        wdev = wa - level
-    else:
-        wdev = np.zeros(T)
-    ynb = np.stack([np.delete(y, i, axis=1) if n > 1 else np.zeros((T, 1)) for i in range(n)])
-    return {"y": y, "ynb": ynb, "ybar": y.mean(axis=1), "wdev": wdev,
-                "Phi": M.drift_basis(T, data.ts, n_knots), "u": np.asarray(data.u, float),
-                "u_pad": np.asarray(data.u, float).mean(axis=0)}
-
-
-def _problems(rec, K, events=None, delays=None):
-    """Per-problem dict for K candidates × n zones (zone index fastest)."""
-    y = rec["y"]
-    T, n = y.shape
-    ev = np.zeros((K, T, n)) if events is None else events
-    dl = np.zeros(K) if delays is None else np.asarray(delays, float)
-    return {
-        "y": jnp.asarray(np.tile(y.T, (K, 1))),
-        "ynb": jnp.asarray(np.tile(rec["ynb"], (K, 1, 1))),
-        "ybar": jnp.asarray(np.tile(rec["ybar"], (K * n, 1))),
-        "events": jnp.asarray(np.concatenate([ev[k].T for k in range(K)], axis=0)),
-        "delay": jnp.asarray(np.repeat(dl, n)),
-    }
-
-
-def _shared(rec, level, ts_free, ts, t_ref):
-    return {"u": jnp.asarray(rec["u"]), "ts_level": jnp.asarray(level), "ts_free": jnp.asarray(ts_free),
-            "wdev": jnp.asarray(rec["wdev"]), "Phi": jnp.asarray(rec["Phi"]),
-            "u_pad": jnp.asarray(rec["u_pad"]), "ts": jnp.asarray(float(ts)),
-            "t_ref": jnp.asarray(float(t_ref))}
-
-
 def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
              n_iter: int = N_ITER, actuator: str = "any") -> dict:
     """Find what the baseline grey-box bed model leaves out, refit, and say how much it helps.
@@ -168,7 +121,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     **Arguments:**
     - `est`, `val`: `IOData` records (inputs = heater commands, outputs = zone temperatures,
       optional `w_ambient` surroundings in °C; other signals are ignored). Fits are simulation
-      fits on `val`.
+      fits on `val`. `est` may be a list of records of one plant (any lengths and inputs, the
+      same signals and sample time): they are fitted jointly (`pool.py`: shared physical
+      parameters, each record its own initial state, surroundings level and drift), every test
+      is on their pooled residuals, and each finding reports each record's share of its
+      evidence (`evidence.records`).
     - `seed`: accepted for the common interface; the procedure is deterministic.
     - `progress`: optional callback `progress(i, total, info)`.
     - `mechanisms`: the candidates tried (default: the whole library; those in
@@ -179,9 +136,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     **Returns:** the JSON-ready report dict: `verdict`, `baseline`, `findings` (ranked),
     `augmented`, plus `localisation` and `candidates` (every refit's figures) and `seconds`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t_start = time.perf_counter()
-    est, val, dropped = drop_idle_inputs(est, val)
+    records, est, val, dropped = pool_records(as_records(est), val, TS_TOLERANCE)
     check_records(est, val, TS_TOLERANCE)
+    lengths = tuple(d.n_samples for d in records) if len(records) > 1 else ()
     mechanisms = tuple(mechanisms)
     for m in mechanisms:
         if m not in M.MECHANISMS:
@@ -223,25 +182,29 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                          np.full((T, 1), level), ts, 1.0)
     if level is None:
         level = surr
-    n_knots = M.n_drift_knots(T, ts)
-    lay = M.make_layout(n, nu, n_knots)
-    rec_e = _record_arrays(est, amb, level, lay, n_knots)
-    rec_v = _record_arrays(val, amb, level, lay, n_knots)
+    n_knots = PL.drift_basis(lengths, ts)[0].shape[1] if lengths else M.n_drift_knots(T, ts)
+    lay = M.make_layout(n, nu, n_knots, lengths)
+    # the longest record: what identifies a slow body's time constant (pooled records are not
+    # one long record)
+    t_span = (max(lengths) if lengths else T) * ts
+    rec_e = record_arrays(est, amb, level, n_knots, lengths)
+    rec_v = record_arrays(val, amb, level, M.n_drift_knots(val.n_samples, ts))
     if not measured_var:
         rec_e["wdev"][:] = 0.0
         rec_v["wdev"][:] = 0.0
     t_ref = float(y.mean())      # °C: where the radiative share is defined
     sh_e = _shared(rec_e, level, ts_free, ts, t_ref)
-    base_names = ["log_a", "log_b", "x0"] + (["ts0"] if ts_free else [])
+    base_names = ["log_a", "log_b", "x0", "x0_rec"] + (["ts0", "ts0_rec"] if ts_free else [])
     base_mask = lay.mask(base_names)
     ga, gb, gx, gs = grid_start(y, u, ts, level, ts_free)
     th0 = np.stack([M.initial_theta(lay, log_a=ga[i], log_b=np.log(gb[i]), x0=gx[i], ts0=gs[i],
                                     xw0=(y[0].mean() - level) / 2.0)
                     for i in range(n)])
+    th0 = record_starts(th0, y, level, lengths, lay)
 
     # ---- 1. baseline (first order: variable projection in NumPy, `baseline.py`) -------------
-    thb = baseline.fit(th0, y, u, ts, level, ts_free, lay)
-    yb_e = baseline.simulate(thb, u, rec_e["u_pad"], ts, level, ts_free, lay)
+    thb = fit_baseline(th0, y, u, ts, level, ts_free, lay)
+    yb_e = simulate_baseline(thb, rec_e, ts, level, ts_free, lay)
     R_e = y - yb_e
     tick({"stage": "baseline"})
 
@@ -253,7 +216,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     # dead time: simulate the baseline with each delay on a grid of fractions of a sample
     max_d = min(M.PAD - 3.0, max(float(MAX_DELAY), math.ceil(MAX_DELAY_S / ts)))
     dgrid = np.arange(DELAY_STEP, max_d + 1e-9, DELAY_STEP)
-    dcost = np.array([np.mean((y - baseline.simulate(thb, u, rec_e["u_pad"], ts, level, ts_free, lay, d)) ** 2)
+    dcost = np.array([np.mean((y - simulate_baseline(thb, rec_e, ts, level, ts_free, lay, d)) ** 2)
                       for d in dgrid])
     best_delay = float(dgrid[int(np.argmin(dcost))])
     loc["delay_scan"] = {"delays_s": (dgrid * ts).tolist(), "cost": dcost.round(6).tolist(),
@@ -291,6 +254,9 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                                         ts0=thb[i, lay.sl("ts0")][0],
                                         xw0=(y[0].mean() - level - thb[i, lay.sl("ts0")][0]) / 2.0)
                         for i in range(n)])
+    neutral = record_starts(neutral, y, level, lengths, lay)
+    for grp in ("x0_rec", "ts0_rec"):          # pooled records: each its own, as the baseline's
+        neutral[:, lay.sl(grp)] = thb[:, lay.sl(grp)]
     # a stored-heat body also from slow starts (`mechanisms.body_starts`), radiation from steeper
     # shares (`mechanisms.rad_starts`), each zone its best (its smallest estimation cost)
     extra_starts = {m: f(neutral, lay) for m, f in (("heat_accumulation", M.body_starts),
@@ -330,7 +296,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     if P or irregular:
         thb_v = thb.copy()
         thb_v[:, lay.sl("x0")] = yv[0][:, None]
-        ybv = baseline.simulate(thb_v, rec_v["u"], rec_v["u_pad"], ts, level, ts_free, lay)
+        ybv = simulate_baseline(thb_v, rec_v, ts, level, ts_free, lay)
         ev_v, flags_v = validation_events(yv - ybv, rc, ts, loc)
 
     def validate(models, with_rec=False):
@@ -432,7 +398,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                if not measured_var else 0.0)
         loc["drift_input_dependence_records_z"] = [z_e, z_v]
         loc["drift_input_dependence_z"] = D.combined_dependence(
-            [z_e, z_v], [D.dependence_testable(T, kstep),
+            [z_e, z_v], [D.dependence_testable(max(lengths) if lengths else T, kstep),
                          D.dependence_testable(Tv, kstep) and not measured_var])
         sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
         # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
@@ -442,13 +408,13 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     if sig:
         # a body slower than the record, tied with an identified one-parameter mechanism: the latter
         k0 = sig[0]["k"]
-        sig = D.prefer_identified(sig, T * ts, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
+        sig = D.prefer_identified(sig, t_span, lambda r: D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0])),
                                   lambda m: M.n_added_per_zone(m, lay))
         # of the explanations the validation record leaves tied, the strongest on the estimation
         # record; a body the record does not identify is not moved ahead by it (its near-constant
         # heat term gains on the estimation record what `prefer_identified` just set aside)
         k0 = sig[0]["k"]
-        sig = D.prefer_evidence(sig, lambda r: (D.promotable(r, T * ts)
+        sig = D.prefer_evidence(sig, lambda r: (D.promotable(r, t_span)
                                                 and D.is_rival(D.predictive_z(e_c[r["k"]], e_c[k0]))),
                                 lambda r: dof(r["mechanism"]))
     chosen, rivals, conf_top = [], [], 0.0
@@ -550,6 +516,8 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
                     "runner_up": next((r["mechanism"] for r in ranked if r["mechanism"] != mech), None),
                     "zone_mse_reduction": [round(float(v), 5) for v in dz],
                     "effect_rms_C": round(effect, 4), "sensor_noise_C": round(noise, 4)}
+        if lengths:     # each pooled record's share of the estimation evidence (`pool.py`)
+            evidence["records"] = PL.evidence_shares(R_e, res_c[row["k"]], lengths)
         evidence.update(mechanism_evidence(mech, loc, per_ev, drops if irregular else None))
         findings.append({"mechanism": mech, "confidence": float(conf), "zones": zones,
                          "summary": summary(mech, zones, params, D.uncertain(conf), mech_rivals,
@@ -569,6 +537,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         "findings": findings,
         "flagged": flagged,
         "inputs_left_out": [f"u_{nm}" for nm in dropped],
+        "estimation_records": [{"samples": d.n_samples, "duration_s": d.n_samples * ts} for d in records],
         "augmented": {"mechanisms": list(chosen),
                       "fit": aug.get("fit", "joint (all zones, coupled simulation error)") if chosen
                       else "baseline",

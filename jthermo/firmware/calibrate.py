@@ -7,37 +7,46 @@
 2. **Model.** Each family of `FAMILIES` is fitted with the public fit API; the one with the
    best simulation fit on the validation record is the design model. The same family fitted to
    the validation record is the cross-record plant every controller is judged on.
-3. **Controllers.** The firmware PID (`pid.KlipperPID`: Klipper's law at the record's sample
+3. **Diagnosis** (`diagnose.diagnose` with `DIAGNOSE_MECHANISMS`, the hot-end's candidate
+   physics, to keep it cheap): its first finding's sentence is the report's `finding`.
+4. **Two-state hot-end model** (one heater): `mpc.fit_two_state` on the estimation record,
+   its simulation fit on the validation record; its constants go to Marlin's `M306` and
+   Kalico's `control: mpc`, and its fan transfer sizes the load step: the part-cooling fan
+   from off to full at the set point, a heat sink of $a_f (r - T_a)/h$ duty.
+5. **Controllers.** The firmware PID (`pid.KlipperPID`: Klipper's law at the record's sample
    time, its derivative smoothing, integral clamp and `max_power`) is tuned on the design
-   model with the own-plant tuning (`tune.tune_own_plant`), starting from the relay /
-   Ziegler–Nichols design detuned to the recording's noise; its gains are rounded as
-   `printer.cfg` takes them before it is judged. Yardsticks, each under Klipper's law: the
-   gains `PID_CALIBRATE` computes on the same model (`pid.pid_calibrate`) and the gains the
-   printer ran with (from the import's summary); the model-based controllers (`MODEL_BASED`,
-   designed on the design model) and the lambda PI are judged beside them.
-4. **Judgement** on the cross-record plant: the set-point changes' MSE, the time at an input
-   limit, the start-up overshoot, the load step's MSE, and what no controller beats, the
-   full-power floor plus the noise (`tune.own.limits`).
+   model by `tuning.tune_firmware_pid` from the relay test's $K_u$, $T_u$ (`PID_CALIBRATE`
+   on the model); its gains are rounded as `printer.cfg` takes them before it is judged.
+   Yardsticks, each under Klipper's law: the gains `PID_CALIBRATE` computes on the same model
+   (`pid.pid_calibrate`) and the gains the printer ran with (from the import's summary); the
+   model-based controllers (`MODEL_BASED`, designed on the design model) and the lambda PI.
+6. **Judgement** on the cross-record plant, on rollouts neither tuned nor selected on: the
+   set-point changes' MSE, the time at an input limit, the start-up overshoot, the load
+   step's MSE, and what no controller beats, the full-power floor plus the noise
+   (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it sits at a
+   limit `tuning.MAX_SATURATED` of the set-point changes or more (a failed yardstick: then
+   the lambda PI is).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from .. import data as data_mod
-from ..closedloop import metrics, model_duration, model_scenario
-from ..closedloop import rollouts as run_rollouts
+from ..closedloop import model_duration
 from ..control.design import design, design_point
 from ..errors import ConfigError, ControlError, JThermoError
 from ..models.envelope import Envelope, check_reachable, equilibrium_input
-from ..tune.own import limits, tune_own_plant, tuning_start
-from . import klippy, settings
-from .pid import KlipperPID, from_standard, pid_calibrate
+from ..tune.own import limits
+from . import klippy, mpc, settings, tuning
+from . import report as report_mod
+from .pid import KlipperPID, pid_calibrate
 
 #: the model families tried, cheapest first
 FAMILIES = ("arx", "oe")
@@ -45,13 +54,18 @@ FAMILIES = ("arx", "oe")
 HOLD_BACK = 0.3
 #: model-based controllers designed on the design model and judged beside the PID
 MODEL_BASED = ("imc", "lqg")
-#: tuning defaults of the command (cheap; `--steps`, `--rollouts` for more)
-STEPS, ROLLOUTS = 60, 4
+#: tuning defaults of the command (cheap; `--steps`, `--rollouts` for more): the refinement's
+#: iterations after the grid of starts, and the rollouts per scenario
+STEPS, ROLLOUTS = 20, 4
+#: the diagnosis' candidates: what a heater with a lagging sensor at 200 °C leaves out
+DIAGNOSE_MECHANISMS = ("heater_lag", "radiative_loss", "input_delay")
+#: the fan signal's name in a record (`w_<name>`), matched by this part
+FAN = "fan"
 
 
 def _heater_names(d: data_mod.IOData) -> list[str]:
     """Heater names of the outputs: `extruder_C` (the converted logs' unit suffix) -> `extruder`."""
-    return [n[:-2] if n.endswith("_C") else n for n in d.output_names]
+    return [n.removesuffix("_C") for n in d.output_names]
 
 
 def _prepare(d: data_mod.IOData, heater: str | None, what: str):
@@ -111,33 +125,111 @@ def _fit_best(est, val, seed, say):
     return best
 
 
-def _judge(ctrls: dict, plant, env, r, duration, seed, rollouts) -> dict:
-    kinds = ("tracking", "load", "preheat")
-    scs = {k: model_scenario(k, plant, duration, jax.random.key(int(seed) + 7919),
-                             n_rollouts=int(rollouts), envelope=env, setpoint=r) for k in kinds}
-    out = {}
-    for name, c in ctrls.items():
-        m = {k: metrics(run_rollouts(plant, c, scs[k]), scs[k]) for k in kinds}
-        out[name] = {"mse": float(m["tracking"]["mse"]),
-                     "saturated_fraction": float(m["tracking"]["saturated_fraction"]),
-                     "overshoot_C": float(m["preheat"]["overshoot_C"]),
-                     "load_mse": float(m["load"]["mse"])}
-    return out
+def _fan(d: data_mod.IOData):
+    """The record's fan signal (0..1), or None."""
+    idx = [i for i, n in enumerate(d.signal_names) if FAN in n.lower()]
+    return None if not idx else np.asarray(d.w[:, idx[0]], np.float64)
+
+
+def _two_state(est, val, heater_power, say) -> dict | None:
+    """`mpc.fit_two_state` on EST, its simulation fit on VAL (None where it does not apply)."""
+    from ..validate import fit_percent
+
+    if est.n_outputs != 1:
+        return None
+    try:
+        res = mpc.fit_two_state(est.y[:, 0], est.u[:, 0], _fan(est), ts=float(est.ts),
+                                heater_power=heater_power)
+    except JThermoError as exc:
+        say(f"two-state model: {exc}")
+        return None
+    yv = mpc.simulate(res["constants"], val.u[:, 0], _fan(val), ts=float(val.ts),
+                      ambient=res["ambient_C"], y0=float(val.y[0, 0]))
+    res["validation_fit_percent"] = float(np.ravel(fit_percent(val.y[:, :1], yv[:, None]))[0])
+    res["yhat"] = yv
+    say(f"two-state model: {res['validation_fit_percent']:.1f} % on validation")
+    return res
+
+
+def _load(two: dict | None, r, env) -> tuple:
+    """The load step (duty per input, or None: `model_scenario`'s) and what it is."""
+    if two and two["fan"] and two["rates"]["fan_rate"] > 0:
+        rt = two["rates"]
+        size = rt["fan_rate"] * (float(np.asarray(r).ravel()[0]) - two["ambient_C"]) / rt["heating_rate"]
+        if size > 0:
+            what = (f"the part-cooling fan from off to full, a heat sink of {size:.3g} duty "
+                    "(from the two-state fit)")
+            return np.full(1, size), what
+    return None, ("an input-referred heat sink of a quarter of the recorded duty's spread "
+                  "(no fan in the record: no fan step)")
+
+
+def _ultimate(dp, model, r, n, max_power, say):
+    """PID_CALIBRATE on the model per heater -> (autotunes or None, K_u, T_u); the model's
+    relay design's when the relay test does not oscillate on the model."""
+    try:
+        cal = [pid_calibrate(dp, float(np.asarray(r)[i]), i, max_power=max_power)
+               for i in range(n)]
+        return (cal, *tuning.ultimate(cal))
+    except ControlError as exc:
+        say(f"PID_CALIBRATE on the model: {exc}")
+    c = design("pid_relay", model, setpoint=r)
+    return None, np.asarray(c.kp, np.float64) / 0.6, 2.0 * np.asarray(c.ti, np.float64)
+
+
+def _diagnosis(est, val, seed, say) -> dict:
+    """The diagnosis' first finding (sentence and mechanism) or why there is none."""
+    from ..diagnose import diagnose
+
+    say(f"diagnosis ({', '.join(DIAGNOSE_MECHANISMS)})")
+    try:
+        res = diagnose(est, val, seed=seed, mechanisms=DIAGNOSE_MECHANISMS)
+    except JThermoError as exc:
+        return {"finding": f"no diagnosis: {exc}", "mechanism": None, "verdict": None}
+    f = res["findings"]
+    if not f:
+        return {"finding": "the diagnosis finds no significant mismatch among "
+                f"{', '.join(DIAGNOSE_MECHANISMS)} (baseline fit "
+                f"{res['baseline']['mean_fit_percent']:.1f} %).", "mechanism": None,
+                "verdict": res["verdict"]}
+    return {"finding": f[0]["summary"], "mechanism": f[0]["mechanism"],
+            "confidence": f[0]["confidence"], "verdict": res["verdict"]}
+
+
+def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
+    """Every controller's `tuning.evaluate` figures on `plant`, controllers of one structure
+    (the Klipper PIDs) simulated as one batch; and `{name: {kind: (y, u, r)}}` of the first
+    rollout, for the figures."""
+    groups: dict = {}
+    for n, c in ctrls.items():
+        groups.setdefault(jax.tree_util.tree_structure(c), []).append(n)
+    table, first = {}, {}
+    for names in groups.values():
+        trajs = tuning.runs([ctrls[n] for n in names], plant, scs)
+        for i, (n, row) in enumerate(zip(names, tuning.rows(trajs, scs, len(names)))):
+            table[n] = row
+            first[n] = {k: tuple(np.asarray(a[i, 0]) for a in (t.y, t.u, t.r))
+                        for k, t in trajs.items()}
+    return table, first
 
 
 def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heater=None,
               setpoint=None, seed: int = 0, steps: int = STEPS, rollouts: int = ROLLOUTS,
+              heater_power: float = mpc.HEATER_POWER_W, diagnosis: bool = True,
+              figures: bool = True, command: str = "jthermo calibrate",
               progress: Callable[[str], None] | None = None) -> dict:
     """Records -> tuned firmware PID, its settings and a report in folder `out` (module
-    docstring). Returns the JSON-ready report (`model`, `setpoints`, `finding`,
-    `controllers`, `floor_plus_noise`, `firmware`, `files`)."""
-    from .. import io
-
+    docstring). `heater_power`: W, the scale of the MPC constants; `diagnosis`, `figures`:
+    run the diagnosis, draw the figures; `command`: named in the report beside them. Returns
+    the JSON-ready report (`model`, `setpoints`, `finding`, `verdict`, `controllers`,
+    `floor_plus_noise`, `load`, `mpc`, `firmware`, `files`)."""
     say = progress or (lambda s: None)
     if firmware not in settings.FILE_NAMES:
         raise ConfigError(f"--firmware must be one of {', '.join(settings.FILE_NAMES)}")
-    est_raw = data_mod.load(est_path)
-    est, r_log = _prepare(est_raw, heater, "EST")
+    if not (isinstance(heater_power, (int, float)) and math.isfinite(heater_power)
+            and heater_power > 0):
+        raise ConfigError(f"--heater-power must be a positive number of watts, got {heater_power}")
+    est, r_log = _prepare(data_mod.load(est_path), heater, "EST")
     if validation is not None:
         val, _ = _prepare(data_mod.load(validation), heater, "--validation")
         if val.n_inputs != est.n_inputs or not data_mod.same_ts(val.ts, est.ts):
@@ -158,32 +250,50 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     except JThermoError:
         val_model, plant_name = model, "the design model (the validation record gave no plant)"
     say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
+    # the diagnosis runs beside the tuning (a second core)
+    pool = ThreadPoolExecutor(1)
+    try:
+        pending = pool.submit(_diagnosis, est, val, seed, say) if diagnosis else None
+        report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
+                                 val_model, plant_name, heaters, firmware=firmware, seed=seed,
+                                 steps=steps, rollouts=rollouts, heater_power=heater_power,
+                                 figures=figures, command=command, say=say, pending=pending)
+    finally:
+        pool.shutdown(wait=True)
+    return report
+
+
+def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
+                    plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
+                    figures, command, say, pending) -> dict:
+    """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
+    (the diagnosis `pending` in another thread, collected before the report)."""
+    from .. import io
+    from .._files import atomic_write_text
+
+    two = _two_state(est, val, float(heater_power), say)
+    load, load_what = _load(two, r, env)
 
     cfg = klippy.config_for(est_path) or {}
     max_power = float(cfg.get("max_power", 1.0))
     smooth = float(cfg.get("smooth_time", 1.0))
     u_hold = equilibrium_input(model, r, env.signals(model))
     kw = {"ts": float(est.ts), "max_power": max_power, "smooth_time": smooth, "u_hold": u_hold}
-    relay = tuning_start(design("pid_relay", model, setpoint=r), model, env, r)
-    start = from_standard(relay.kp, relay.ti, relay.td, **kw)
+    dp = design_point(model, setpoint=r)
+    cal, ku, tu = _ultimate(dp, model, r, est.n_outputs, max_power, say)
     duration = model_duration(model)
-    say(f"tuning the firmware PID ({steps} steps, {rollouts} rollouts)")
-    tuned = tune_own_plant("pid_relay", model, envelope=env, setpoint=r, rollouts=rollouts,
-                           steps=steps, seed=seed, start=start, duration=duration,
-                           classical=("pi_lambda",))
-    final = tuned["tuned"].rounded()
+    say(f"tuning the firmware PID (a grid of {len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)} "
+        f"starts, {steps} refinement steps, {rollouts} rollouts)")
+    tuned = tuning.tune_firmware_pid(model, env, r, ku, tu, duration=duration, seed=seed,
+                                     rollouts=rollouts, steps=steps, kw=kw, load=load, say=say)
+    final = tuned["controller"]
 
     ctrls = {"firmware_pid": final}
     kinds = {"firmware_pid": "firmware_pid"}
-    dp = design_point(model, setpoint=r)
-    try:
-        cal = [pid_calibrate(dp, float(np.asarray(r)[i]), i, max_power=max_power)
-               for i in range(est.n_outputs)]
+    if cal is not None:
         ctrls["pid_calibrate"] = KlipperPID([c.pid_kp for c in cal], [c.pid_ki for c in cal],
                                             [c.pid_kd for c in cal], **kw).rounded()
         kinds["pid_calibrate"] = "yardstick"
-    except ControlError as exc:
-        say(f"PID_CALIBRATE on the model: {exc}")
     if cfg.get("control") == "pid" and est.n_outputs == 1:
         ctrls["printer_config"] = KlipperPID(cfg["pid_kp"], cfg["pid_ki"], cfg["pid_kd"], **kw)
         kinds["printer_config"] = "yardstick"
@@ -194,74 +304,90 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         except JThermoError:
             continue
     say(f"judging {len(ctrls)} controllers on {plant_name}")
-    table = _judge(ctrls, val_model, env, r, duration, seed, rollouts)
+    table, first = _judge(ctrls, val_model, tuning.scenarios(val_model, env, r, duration,
+                                                             seed + 1, rollouts, load))
     lim = limits(val_model, env, r, duration, seed)
-    controllers = [{"name": n, "kind": kinds[n], **table[n]} for n in ctrls]
+    keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
+    controllers = [{"name": n, "kind": kinds[n], **{k: table[n][k] for k in keys}} for n in ctrls]
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     note = (f"jthermo calibrate: {fam} model, set point {np.round(r, 1).tolist()} C, "
             f"sample time {est.ts:g} s")
+    consts = {heaters[0]: two["constants"]} if two else None
     fw_text = {"klipper": lambda: settings.klipper_cfg(final, heaters, note),
-               "kalico": lambda: settings.kalico_cfg(final, heaters, None, note),
-               "marlin": lambda: settings.marlin_gcode(final, heaters, note),
+               "kalico": lambda: settings.kalico_cfg(final, heaters, consts, note),
+               "marlin": lambda: settings.marlin_gcode(final, heaters, note, consts),
                "c": lambda: settings.c_source(final)}[firmware]()
     fw_path = out / settings.FILE_NAMES[firmware]
-    from .._files import atomic_write_text
-
     atomic_write_text(fw_path, fw_text)
     ctrl_path = io.save(final, out / "controller.jtm",
                         meta={"family": "klipper_pid", "heaters": heaters, "model": fam})
+    figs = None
+    if figures:
+        from ..validate import compare
+
+        cmp = compare(model, val)
+        yhat, fits = {fam: cmp["yhat"]}, {fam: cmp["fit_percent"]}
+        if two:
+            yhat["two-state"] = two["yhat"][:, None]
+            fits["two-state"] = [two["validation_fit_percent"]]
+        figs = report_mod.figures(out, val=val, yhat=yhat, fits=fits,
+                                  models={"design": model, "validation": val_model},
+                                  runs=first, ts=float(env.ts), duration=duration)
+    diag = pending.result() if pending is not None else {"finding": "not run",
+                                                          "mechanism": None}
     report = {"model": {"family": fam, "orders": dict(getattr(res, "orders", None) or {}),
                         "validation_fit_percent": score},
               "setpoints": np.asarray(r).tolist(), "heaters": heaters, "ts": float(est.ts),
-              "finding": _finding(table, lim), "judged_on": plant_name,
+              "finding": diag["finding"], "diagnosis": diag,
+              "verdict": _verdict(table, lim), "judged_on": plant_name,
               "controllers": controllers,
               "floor_plus_noise": lim["tracking_bound_mse"], "limits": lim,
+              "load": {"what": load_what, "duty": None if load is None else float(load[0]),
+                       "firmware_pid_load_mse": table["firmware_pid"]["load_mse"]},
+              "mpc": None if two is None else {k: v for k, v in two.items() if k != "yhat"},
               "gains": {n: ctrls[n].gains() for n in ctrls if isinstance(ctrls[n], KlipperPID)},
               "firmware": {firmware: str(fw_path)}, "controller_file": str(ctrl_path),
+              "figures": figs or {},
               "tuning": {"steps": int(steps), "rollouts": int(rollouts), "seed": int(seed),
-                         "moved": tuned["moved"]}}
+                         "start": tuned["start"], "refined": tuned["refined"],
+                         "design_model": tuned["row"]}}
     md = out / "report.md"
-    atomic_write_text(md, _markdown(report, fw_text))
+    atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
     return report
 
 
-def _finding(table: dict, lim: dict) -> str:
+def _verdict(table: dict, lim: dict) -> str:
+    """The acceptance figures in words: the tuned PID against the floor + noise and against
+    the relay PID (or, where that sits at a limit, the lambda PI)."""
     fw = table["firmware_pid"]
     bound = lim.get("tracking_bound_mse")
     parts = [f"tuned firmware PID: set-point-change MSE {fw['mse']:.3g} °C²"]
     if bound:
         parts.append(f"{100 * (fw['mse'] / bound - 1):+.0f} % against the floor + noise {bound:.3g}")
-    if fw["saturated_fraction"] > 0.25:
+    parts.append(f"start-up overshoot {fw['overshoot_C']:.2f} °C")
+    if fw["saturated_fraction"] > tuning.MAX_SATURATED:
         parts.append(f"but it sits at an input limit {100 * fw['saturated_fraction']:.0f} % of the "
                      "set-point changes on the judging plant: not a settled loop, check before use")
     cal = table.get("pid_calibrate")
-    if cal:
-        if cal["saturated_fraction"] >= 0.25:
-            parts.append(f"the PID_CALIBRATE yardstick failed (at a limit "
-                         f"{100 * cal['saturated_fraction']:.0f} % of the time)")
-        else:
-            parts.append(f"{100 * (1 - fw['mse'] / cal['mse']):.0f} % below PID_CALIBRATE's gains")
+    bar = "pid_calibrate"
+    if cal and cal["saturated_fraction"] >= tuning.MAX_SATURATED:
+        parts.append(f"the PID_CALIBRATE yardstick failed (at a limit "
+                     f"{100 * cal['saturated_fraction']:.0f} % of the time)")
+        bar = "pi_lambda"
+    elif not cal:
+        bar = "pi_lambda"
+    ref = table.get(bar)
+    if ref:
+        pct = 100 * (1 - fw["mse"] / ref["mse"])
+        side = "below" if pct >= 0 else "above"
+        parts.append(f"{abs(pct):.0f} % {side} {bar}'s MSE {ref['mse']:.3g}")
+        if bound and ref["mse"] < 1.25 * bound:
+            parts.append(f"{bar} is itself within {100 * (ref['mse'] / bound - 1):.0f} % of the "
+                         "floor + noise: 20 % below it is below the floor + noise")
     return "; ".join(parts)
 
 
-def _markdown(rep: dict, fw_text: str) -> str:
-    rows = ["| controller | kind | MSE °C² | at a limit | start-up overshoot °C | load MSE °C² |",
-            "|---|---|---|---|---|---|"]
-    rows += [f"| {c['name']} | {c['kind']} | {c['mse']:.4g} | {100 * c['saturated_fraction']:.0f} % "
-             f"| {c['overshoot_C']:.2f} | {c['load_mse']:.4g} |" for c in rep["controllers"]]
-    m = rep["model"]
-    fence = "```"
-    return "\n".join([
-        "# Heater calibration", "",
-        f"Model: {m['family']} {m['orders']}, {m['validation_fit_percent']:.1f} % simulation fit "
-        f"on the validation record. Set point {rep['setpoints']} °C, sample time {rep['ts']:g} s.",
-        "", f"Finding: {rep['finding']}.", "",
-        f"Judged on {rep['judged_on']}; floor + noise (no controller within the input limits "
-        f"does better on the set-point changes): {rep['floor_plus_noise']} °C².", "",
-        *rows, "", "## Settings", "", fence, fw_text.rstrip(), fence, ""])
-
-
-__all__ = ["FAMILIES", "HOLD_BACK", "MODEL_BASED", "calibrate"]
+__all__ = ["DIAGNOSE_MECHANISMS", "FAMILIES", "HOLD_BACK", "MODEL_BASED", "calibrate"]

@@ -225,7 +225,7 @@ def read_klippy_log(path) -> KlippyLog:
                                     "cut off or malformed (a truncated line)")
                 found[g.group(1)] = tuple(float(x) for x in f.groups())
             if expected is not None and names and not expected <= set(names):
-                missing = sorted(expected - set(names))[0]
+                missing = min(expected - set(names))
                 raise DataError(f"{path}: line {ln}: the Stats line lacks heater `{missing}` that "
                                 "the run's other lines carry (a truncated line)")
             if names:
@@ -341,6 +341,19 @@ def config_for(data_file) -> dict | None:
         return None
 
 
-__all__ = ["DEFAULTS", "HEATER_KEYS", "KlippyLog", "MAX_GAP_S", "MIN_DURATION_S", "MIN_RANGE_C",
-           "SUMMARY_NAME", "config_for", "import_log",
-           "Segment", "heater_config", "read_klippy_log", "segment_csv", "summary"]
+__all__ = [
+    "DEFAULTS",
+    "HEATER_KEYS",
+    "MAX_GAP_S",
+    "MIN_DURATION_S",
+    "MIN_RANGE_C",
+    "SUMMARY_NAME",
+    "KlippyLog",
+    "Segment",
+    "config_for",
+    "heater_config",
+    "import_log",
+    "read_klippy_log",
+    "segment_csv",
+    "summary",
+]

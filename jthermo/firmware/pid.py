@@ -144,7 +144,7 @@ class KlipperPID(AbstractController):
         return [{"pid_Kp": float(a), "pid_Ki": float(b), "pid_Kd": float(c)} for a, b, c in
                 zip(np.asarray(self.pid_kp), np.asarray(self.pid_ki), np.asarray(self.pid_kd))]
 
-    def rounded(self, digits: int = 3) -> "KlipperPID":
+    def rounded(self, digits: int = 3) -> KlipperPID:
         """The controller with its gains rounded as they are written to `printer.cfg`
         (`PID_CALIBRATE` writes `%.3f`), so that what is judged is what the printer runs."""
         rnd = [jnp.asarray(np.round(np.asarray(g, np.float64), digits))
@@ -236,6 +236,16 @@ def pid_calibrate(model, target: float, loop: int = 0, *, max_power: float = 1.0
     return Autotune(kp, ki, kd, ku, tu, [(c_[3], c_[4]) for c_ in cycles])
 
 
-__all__ = ["Autotune", "HOLD_S", "KlipperPID", "KlipperPIDState", "MIN_PWM_CHANGE_RATIO",
-           "PID_PARAM_BASE", "SETTLED_C", "SMOOTH_TIME", "TUNE_PID_DELTA", "from_standard",
-           "pid_calibrate"]
+__all__ = [
+    "HOLD_S",
+    "MIN_PWM_CHANGE_RATIO",
+    "PID_PARAM_BASE",
+    "SETTLED_C",
+    "SMOOTH_TIME",
+    "TUNE_PID_DELTA",
+    "Autotune",
+    "KlipperPID",
+    "KlipperPIDState",
+    "from_standard",
+    "pid_calibrate",
+]

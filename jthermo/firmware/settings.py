@@ -11,17 +11,16 @@
   with `PID_MAX` = 255 the numbers are Klipper's. Its derivative is filtered differently (a
   first-order filter, `PID_K1` = 0.95 per `PID_dT`) and it leaves PID control more than
   `PID_FUNCTIONAL_RANGE` from the target: the file says so.
-- **Marlin MPC** (`M306.cpp`): `M306 E<n> P<W> C<J/K> R<K/s/K> A<W/K> [F<W/K>]`, the constants
-  of the two-state block + sensor model (`mpc_model`); **Kalico** (`docs/MPC.md`): `control: mpc`
-  with `heater_power`, `block_heat_capacity`, `sensor_responsiveness`, `ambient_transfer`.
+- **Marlin MPC** (`M306.cpp`): `M306 E<n> P<W> C<J/K> R<K/s/K> A<W/K> F<W/K>`, the constants
+  of the two-state block + sensor model (`mpc.mpc_model`); **Kalico** (`docs/MPC.md`):
+  `control: mpc` with `heater_power`, `block_heat_capacity`, `sensor_responsiveness`,
+  `ambient_transfer`, `fan_ambient_transfer`.
 - **C**: the same Klipper law as a self-contained C function with the gains compiled in.
 """
 
 from __future__ import annotations
 
 import math
-
-import numpy as np
 
 from ..errors import ConfigError
 from .pid import HOLD_S, MIN_PWM_CHANGE_RATIO, PID_PARAM_BASE, KlipperPID
@@ -58,12 +57,14 @@ def klipper_cfg(ctrl: KlipperPID, heaters, note: str = "") -> str:
     return "\n".join(out)
 
 
-def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "") -> str:
-    """`M301` / `M304` lines (then `M500` to store them), Marlin's units with `PID_MAX` 255."""
+def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "", mpc: dict | None = None) -> str:
+    """`M301` / `M304` lines (then `M500` to store them), Marlin's units with `PID_MAX` 255;
+    a hot end with MPC constants (`mpc`: {heater: constants}) gets its `M306` line as a
+    commented-out alternative (for a firmware built with `MPCTEMP`)."""
     out = [f"; {line}" for line in note.splitlines()] if note else []
-    out += ["; Marlin's derivative is filtered by PID_K1 = 0.95 per PID_dT and its PID acts only "
+    out += [("; Marlin's derivative is filtered by PID_K1 = 0.95 per PID_dT and its PID acts only "
             "within PID_FUNCTIONAL_RANGE of the target; these gains were tuned under Klipper's law "
-            "with the same units (PID_MAX = 255)."]
+            "with the same units (PID_MAX = 255).")]
     e = 0
     for h, g in zip(heaters, ctrl.gains()):
         gains = f"P{_f(g['pid_Kp'])} I{_f(g['pid_Ki'])} D{_f(g['pid_Kd'])}"
@@ -71,6 +72,8 @@ def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "") -> str:
             out.append(f"M304 {gains} ; {h}")
         else:
             out.append(f"M301 E{e} {gains} ; {h}")
+            if h in (mpc or {}):
+                out.append(f"; with MPCTEMP instead of PIDTEMP: {marlin_mpc(mpc[h], e)}")
             e += 1
     if ctrl.max_power < 1.0:
         out.append(f"; max_power {ctrl.max_power:g}: set MAX_BED_POWER / PID_MAX to "
@@ -79,32 +82,52 @@ def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "") -> str:
     return "\n".join(out) + "\n"
 
 
+#: significant digits of the MPC constants written: enough that the constants read back
+#: reproduce the fitted model's step response to 1e-6 °C (the firmware itself keeps floats)
+MPC_DIGITS = 10
+
+
+def _g(v: float) -> str:
+    if not math.isfinite(v):
+        raise ConfigError("firmware settings: an MPC constant is not finite")
+    return f"{v:.{MPC_DIGITS}g}"
+
+
 def kalico_cfg(ctrl: KlipperPID, heaters, mpc: dict | None = None, note: str = "") -> str:
     """Kalico runs Klipper's `control: pid` unchanged; a hot end with MPC constants (`mpc`:
-    {heater: constants}) gets a commented-out `control: mpc` alternative with them."""
+    {heater: constants}) gets a commented-out `control: mpc` alternative with Kalico's keys
+    (`docs/MPC.md`: `heater_power` W, `block_heat_capacity` J/K, `sensor_responsiveness`
+    K/s/K, `ambient_transfer` W/K, `fan_ambient_transfer` W/K at fan speeds 0 and 1, with
+    `cooling_fan: fan`)."""
     text = klipper_cfg(ctrl, heaters, note)
     for h, c in (mpc or {}).items():
-        text += "\n" + "\n".join(
-            [f"# [{section_name(h)}] as Kalico's model-predictive control instead:",
-             "# control: mpc", f"# heater_power: {c['heater_power']:.2f}",
-             f"# block_heat_capacity: {c['block_heat_capacity']:.4f}",
-             f"# sensor_responsiveness: {c['sensor_responsiveness']:.6f}",
-             f"# ambient_transfer: {c['ambient_transfer']:.6f}"]) + "\n"
+        lines = [f"# [{section_name(h)}] as Kalico's model-predictive control instead:",
+                 "# control: mpc", f"# heater_power: {_g(c['heater_power'])}",
+                 f"# block_heat_capacity: {_g(c['block_heat_capacity'])}",
+                 f"# sensor_responsiveness: {_g(c['sensor_responsiveness'])}",
+                 f"# ambient_transfer: {_g(c['ambient_transfer'])}"]
+        if c.get("fan_ambient_transfer", c["ambient_transfer"]) != c["ambient_transfer"]:
+            pair = f"{_g(c['ambient_transfer'])}, {_g(c['fan_ambient_transfer'])}"
+            lines += ["# cooling_fan: fan", f"# fan_ambient_transfer: {pair}"]
+        text += "\n" + "\n".join(lines) + "\n"
     return text
 
 
 def marlin_mpc(constants: dict, e: int = 0) -> str:
-    """`M306 E P C R A` (Marlin's units: W, J/K, K/s/K, W/K)."""
+    """`M306 E P C R A F` (`gcode/temp/M306.cpp`; Marlin's units: W, J/K, K/s/K, W/K, and F the
+    ambient transfer with the fan at full speed, W/K: Marlin keeps `F - A` as
+    `fan255_adjustment`)."""
     c = constants
-    return (f"M306 E{e} P{c['heater_power']:.2f} C{c['block_heat_capacity']:.2f} "
-            f"R{c['sensor_responsiveness']:.4f} A{c['ambient_transfer']:.4f}")
+    return (f"M306 E{e} P{_g(c['heater_power'])} C{_g(c['block_heat_capacity'])} "
+            f"R{_g(c['sensor_responsiveness'])} A{_g(c['ambient_transfer'])} "
+            f"F{_g(c.get('fan_ambient_transfer', c['ambient_transfer']))}")
 
 
 def c_source(ctrl: KlipperPID, name: str = "jthermo_heater") -> str:
     """Klipper's law in C (one state struct per heater, `*_update` once per reading)."""
     g = ctrl.gains()
     n = len(g)
-    arr = lambda k: ", ".join(repr(float(x[k])) for x in g)   # noqa: E731
+    arr = lambda k: ", ".join(repr(float(x[k])) for x in g)
     return f"""/* Klipper's heater PID (klippy/extras/heaters.py, ControlPID), tuned by jthermo.
  * Call {name}_update(state, i, dt, temp, target) once per sensor reading; returns the duty. */
 #include <math.h>
@@ -138,38 +161,5 @@ double {name}_update({name}_state *s, int i, double dt, double temp, double targ
 """
 
 
-# ------------------------------------------------------------------------ MPC constants
-
-
-def mpc_model(constants: dict, ts: float, ambient: float):
-    """The two-state model Marlin's and Kalico's MPC simulate, as a jthermo state space at `ts`
-    (exact zero-order hold): block $C \\dot T_b = P u - A (T_b - T_a)$, sensor
-    $\\dot T_s = R (T_b - T_s)$, $u$ the duty, output $T_s$; states are deviations from
-    ambient, operating point $u_0 = 0$, $y_0 = T_a$."""
-    from scipy.linalg import expm
-
-    from ..models._base import StateSpace
-
-    P, Cb, R, A = (float(constants[k]) for k in ("heater_power", "block_heat_capacity",
-                                                  "sensor_responsiveness", "ambient_transfer"))
-    Ac = np.array([[-A / Cb, 0.0], [R, -R]])
-    Bc = np.array([[P / Cb], [0.0]])
-    M = expm(np.block([[Ac, Bc], [np.zeros((1, 3))]]) * ts)
-    return StateSpace(M[:2, :2], M[:2, 2:], np.array([[0.0, 1.0]]), ts=ts, u0=np.zeros(1),
-                      y0=np.full(1, float(ambient)))
-
-
-def mpc_constants(gain: float, tau_block: float, tau_sensor: float, heater_power: float) -> dict:
-    """MPC constants from a two-lag fit: steady gain `gain` (°C per full duty), block time
-    constant `tau_block` (s) and sensor time constant `tau_sensor` (s), and the heater's power
-    (W; temperature data fix only P/A and P/C): $A = P/K$, $C = A\\,\\tau_b$, $R = 1/\\tau_s$."""
-    if not all(math.isfinite(v) and v > 0 for v in (gain, tau_block, tau_sensor, heater_power)):
-        raise ConfigError("MPC constants: the two-lag fit is not a heater (gain and time "
-                          "constants must be positive)")
-    A = heater_power / gain
-    return {"heater_power": float(heater_power), "block_heat_capacity": A * tau_block,
-            "sensor_responsiveness": 1.0 / tau_sensor, "ambient_transfer": A}
-
-
-__all__ = ["FILE_NAMES", "c_source", "kalico_cfg", "klipper_cfg", "marlin_gcode", "marlin_mpc",
-           "mpc_constants", "mpc_model", "section_name"]
+__all__ = ["FILE_NAMES", "MPC_DIGITS", "c_source", "kalico_cfg", "klipper_cfg", "marlin_gcode",
+           "marlin_mpc", "section_name"]

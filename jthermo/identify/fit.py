@@ -14,10 +14,12 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import time
+import warnings
 from typing import Callable
 
 import numpy as np
 
+from .. import runtime
 from ..data import IOData, require_excitation, require_output_variation
 from ..errors import ConfigError, DataError, ModelError
 from ..models import polynomial_numpy
@@ -83,6 +85,7 @@ def fit(data: IOData, family: str, orders: tuple[int, ...] | None = None, *, see
 
     **Returns:** a `FitResult`.
     """
+    runtime.guard()     # a long-lived process stays below the memory-map bound
     t0 = time.perf_counter()
     if not isinstance(family, str) or family.lower() not in FAMILIES:
         raise ModelError(f"fit: unknown model family {family!r} (expected one of {', '.join(FAMILIES)})")
@@ -142,11 +145,15 @@ def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str,
                                      n_starts=1)
         res = fitter.run(data, family, o, seed=seed, n_starts=n_starts, progress=progress, **kw)
         chk = heat.heat_check(res.model, data)
-        if not chk["plausible"]:
-            raise ModelError(f"fit: {family} {','.join(f'{k}={v}' for k, v in (o or {}).items())}"
-                             f" is not a plant heat could be ({chk['warnings'][0]}); leave the "
-                             "orders to the automatic choice, or physics='none'")
-        return res, [f"{family} {','.join(f'{k}={v}' for k, v in o.items())}: plausible"], table
+        name = f"{family} {','.join(f'{k}={v}' for k, v in o.items())}"
+        if not chk["shape_ok"]:
+            raise ModelError(f"fit: {name} is not a plant heat could be ({chk['warnings'][0]}); "
+                             "leave the orders to the automatic choice, or physics='none'")
+        if not chk["plausible"]:    # a heated body whose steady states miss part of the record
+            warnings.warn(f"fit: {name}: {chk['warnings'][0]}; kept because the orders were given",
+                          stacklevel=3)
+            return res, [f"{name}: kept as given; {'; '.join(chk['warnings'])}"], table
+        return res, [f"{name}: plausible"], table
 
     def screen(d, fam):
         if progress:

@@ -48,7 +48,7 @@ def masked_lm(residual, theta0, mask, n_iter, n_active=None, rtol=None, budget=N
       $a = -(J^\\top J + \\lambda D)^{-1} J^\\top r''$, $r''$ the second directional derivative
       along $v$ by a finite difference of step 0.1 (one more residual), used only where
       $2\\|a\\| \\le 0.75 \\|v\\|$. On the diagnosis's per-zone problems it follows curved valleys
-      that the plain steps crawl along (measured by `python benchmarks/lm_variants.py`).
+      that the plain steps crawl along.
 
     With `rtol` or `budget` the loop is a `lax.while_loop` that forms the Jacobian only where
     $\\theta$ moved: after a rejected step the next iteration reuses $r$ and $J$ (the same

@@ -17,11 +17,19 @@ $$\\operatorname{Cov}\\hat\\theta = \\hat\\sigma^2 (J^\\top J)^{-1}, \\qquad
 Compilation: the whole solve (all starts, selection, covariance) is one `eqx.filter_jit`
 function. It compiles once per (residual function, shapes, options); pass a module-level
 function (not a fresh lambda per call) as `residual_fn` and put the data in `args`.
+
+Record lengths from a small set: the residual's length $T$ is padded up to `bucket(T)` (four
+steps per octave: at most 25 % more samples), every array of `args` whose time axis has $T$
+samples extended by repeating its last sample, and the residuals past $T$ masked to zero, the
+mean taken over the $T n_y$ true ones. A residual that is causal in its data (the error at $t$
+depends on samples up to $t$: every prediction or simulation error is) is then the same at
+every $t < T$, so the criterion, its Jacobian, the solve and the covariance are those of the
+unpadded record to round-off (`padding.py`), and a process that fits records of many lengths compiles one
+solve per bucket instead of one per length (`tests/identify/test_pem_padding.py`).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable
 
 import equinox as eqx
@@ -33,7 +41,9 @@ import optax
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from .. import runtime
 from ..errors import ConfigError, FitError
+from .padding import masked_residual, padded
 
 SOLVERS = ("lm", "gn", "adam")
 
@@ -42,7 +52,6 @@ SOLVERS = ("lm", "gn", "adam")
 EXPECTED_IMPROVEMENT_TOL = 1e-4
 
 ResidualFn = Callable[[Float[Array, " p"], Any], Float[Array, "T ny"]]
-
 
 class PEMResult(eqx.Module):
     """Outcome of `minimize`.
@@ -76,17 +85,23 @@ class PEMResult(eqx.Module):
     expected_improvement: Float[Array, ""]
 
 
-def _cost(residual_fn, theta, args):
+def _count(r, n_valid):
+    """True residual entries: `n_valid` rows of `r`'s row size."""
+    return jnp.asarray(n_valid * (r.size // r.shape[0]), r.dtype)
+
+
+def _cost(residual_fn, theta, args, n_valid):
     r = residual_fn(theta, args)
-    return jnp.mean(r**2)
+    return jnp.sum(r**2) / _count(r, n_valid)
 
 
-def _solve_one(residual_fn, theta0, args, solver: str, max_steps: int, rtol: float, atol: float,
-               learning_rate: float):
-    """Minimise from one start point; returns (theta, converged, n_steps). Vmappable."""
+def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, rtol: float,
+               atol: float, learning_rate: float):
+    """Minimise from one start point; returns (theta, converged, n_steps). Vmappable.
+    `residual_fn` is already masked to the first `n_valid` rows (`_minimize_impl`)."""
     if solver == "adam":
         opt = optax.adam(learning_rate)
-        loss = lambda th: _cost(residual_fn, th, args)  # noqa: E731
+        loss = lambda th: _cost(residual_fn, th, args, n_valid)  # noqa: E731
 
         def body(carry, _):
             th, st, best_th, best_l = carry
@@ -107,7 +122,7 @@ def _solve_one(residual_fn, theta0, args, solver: str, max_steps: int, rtol: flo
     def fn(theta, a):
         r = residual_fn(theta, a)
         # scaled so that 0.5 * ||fn||^2 = V / 2: tolerances then do not depend on T
-        return jnp.reshape(r, (-1,)) / math.sqrt(r.size)
+        return jnp.reshape(r, (-1,)) / jnp.sqrt(_count(r, n_valid))
 
     # Jacobi scaling at the start point (Marquardt 1963; MINPACK's `diag`): solve for
     # phi = d * theta with d the column norms of the start's Jacobian, so that every direction
@@ -134,24 +149,32 @@ def _solve_one(residual_fn, theta0, args, solver: str, max_steps: int, rtol: flo
     return sol.value / d, ok, jnp.asarray(sol.stats["num_steps"])
 
 
-def _minimize_impl(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
-                   covariance, batch="vmap", screen_steps=0):
+def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, atol,
+                   learning_rate, covariance, batch="vmap", screen_steps=0):
     """All starts `(K, p)`, best pick and covariance. Pure; vmappable over problems.
 
     With `0 < screen_steps < max_steps` and K > 1 the starts are solved for `screen_steps`
     steps only, and the best of them is then solved to convergence (successive halving down
     to one start): the cost of a multi-start is then about K * screen_steps steps plus one
-    solve, instead of K times the slowest start's solve.
+    solve, instead of K times the slowest start's solve. Only the first `n_valid` residual
+    rows count (a traced scalar: records padded to one length share the program).
     """
+    raw = residual_fn
+    if n_valid is None:
+        n_valid = eqx.filter_eval_shape(raw, theta0[0], args).shape[0]
+
+    def residual_fn(th, a):
+        return masked_residual(raw, th, a, n_valid)
+
     def solve(th0, steps):
-        one = lambda th: _solve_one(residual_fn, th, args, solver, steps, rtol,  # noqa: E731
-                                    atol, learning_rate)
+        one = lambda th: _solve_one(residual_fn, th, args, n_valid, solver, steps,  # noqa: E731
+                                    rtol, atol, learning_rate)
         if batch == "vmap":
             return jax.vmap(one)(th0)
         return jax.lax.map(one, th0)
 
     def scored(thetas):
-        costs = jax.vmap(lambda th: _cost(residual_fn, th, args))(thetas)
+        costs = jax.vmap(lambda th: _cost(residual_fn, th, args, n_valid))(thetas)
         finite = jnp.isfinite(costs) & jnp.all(jnp.isfinite(thetas), axis=1)
         return jnp.where(finite, costs, jnp.inf)
 
@@ -159,7 +182,7 @@ def _minimize_impl(residual_fn, theta0, args, solver, max_steps, rtol, atol, lea
     if K > 1 and 0 < screen_steps < max_steps and solver != "adam":
         thetas, oks, steps = solve(theta0, screen_steps)
         lead = jnp.argmin(scored(thetas))
-        th, ok, st = _solve_one(residual_fn, thetas[lead], args, solver,
+        th, ok, st = _solve_one(residual_fn, thetas[lead], args, n_valid, solver,
                                 max_steps - screen_steps, rtol, atol, learning_rate)
         thetas = thetas.at[lead].set(th)
         oks = oks.at[lead].set(ok)
@@ -173,11 +196,12 @@ def _minimize_impl(residual_fn, theta0, args, solver, max_steps, rtol, atol, lea
     p = theta.shape[0]
     converged = oks[best]
     if covariance:
-        r = jnp.reshape(residual_fn(theta, args), (-1,))
-        n = r.size
+        r2 = residual_fn(theta, args)
+        n = _count(r2, n_valid)
+        r = jnp.reshape(r2, (-1,))
         J = jax.jacfwd(lambda th: jnp.reshape(residual_fn(th, args), (-1,)))(theta)
         H_pinv = jnp.linalg.pinv(J.T @ J, hermitian=True)
-        sigma2 = jnp.sum(r**2) / max(n - p, 1)
+        sigma2 = jnp.sum(r**2) / jnp.maximum(n - p, 1.0)
         cov = sigma2 * H_pinv
         cov = jnp.where(jnp.isfinite(cov), cov, jnp.inf)
         std = jnp.sqrt(jnp.clip(jnp.diagonal(cov), 0.0))
@@ -198,15 +222,22 @@ _minimize_jit = eqx.filter_jit(_minimize_impl)
 
 @eqx.filter_jit
 def minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, learning_rate,
-                       covariance, batch, screen_steps=0):
+                      covariance, batch, screen_steps=0, n_valid=None):
+    """`minimize_many`'s compiled solve; `n_valid`: the true record length of padded `args`
+    (None: every residual row counts)."""
     def one(th, a):
-        return _minimize_impl(residual_fn, th, a, solver, max_steps, rtol, atol, learning_rate,
-                              covariance, batch, screen_steps)
+        return _minimize_impl(residual_fn, th, a, n_valid, solver, max_steps, rtol, atol,
+                              learning_rate, covariance, batch, screen_steps)
 
     if batch == "vmap":
         return eqx.filter_vmap(one)(theta0, args)
     arrays, static = eqx.partition(args, eqx.is_array)
     return jax.lax.map(lambda x: one(x[0], eqx.combine(x[1], static)), (theta0, arrays))
+
+
+def _n(T: int):
+    """The true length as a placed array (a traced argument: one program per bucket)."""
+    return jax.device_put(np.asarray(T, np.int32))
 
 
 def _check(theta0, solver, max_steps, batch_dims, batch="vmap"):
@@ -233,7 +264,7 @@ def _check(theta0, solver, max_steps, batch_dims, batch="vmap"):
 def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = None, *,
              solver: str = "lm", max_steps: int = 200, rtol: float = 1e-8, atol: float = 1e-8,
              learning_rate: float = 1e-2, covariance: bool = True, throw: bool = True,
-             batch: str = "vmap", screen_steps: int = 0) -> PEMResult:
+             batch: str = "vmap", screen_steps: int = 0, pad: bool = True) -> PEMResult:
     """Minimise the mean squared residual of `residual_fn` from one or several start points.
 
     $\\hat\\theta = \\arg\\min_\\theta \\frac{1}{T n_y}\\sum_t \\|\\varepsilon(t,\\theta)\\|^2$
@@ -254,11 +285,16 @@ def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = 
       where a vmapped trust-region loop runs every start until the slowest one stops.
     - `screen_steps`: with several starts, solve each for this many steps only and then solve
       the best one to convergence (0: solve every start to convergence).
+    - `pad`: pad the record to `bucket(T)` samples (module docstring; `residual_fn` must then
+      be causal in the arrays of `args` whose axis 0 has the residual's `T` entries); False
+      compiles for the exact length.
 
     **Returns:** a `PEMResult`; `start_costs` holds the final cost from each start.
     """
+    runtime.guard()
     theta0 = _check(theta0, solver, max_steps, 0, batch)
-    res = _minimize_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
+    args, T = padded(residual_fn, theta0, args, 0, pad)
+    res = _minimize_jit(residual_fn, theta0, args, _n(T), solver, int(max_steps), float(rtol),
                         float(atol), float(learning_rate), bool(covariance), batch,
                         int(screen_steps))
     if throw and not bool(jnp.isfinite(res.cost)):
@@ -269,7 +305,8 @@ def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = 
 def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args: Any = None, *,
                   solver: str = "lm", max_steps: int = 200, rtol: float = 1e-8,
                   atol: float = 1e-8, learning_rate: float = 1e-2, covariance: bool = True,
-                  throw: bool = True, batch: str = "vmap", screen_steps: int = 0) -> PEMResult:
+                  throw: bool = True, batch: str = "vmap", screen_steps: int = 0,
+                  pad: bool = True) -> PEMResult:
     """`minimize` for M independent problems of the same shape, in one compiled call.
 
     Used for models whose outputs do not share parameters (MISO per output): a block-diagonal
@@ -277,13 +314,15 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     M·K problems' Jacobians at once and runs each to the slowest one's step count; `"map"`
     solves them one after another in the same compiled call (the memory of one, each stopping
     at its own count: the polynomial families' default). `theta0` is `(M, p)` or `(M, K, p)`;
-    every array leaf of `args` carries the problem index on axis 0. The returned `PEMResult`
-    has a leading `M` axis on every field.
+    every array leaf of `args` carries the problem index on axis 0 (and time on axis 1: `pad`
+    as in `minimize`). The returned `PEMResult` has a leading `M` axis on every field.
     """
+    runtime.guard()
     theta0 = _check(theta0, solver, max_steps, 1, batch)
+    args, T = padded(residual_fn, theta0, args, 1, pad)
     res = minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
-                             float(atol), float(learning_rate), bool(covariance), batch,
-                             int(screen_steps))
+                            float(atol), float(learning_rate), bool(covariance), batch,
+                            int(screen_steps), _n(T))
     if throw and not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"minimize: problem {bad}: no start point gave a finite cost "
@@ -309,14 +348,15 @@ def _column_norms(f, theta, chunk: int = 32):
     return jax.lax.map(norms, eye).reshape(-1)[:p]
 
 
-def _mf_impl(residual_fn, theta0, args, max_steps: int, cg_steps: int):
+def _mf_impl(residual_fn, theta0, args, n_valid, max_steps: int, cg_steps: int):
     """Levenberg–Marquardt with the step from conjugate gradients on $J^\\top J + \\lambda I$
-    (Jacobi-scaled), $J v$ and $J^\\top w$ by forward and reverse differentiation (never $J$)."""
+    (Jacobi-scaled), $J v$ and $J^\\top w$ by forward and reverse differentiation (never $J$);
+    the first `n_valid` residual rows count (`minimize`)."""
     dtype = theta0.dtype
 
     def f0(th):
-        r = jnp.reshape(residual_fn(th, args), (-1,))
-        return r / math.sqrt(r.size)
+        r2 = masked_residual(residual_fn, th, args, n_valid)
+        return jnp.reshape(r2, (-1,)) / jnp.sqrt(_count(r2, n_valid))
 
     # Jacobi scaling at the start (as `minimize`): unit column norms, bounded to a 1e4 range
     d = _column_norms(f0, theta0)
@@ -372,7 +412,7 @@ _mf_jit = eqx.filter_jit(_mf_impl)
 
 
 def minimize_matrix_free(residual_fn: ResidualFn, theta0: Float[Array, " p"], args: Any = None, *,
-                         max_steps: int = 30, cg_steps: int = 40) -> PEMResult:
+                         max_steps: int = 30, cg_steps: int = 40, pad: bool = True) -> PEMResult:
     """`minimize` for problems whose `(T·ny, p)` Jacobian does not fit in memory.
 
     Levenberg–Marquardt whose step $\\delta = -(J^\\top J + \\lambda I)^{-1} J^\\top \\varepsilon$
@@ -383,10 +423,13 @@ def minimize_matrix_free(residual_fn: ResidualFn, theta0: Float[Array, " p"], ar
     `converged` is honest: the undamped Gauss–Newton step from the result would lower the cost
     by less than `EXPECTED_IMPROVEMENT_TOL` (MATLAB pem's rule, as in `minimize`), whatever
     the step cap. One start point `(p,)`; no covariance (NaN: it needs $(J^\\top J)^{-1}$).
-    Raises `FitError` when the start or the result has no finite cost.
+    Raises `FitError` when the start or the result has no finite cost. `pad` as in `minimize`.
     """
-    theta0 = _check(theta0, "lm", max_steps, 0)[0]
-    th, c, k, improvement = _mf_jit(residual_fn, theta0, args, int(max_steps), int(cg_steps))
+    runtime.guard()
+    theta0 = _check(theta0, "lm", max_steps, 0)
+    args, T = padded(residual_fn, theta0, args, 0, pad)
+    th, c, k, improvement = _mf_jit(residual_fn, theta0[0], args, _n(T), int(max_steps),
+                                    int(cg_steps))
     if not (bool(jnp.isfinite(c)) and bool(jnp.all(jnp.isfinite(th)))):
         raise FitError("minimize_matrix_free: the start point has no finite cost")
     p = th.shape[0]

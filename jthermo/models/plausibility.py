@@ -254,7 +254,9 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
     zero input counted among the recorded ones when the record starts at rest
     (`starts_at_rest`).
 
-    **Returns:** `{"plausible", "warnings"}`.
+    **Returns:** `{"plausible", "warnings", "shape_ok"}`; `shape_ok` is True when every warning
+    is one of coverage (the model is a heated body, but its steady states miss part of the
+    recorded range), so that a fit with orders the user gave can be kept and reported.
     """
     env = Envelope.from_data(data) if envelope is None else envelope
     found = check_fit(model, env, input_names=data.input_names, output_names=data.output_names)
@@ -267,6 +269,7 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
                 and not p["cools_own_sensor"]:
             warnings.append(f"{names_u[j]} -> {names_y[i]}: static gain {p['dc_gain']:.3g} °C per "
                             "unit input: a heater that lowers a sensor's steady temperature")
+    shape_ok = not warnings
     if found["stable"]:
         u = np.asarray(data.u, np.float64)
         w = np.asarray(data.w, np.float64)
@@ -278,4 +281,4 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
                        np.stack([w.min(0), w.max(0)]) if w.shape[1] else None,
                        np.stack([y.min(0), y.max(0)]), sigma, names_y)
         warnings += cov["warnings"]
-    return {"plausible": not warnings, "warnings": warnings}
+    return {"plausible": not warnings, "warnings": warnings, "shape_ok": shape_ok}

@@ -50,11 +50,10 @@ from .geometry import (
     grid_shape as grid_shape,
 )
 from .effects import EFFECTS as EFFECTS
+from .state import PrinterDisturbance as PrinterDisturbance, PrinterState as PrinterState
+from .discrete import DiscretePrinter as DiscretePrinter
 from .plant import (
-    DiscretePrinter as DiscretePrinter, Printer as Printer,
-    PrinterDisturbance as PrinterDisturbance, PrinterState as PrinterState,
-    SMOOTH_SUBSTEPS as SMOOTH_SUBSTEPS,
-    steady_state as steady_state,
+    Printer as Printer, SMOOTH_SUBSTEPS as SMOOTH_SUBSTEPS, steady_state as steady_state,
 )
 from .build import make_printer as make_printer
 from .runs import (

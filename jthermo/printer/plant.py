@@ -1,5 +1,6 @@
-"""The virtual printer as a plant: its state, disturbances, continuous-time model, exact
-discretisation (`DiscretePrinter`) and steady states (see `jthermo.printer` for the physics)."""
+"""The virtual printer as a plant: its continuous-time model, its exact discretisation
+(`Printer.discretise`, a `DiscretePrinter` of `printer.discrete`) and steady states; its state
+and disturbances are `printer.state`'s (see `jthermo.printer` for the physics)."""
 
 from __future__ import annotations
 
@@ -10,44 +11,17 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import ModelError
+from .discrete import DiscretePrinter
 from .effects import EFFECTS
 from .geometry import KELVIN, NOMINAL_INPUT, SIGMA, grid_edges, grid_positions, grid_shape
-from .integration import PhiMatrices, phi_matrices
+from .integration import phi_matrices
 from .noise import NoiseStream
+from .state import PrinterDisturbance, PrinterState
 
 #: sub-steps per sample for radiation alone (no recoat sweep): its T^4 term changes little over
 #: a sample, so one ETD2RK step stays within 1e-3 °C of 100 sub-steps in closed loop
 #: (measured by `python benchmarks/simulate_substeps.py`; the sensor noise is 0.05-0.1 °C)
 SMOOTH_SUBSTEPS = 1
-
-# ----------------------------------------------------------------------------- state & disturbance
-
-
-class PrinterState(eqx.Module):
-    """State of the virtual printer.
-
-    - `z`: the linear states: zone temperatures (°C), then the chamber (°C, heat accumulation),
-      lamp powers (power fraction, heater lag), area temperatures (°C, areas 1–3), as present.
-    - `buffer`: the last `delay` inputs, oldest first (input delay), `(delay, nu)`.
-    - `since`: seconds since the last recoat started.
-    """
-
-    z: Float[Array, " nz"]
-    buffer: Float[Array, "delay nu"]
-    since: Float[Array, ""]
-
-
-class PrinterDisturbance(eqx.Module):
-    """Exogenous signals at one sample (or `(T, ...)` for a run).
-
-    - `recoat`: 1.0 at the sample a recoat starts, else 0.
-    - `laser`: absorbed laser power per zone, W.
-    - `ambient`: surroundings temperature, °C.
-    """
-
-    recoat: Float[Array, ""]
-    laser: Float[Array, " zones"]
-    ambient: Float[Array, ""]
 
 
 def _safe_power(u, p):
@@ -427,56 +401,6 @@ def _steady_u(printer: Printer, x: PrinterState, ambient) -> Array:
         e = printer.effects["input_nonlinearity"]["exponent"]
         p = p.at[:n].set(_safe_power(p[:n] / NOMINAL_INPUT ** (1.0 - e), 1.0 / e))
     return p
-
-
-class DiscretePrinter(eqx.Module):
-    """A printer with its sample-time matrices precomputed: same `step`/`output` interface."""
-
-    printer: Printer
-    disc: PhiMatrices
-    Bp: Array
-    bs: Array
-    Bl: Array
-    m: int = eqx.field(static=True)
-    recoat: bool = eqx.field(static=True, default=True)   # False: no sweep term (see discretise)
-
-    def step(self, x: PrinterState, u, d: PrinterDisturbance | None = None) -> PrinterState:
-        pr = self.printer
-        if d is None:
-            d = pr.default_disturbance()
-        u = jnp.asarray(u, self.Bp.dtype)
-        if pr.delay:
-            u_now = x.buffer[0]
-            buffer = jnp.concatenate([x.buffer[1:], u[None]], axis=0)
-        else:
-            u_now, buffer = u, x.buffer
-        p = pr._power(u_now)
-        b = self.Bp @ p + self.bs * d.ambient + self.Bl @ d.laser
-        since = jnp.where(d.recoat > 0.5, 0.0, x.since)
-        E, P1, P2 = self.disc.E, self.disc.P1, self.disc.P2
-        if not (pr.has("radiative_loss") or (self.recoat and pr.has("recoat_cooling"))):
-            z = E @ x.z + P1 @ b
-        else:
-            h, n = pr.ts / self.m, pr.zones
-            # the nonlinear terms act on the zone rows only and `b` is constant over the
-            # sample: P1 b once, then zone columns (a third fewer multiply-adds per sub-step)
-            P1b, P1n, P2n = P1 @ b, P1[:, :n], P2[:, :n]
-
-            def sub(z, j):
-                t = since + j * h
-                f0 = pr._nonlinear(z, t, d.ambient, self.recoat)[:n]
-                a = E @ z + P1b + P1n @ f0
-                f1 = pr._nonlinear(a, t + h, d.ambient, self.recoat)[:n]
-                return a + P2n @ (f1 - f0), None
-
-            z, _ = jax.lax.scan(sub, x.z, jnp.arange(self.m, dtype=x.z.dtype))
-        return PrinterState(z=z, buffer=buffer, since=since + pr.ts)
-
-    def output(self, x):
-        return self.printer.output(x)
-
-    def temperatures(self, x):
-        return self.printer.temperatures(x)
 
 
 # ----------------------------------------------------------------------------- steady state

@@ -16,7 +16,8 @@ from ..data import IOData, from_arrays
 from ..errors import ConfigError
 from ..runtime import one_shot
 from .geometry import AREA_NAMES
-from .plant import Printer, PrinterDisturbance, PrinterState, steady_state
+from .plant import Printer, steady_state
+from .state import PrinterDisturbance, PrinterState
 
 # ----------------------------------------------------------------------------- disturbances
 
@@ -141,9 +142,8 @@ def _generate_fn(printer, u, key, u_mean, noise_std, steady: bool):
 @functools.cache
 def _generate_core():
     """`_generate_fn` compiled with `runtime.one_shot()` options (-O0; probed on first use, not
-    at import): an experiment is simulated once per record shape, and compiles in about half
-    the CPU time for a slower run, outputs equal to 5e-12 °C (measured by
-    `python benchmarks/generate_compile.py`)."""
+    at import): an experiment is simulated once per record shape, so a compile in less CPU
+    time is worth a slower run (the same outputs to rounding)."""
     return eqx.filter_jit(_generate_fn, compiler_options=one_shot())
 
 

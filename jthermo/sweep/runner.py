@@ -9,6 +9,7 @@ import json
 import math
 import multiprocessing
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -125,6 +126,21 @@ def _probe(address: str, timeout: float = 5.0) -> None:
         raise ConfigError(f"--ray {address}: cannot connect ({exc.strerror or type(exc).__name__})") from None
 
 
+#: trials a local worker process runs before it is replaced by a fresh one (Python >= 3.11's
+#: `max_tasks_per_child`), and a Ray worker (`max_calls`): the compiled programs a worker
+#: gathers over trials of many record lengths and orders are released with it, on top of the
+#: guard each trial runs (`runtime.guard`)
+TRIALS_PER_WORKER = 50
+
+
+def pool_options(ctx) -> dict:
+    """`ProcessPoolExecutor` arguments that recycle workers where this Python can."""
+    opts = {"mp_context": ctx}
+    if sys.version_info >= (3, 11):
+        opts["max_tasks_per_child"] = TRIALS_PER_WORKER
+    return opts
+
+
 def _ray_run(kind, todo, settings, address, on_done):
     try:
         import ray
@@ -144,7 +160,7 @@ def _ray_run(kind, todo, settings, address, on_done):
                               f"{' '.join(str(exc).split())[:200]})") from None
         started_here = True
     try:
-        remote = ray.remote(run_trial)
+        remote = ray.remote(max_calls=TRIALS_PER_WORKER)(run_trial)
         pending = {remote.remote(kind, t, settings): t for t in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
@@ -195,7 +211,7 @@ def run_sweep(cfg: dict, results: str | os.PathLike, *, ray_address: str | None 
             on_done(run_trial(kind, t, settings))
     else:
         ctx = multiprocessing.get_context("spawn")  # never fork a process that holds JAX threads
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with cf.ProcessPoolExecutor(max_workers=workers, **pool_options(ctx)) as pool:
             futures = [pool.submit(run_trial, kind, t, settings) for t in todo]
             try:
                 for fut in cf.as_completed(futures):

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import runtime
 from ..errors import ConfigError, JThermoError
 from .config import trial_salt, trial_settings
 
@@ -170,7 +171,10 @@ _TRIAL_FUNCS: dict[str, Callable[[dict, dict], dict]] = {
 
 def run_trial(kind: str, trial: dict, settings: dict) -> dict:
     """Run one trial in float64 (scoped); never raises: failures are recorded with their
-    one-line reason."""
+    one-line reason. The process's compiled programs are kept below the memory-map bound
+    first (`runtime.guard`): a worker runs trials of many shapes."""
+    runtime.one_matrix_at_a_time()   # a worker process: LAPACK one matrix at a time, as the CLI
+    runtime.guard()
     t0 = time.perf_counter()
     record: dict[str, Any] = {"id": trial["id"], "params": trial["params"], "kind": kind,
                               "salt": trial_salt()}

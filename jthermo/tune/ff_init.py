@@ -137,10 +137,10 @@ def tuned_fields(ctrl) -> tuple[str, ...] | None:
 
     A schedule feed-forward tunes its taps with the feedback (MIMO PI or LQG) frozen at its
     design: the feed-forward does not enter the sensitivity $S = (I - G K)^{-1}$, so the loop
-    keeps the design's $M_s$ (on the printer 1.94 for the MIMO PI, 1.84 for the LQG, within
-    the limit 2) by construction, and the set-point tracking of the design (no events there);
-    the feed-forward does the disturbance work. Tuned jointly, the PI gains left $M_s \\le 2$
-    after the second iterate (experiments/results/schedule_ff_study_ms.md)."""
+    keeps the design's $M_s$ (on the printer within the limit 2:
+    experiments/results/schedule_ff_study.md) by construction, and the set-point tracking of
+    the design (no events there); the feed-forward does the disturbance work. Tuned jointly,
+    the PI gains left $M_s \\le 2$ within a few iterates."""
     if isinstance(ctrl, ScheduleFF):
         return FF_FIELDS
     return None

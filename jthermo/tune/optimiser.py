@@ -31,8 +31,7 @@ from ..runtime import QUICK_COMPILE, accepted
 
 #: XLA compile options of Adam's training-step program (`runtime.accepted`; empty: XLA's
 #: defaults): `runtime.QUICK_COMPILE` (XLA's older CPU fusion emitters) compiles the default
-#: `jthermo tune` step in less CPU time for lqg and pi, at the same CPU time per step (measured
-#: by `python benchmarks/tune_program_options.py --program step --controller lqg|pi`)
+#: `jthermo tune` step in less CPU time for lqg and pi, at the same CPU time per step
 STEP_COMPILE: dict = dict(QUICK_COMPILE)
 
 

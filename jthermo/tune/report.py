@@ -30,7 +30,8 @@ from ..control.schedule_ff import ScheduleFF
 from ..errors import ControlError
 from ..models._base import AbstractModel, StateSpace
 from ..printer import Printer, PrinterState, make_printer
-from ..runtime import one_shot, simulate_compile
+from ..progress import stage
+from ..runtime import one_matrix_at_a_time, one_shot, simulate_compile
 from .ff_init import init_schedule_ff, tuned_fields
 from .terms import batch_terms, group_batch
 from .training import (
@@ -59,8 +60,7 @@ def quick_evaluate():
     builder `closedloop.compiled_make_scenario()` (a printer's scenarios as one program with
     `runtime.one_shot()` options; a fitted model's eager): compiled once per controller structure
     and scenario kind and run once, they cut the cold CPU time of `jthermo demo`'s held-out
-    scenarios of eleven classical designs by about a third, the same figures to 1e-14 (measured
-    by `python benchmarks/evaluate_compile.py`)."""
+    scenarios of the classical designs, with the same figures."""
     return (eqx.filter_jit(_evaluate_fn, compiler_options=simulate_compile()),
             compiled_make_scenario())
 
@@ -145,8 +145,7 @@ def rescaled_start(ctrl):
     units of their diagonal (`MIMOPI.rescaled`): the same loop, but an optimiser step no longer
     moves an off-diagonal entry (0 at the start, outside log space) by an absolute 0.05, which
     against integral gains per sample far below that destabilised the loop in one step (on the
-    4-zone printer: training objective 0 -> 19 after the first Adam step,
-    experiments/results/schedule_ff_study_ff_init.json)."""
+    4-zone printer, the first Adam step)."""
     if isinstance(ctrl, MIMOPI):
         return ctrl.rescaled()
     if isinstance(ctrl, ScheduleFF) and isinstance(ctrl.feedback, MIMOPI):
@@ -233,6 +232,14 @@ def held_out_terms(ctrls: dict, plants: dict, seeds, *, rollouts: int, duration:
         done[id(c)] = {lab: {"cost": float(np.mean([d["cost"] for d in sc.values()])),
                              "scenarios": sc} for lab, sc in per.items()}
     return {name: done[id(c)] for name, c in which.items()}
+
+
+def _staged(name: str, fn: Callable) -> Callable:
+    """`fn` run inside `progress.stage(name)` (for the second thread: the watchdog names it)."""
+    def run(*args, **kwargs):
+        with stage(name):
+            return fn(*args, **kwargs)
+    return run
 
 
 def _training_sets(plants, rollouts: int, duration: float, seed: int):
@@ -356,7 +363,15 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     training set (while this one compiles the training step), then designs the classical
     controllers and simulates every controller tuning does not change on the held-out seeds,
     so that on two cores their compiles and runs overlap the tuning loop; the results are
-    those of one thread.
+    those of one thread. Both threads' programs factor batches of matrices (at 16 zones the
+    plants' steady states, 9 x 33 x 33), which jaxlib's batched LAPACK kernels deal to XLA's
+    CPU pool and wait for: two at once deadlocked a two-core machine (every thread asleep),
+    so they are lowered one matrix at a time first (`runtime.one_matrix_at_a_time`, the same
+    figures bit for bit). Against no second thread (its work in turn on this one, with the
+    batched kernels) this measured faster on `lqg` at 16 zones cold and about equal warm, with
+    the same report (`python experiments/printer_scale.py --zones '' --ab`).
+    The main thread names its stages for the watchdog (`progress.stage`), the second one
+    each task it runs.
 
     **Returns:** a JSON-ready dict with `controller`, `start_cost`, `tuned_cost`,
     `lambda_pi_cost`, `improvement_percent` (100·(1 − tuned/lambda_pi)), `best_classical`,
@@ -369,6 +384,7 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     the tuned controller under the key `"tuned"` (not JSON: pop it before writing).
     """
     t0 = time.perf_counter()
+    one_matrix_at_a_time()   # two threads' programs: no LAPACK kernel may wait on XLA's pool
     pl = _plant_from(plant, zones=zones, powder=powder, plant_seed=plant_seed)
     if changed_powder == "auto":
         changed_powder = "PA11" if powder != "PA11" else "PA12"
@@ -377,8 +393,9 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     # a second thread draws the training and validation scenarios while this one linearises
     # the printer and designs, then simulates the designs that tuning does not change on the
     # held-out seeds while the tuning loop runs: their compiles and runs overlap this thread's
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        drawn = pool.submit(_training_sets, ens, rollouts, duration, seed)
+    with ThreadPoolExecutor(max_workers=1) as pool, stage("tune: designing"):
+        drawn = pool.submit(_staged("tune: drawing scenarios", _training_sets), ens, rollouts,
+                            duration, seed)
         if model is None:
             model = pl if isinstance(pl, AbstractModel) else _printer_model(pl)
         start = design(controller_family, model)
@@ -404,25 +421,30 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         chunk = len(ens) * len(as_kinds(SCENARIOS)) if er == rollouts else None
         kw = {"rollouts": er, "duration": duration, "weights": weights, "chunk": chunk}
         # the references on the training set, while this thread compiles the training step
-        best = pool.submit(lambda: best_reference_terms([start, *refs], drawn.result()[0],
-                                                        weights))
-        fixed = pool.submit(_fixed_held_out, model, start, lam_pi, refs, plants, seeds, kw)
+        best = pool.submit(_staged("tune: references on the training set",
+                                   lambda: best_reference_terms([start, *refs],
+                                                                drawn.result()[0], weights)))
+        fixed = pool.submit(_staged("tune: classical designs on held-out seeds", _fixed_held_out),
+                            model, start, lam_pi, refs, plants, seeds, kw)
         train, val = drawn.result()
-        res = tune(start, pl, plants=ens, scenarios=train, validation=val, lr=lr, steps=steps,
-                   weights=weights, references=refs, progress=progress,
-                   reference_terms=best.result,
-                   ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
-                   params=tuned_fields(start) if params == "auto" else params,
-                   train_dtype=train_dtype)
-        classical, study, terms = fixed.result()
+        with stage("tune: training"):
+            res = tune(start, pl, plants=ens, scenarios=train, validation=val, lr=lr, steps=steps,
+                       weights=weights, references=refs, progress=progress,
+                       reference_terms=best.result,
+                       ms_max=ms_max, ms_model=model, optimiser=optimiser, ms_weight=ms_weight,
+                       params=tuned_fields(start) if params == "auto" else params,
+                       train_dtype=train_dtype)
+        with stage("tune: waiting for the classical designs' held-out evaluation"):
+            classical, study, terms = fixed.result()
     ms_c = (res.guard or {}).get("ms_constraint")
     if ms_c is None and ms_max is not None:     # no guard record: judge the returned loop
         ms = loop_ms(model, res.controller)
         ms_c = {"ms_max": float(ms_max), "chosen_ms": ms, "computable": ms is not None,
                 "satisfied": None if ms is None else bool(ms <= ms_max), "rejected_for_ms": []}
     ctrls = {"start": start, "tuned": res.controller, "lambda_pi": lam_pi, **classical}
-    terms["tuned"] = terms["start"] if _same_controller(res.controller, start) else \
-        held_out_terms({"tuned": res.controller}, plants, seeds, study=study, **kw)["tuned"]
+    with stage("tune: held-out evaluation"):
+        terms["tuned"] = terms["start"] if _same_controller(res.controller, start) else \
+            held_out_terms({"tuned": res.controller}, plants, seeds, study=study, **kw)["tuned"]
     held = _held_out_comparison(terms, "plant", classical)
     changed = None if "changed" not in plants else {
         "powder": changed_powder, **_held_out_comparison(terms, "changed", classical)}
@@ -430,10 +452,12 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
     if check_robustness:
         best = held.get("best_classical")
         names = ["tuned", "start"] + ([] if best is None else [best])
-        robust = robustness({("best_classical" if n == best else n): ctrls[n] for n in names},
-                            pl, model, seeds, rollouts=er, duration=duration, weights=weights,
-                            terms={("best_classical" if n == best else n): terms[n]
-                                   for n in names})
+        with stage("tune: robustness"):
+            robust = robustness({("best_classical" if n == best else n): ctrls[n]
+                                 for n in names}, pl, model, seeds, rollouts=er,
+                                duration=duration, weights=weights,
+                                terms={("best_classical" if n == best else n): terms[n]
+                                       for n in names})
     return {"controller": controller_family, **held,
             "changed_powder": changed, "robustness": robust, "ms_constraint": ms_c,
             "train_start_cost": res.start_cost, "train_tuned_cost": res.tuned_cost,

@@ -40,11 +40,32 @@ def test_firmware_file_and_report(calibrated):
                                                "load_mse"))
     cfg = (calibrated / "res" / "firmware.cfg").read_text()
     assert "[extruder]" in cfg and "control: pid" in cfg
-    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]): ([\d.]+)$", cfg, re.M)}
+    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]): ([\d.]+)$", cfg, re.MULTILINE)}
     ctrl = io.load_controller(calibrated / "res" / "controller.jtm")
     assert isinstance(ctrl, KlipperPID)
     assert ctrl.gains()[0] == pytest.approx(gains, abs=0)    # the file runs what was judged
-    assert (calibrated / "res" / "report.md").read_text().startswith("# Heater calibration")
+    md = (calibrated / "res" / "report.md").read_text()
+    assert md.startswith("# Heater calibration")
+    assert f"Diagnosis: {rep['finding']}" in md and rep["finding"] and rep["verdict"]
+    for name in rep["figures"].values():                     # every figure written and linked
+        assert (calibrated / "res" / name).stat().st_size > 0 and f"]({name})" in md
+    assert set(rep["figures"]) == {"fit", "step", "startup", "changes", "comparison"}
+    assert rep["load"]["what"] and np.isfinite(rep["load"]["firmware_pid_load_mse"])
+
+
+def test_marlin_file_has_mpc_line(calibrated):
+    """One heater: the two-state model is fitted and its M306 line is in Marlin's file."""
+    root = calibrated
+    assert main(["calibrate", str(root / "imp" / "extruder_seg01.csv"), "--out",
+                 str(root / "marlin"), "--firmware", "marlin", "--steps", "0", "--rollouts", "1",
+                 "--heater-power", "50", "--json", str(root / "m.json"), "--quiet"]) == 0
+    rep = json.loads((root / "m.json").read_text())
+    text = (root / "marlin" / "firmware.gcode").read_text()
+    assert re.search(r"^M301 E0 P[\d.]+ I[\d.]+ D[\d.]+ ; extruder$", text, re.MULTILINE)
+    assert rep["mpc"]["constants"]["heater_power"] == 50.0
+    m = re.search(r"M306 E0 P50 C([\d.e+-]+) R([\d.e+-]+) A([\d.e+-]+) F", text)
+    assert m and float(m.group(1)) == pytest.approx(rep["mpc"]["constants"]["block_heat_capacity"])
+    assert float(m.group(2)) > 0 and text.rstrip().endswith("M500")
 
 
 def test_bad_heater_exit_2(calibrated, capsys):

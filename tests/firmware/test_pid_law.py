@@ -33,7 +33,7 @@ def hotend(ts=1.0, n=1):
 def read_cfg(text, heater):
     body = text.split(f"[{heater}]")[1].split("\n[")[0]
     return {k: float(v) for k, v in re.findall(r"^(pid_K[pid]|max_power|smooth_time): ([-\d.]+)$",
-                                                body, re.M)}
+                                                body, re.MULTILINE)}
 
 
 @pytest.mark.parametrize("n, smooth, max_power", [(1, 1.0, 1.0), (1, 2.5, 0.8), (16, 1.0, 1.0)])

@@ -1,0 +1,111 @@
+"""The estimation records as the diagnosis's fits see them: arrays, problems, the baseline.
+
+One record or several pooled records of one plant (`pool.py`): `lengths` is () for one record,
+else each record's samples; the arrays are then the records' concatenation in time, with each
+record's input before it (`u_pads`) and a drift basis of one block per record.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import baseline
+from . import mechanisms as M
+from . import pool
+
+
+def fit_percent(y, yhat):
+    """Simulation fit % per output: $100 (1 - \\|y - \\hat y\\| / \\|y - \\bar y\\|)$."""
+    y = np.asarray(y)
+    num = np.linalg.norm(y - yhat, axis=0)
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0) + 1e-300
+    return 100.0 * (1.0 - num / den)
+
+
+def ambient_column(data):
+    """Index of the measured surroundings signal (`w_ambient`, `w_surroundings`...) or None."""
+    for j, name in enumerate(data.signal_names):
+        low = name.lower()
+        if "ambient" in low or "surround" in low:
+            return j
+    return None
+
+
+def record_arrays(data, amb_col, level, n_knots, lengths=()):
+    """What every fit of a record needs (NumPy): outputs, each zone's neighbours, the mean zone
+    temperature, the surroundings' deviation from `level`, the drift basis, the inputs and the
+    input before the record (its mean); pooled `lengths`: each record's (`u_pads`)."""
+    y = np.asarray(data.y, float)
+    u = np.asarray(data.u, float)
+    T, n = y.shape
+    if amb_col is not None:
+        wdev = np.asarray(data.w[:, amb_col], float) - level
+    else:
+        wdev = np.zeros(T)
+    ynb = np.stack([np.delete(y, i, axis=1) if n > 1 else np.zeros((T, 1)) for i in range(n)])
+    out = {"y": y, "ynb": ynb, "ybar": y.mean(axis=1), "wdev": wdev,
+           "Phi": (pool.drift_basis(lengths, data.ts)[0] if lengths else M.drift_basis(T, data.ts, n_knots)),
+           "u": u, "u_pad": u.mean(axis=0)}
+    if lengths:
+        out["u_pads"] = np.stack([x.mean(axis=0) for x in pool.split_rows(u, lengths)])
+    return out
+
+
+def problems(rec, K, events=None, delays=None):
+    """Per-problem dict for K candidates × n zones (zone index fastest)."""
+    y = rec["y"]
+    T, n = y.shape
+    ev = np.zeros((K, T, n)) if events is None else events
+    dl = np.zeros(K) if delays is None else np.asarray(delays, float)
+    return {
+        "y": jnp.asarray(np.tile(y.T, (K, 1))),
+        "ynb": jnp.asarray(np.tile(rec["ynb"], (K, 1, 1))),
+        "ybar": jnp.asarray(np.tile(rec["ybar"], (K * n, 1))),
+        "events": jnp.asarray(np.concatenate([ev[k].T for k in range(K)], axis=0)),
+        "delay": jnp.asarray(np.repeat(dl, n)),
+    }
+
+
+def shared(rec, level, ts_free, ts, t_ref):
+    """The entries of a simulation's dict common to every problem of a record."""
+    out = {"u": jnp.asarray(rec["u"]), "ts_level": jnp.asarray(level), "ts_free": jnp.asarray(ts_free),
+           "wdev": jnp.asarray(rec["wdev"]), "Phi": jnp.asarray(rec["Phi"]),
+           "u_pad": jnp.asarray(rec["u_pad"]), "ts": jnp.asarray(float(ts)),
+           "t_ref": jnp.asarray(float(t_ref))}
+    if "u_pads" in rec:
+        out["u_pads"] = jnp.asarray(rec["u_pads"])
+    return out
+
+
+def record_starts(th0, y, level, lengths, lay):
+    """Starts `th0 (n, P)` with the later pooled records' initial states at their first samples
+    and level offsets at the first record's."""
+    th = np.array(th0, float)
+    for r, (a, _b) in enumerate(pool.bounds(lengths)):
+        if r:
+            th[:, lay.sl("x0_rec").start + r - 1] = y[a]
+            th[:, lay.sl("ts0_rec").start + r - 1] = th[:, lay.sl("ts0")][:, 0]
+            th[:, lay.sl("xw0_rec").start + r - 1] = (y[a].mean() - level - th[:, lay.sl("ts0")][:, 0]) / 2.0
+    return th
+
+
+def fit_baseline(th0, y, u, ts, level, ts_free, lay):
+    """The baseline (`baseline.fit`; pooled records: `pool.fit_baseline`)."""
+    if lay.records:
+        return pool.fit_baseline(th0, y, u, lay.records, ts, level, ts_free, lay)
+    return baseline.fit(th0, y, u, ts, level, ts_free, lay)
+
+
+def simulate_baseline(thb, rec, ts, level, ts_free, lay, delay: float = 0.0):
+    """The baseline's simulation `(T, n)` of the record(s) `rec` (`record_arrays`), each pooled
+    record from its own initial states with its own input before it."""
+    if "u_pads" not in rec:
+        return baseline.simulate(thb, rec["u"], rec["u_pad"], ts, level, ts_free, lay, delay)
+    return np.concatenate([baseline.simulate(th, u, up, ts, level, ts_free, lay, delay)
+                           for th, u, up in zip(pool.record_thetas(thb, lay),
+                                                pool.split_rows(rec["u"], lay.records), rec["u_pads"])])
+
+
+__all__ = ["ambient_column", "fit_baseline", "fit_percent", "problems", "record_arrays", "record_starts",
+           "shared", "simulate_baseline"]

@@ -1,0 +1,65 @@
+"""The firmware PID's tuning: its grid holds Ziegler–Nichols as `PID_CALIBRATE` computes it,
+`ultimate` inverts it, the ranking puts admissible loops first, and the tuned loop on a
+hot-end model starts up without overshooting and beats Ziegler–Nichols there (N = 1, 16)."""
+
+import jax
+import numpy as np
+import pytest
+
+from jthermo.control.design import design_point
+from jthermo.firmware import tuning
+from jthermo.firmware.pid import KlipperPID, pid_calibrate
+from jthermo.models.envelope import Envelope, equilibrium_input
+
+from .test_pid_law import hotend
+
+jax.config.update("jax_enable_x64", True)
+
+
+@pytest.mark.parametrize("n", [1, 16])
+def test_grid_holds_ziegler_nichols(n):
+    rng = np.random.default_rng(n)
+    ku, tu = rng.uniform(0.05, 0.3, n), rng.uniform(20, 90, n)
+    grid = dict(tuning.grid(ku, tu))
+    assert len(grid) == len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)
+    zn = grid[(0.6, 0.5, 0.125)]
+    kp = 0.6 * ku * 255
+    np.testing.assert_allclose(np.asarray(zn.pid_kp), np.round(kp, 3), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(zn.pid_ki), np.round(kp / (0.5 * tu), 3), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(zn.pid_kd), np.round(kp * 0.125 * tu, 3), atol=1e-9)
+
+
+def test_ultimate_inverts_pid_calibrate():
+    at = pid_calibrate(hotend(), 200.0)
+    ku, tu = tuning.ultimate([at])
+    assert ku[0] == pytest.approx(at.ku) and tu[0] == pytest.approx(at.tu)
+
+
+def test_rank_admissible_first():
+    ok = {"mse": 5.0, "saturated_fraction": 0.1, "load_mse": 1.0, "load_saturated_fraction": 0.0,
+          "overshoot_C": 0.5, "startup_mse": 1.0}
+    hot = {**ok, "mse": 1.0, "overshoot_C": 3.0}
+    bang = {**ok, "mse": 1.0, "saturated_fraction": 0.6}
+    nan = {**ok, "mse": float("nan")}
+    assert min([hot, nan, bang, ok], key=tuning.rank) is ok
+    assert tuning.violation(ok) == 0 and tuning.violation(nan) == float("inf")
+    assert tuning.score(ok) == pytest.approx(5.0 + tuning.LOAD_WEIGHT * 1.0)
+
+
+@pytest.mark.parametrize("n", [1, 16])
+def test_tuned_on_hotend(n):
+    plant = hotend(n=n)
+    env = Envelope.from_model(plant)
+    r = np.full(n, 200.0)
+    cal = [pid_calibrate(design_point(plant, setpoint=r), 200.0, i) for i in range(n)]
+    ku, tu = tuning.ultimate(cal)
+    kw = {"ts": 1.0, "u_hold": equilibrium_input(plant, r, env.signals(plant))}
+    res = tuning.tune_firmware_pid(plant, env, r, ku, tu, duration=600.0, seed=0, rollouts=1,
+                                   steps=0, kw=kw)
+    row = res["row"]
+    assert tuning.violation(row) == 0 and row["overshoot_C"] <= tuning.MAX_OVERSHOOT_C
+    zn = KlipperPID([c.pid_kp for c in cal], [c.pid_ki for c in cal], [c.pid_kd for c in cal],
+                    **kw).rounded()
+    scs = tuning.scenarios(plant, env, r, 600.0, 0, 1)
+    zrow = tuning.evaluate(zn, plant, scs)
+    assert tuning.rank(row) <= tuning.rank(zrow)

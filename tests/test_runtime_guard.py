@@ -1,0 +1,114 @@
+"""The process guards its compiled programs: one bounded factory cache, a memory-map guard."""
+
+import concurrent.futures as cf
+import multiprocessing
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jthermo import runtime
+from jthermo.sweep import runner
+
+
+def test_memory_maps_counts_proc_self_maps():
+    with open("/proc/self/maps", "rb") as f:
+        n = sum(1 for _ in f)
+    m = runtime.memory_maps()
+    assert m is not None and abs(m - n) < 50
+
+
+def test_map_bound_below_the_system_limit():
+    with open("/proc/sys/vm/max_map_count") as f:
+        limit = int(f.read())
+    assert 0 < runtime.map_bound() <= min(runtime.MAP_BOUND, limit // 3)
+
+
+def test_program_factory_is_one_bounded_lru(monkeypatch):
+    monkeypatch.setattr(runtime, "FACTORY_CACHE_SIZE", 3)
+    calls = []
+
+    @runtime.program_factory
+    def make(n):
+        calls.append(n)
+        return jax.jit(lambda x: x * n)
+
+    @runtime.program_factory
+    def other(n):
+        calls.append(-n)
+        return object()
+
+    f1 = make(1)
+    assert make(1) is f1 and calls == [1]
+    make(2), other(1)
+    make(1)                                    # 1 most recently used: 2 is the oldest now
+    make(3)                                    # over the bound of 3: drops make(2)
+    assert calls == [1, 2, -1, 3]
+    make(1), other(1)
+    assert calls == [1, 2, -1, 3]              # kept
+    make(2)
+    assert calls[-1] == 2                      # rebuilt
+    make.cache_clear()
+    make(1)
+    assert calls[-1] == 1
+    other(1)
+    assert calls[-1] == 1                      # the other factory's entries survive its clear
+    runtime.clear_programs()
+    other(1)
+    assert calls[-1] == -1
+
+
+def test_guard_clears_at_the_bound(monkeypatch):
+    f = jax.jit(lambda x: jnp.cumsum(x) * 2.0)
+    runtime.count_compiles()
+    for n in (3, 4, 5):
+        f(np.ones(n))
+    assert f._cache_size() == 3
+    monkeypatch.setattr(runtime, "map_bound", lambda: 10 ** 9)
+    assert runtime.guard() is False            # below the bound: nothing dropped
+    assert f._cache_size() == 3
+    clears = runtime.guard_info()["clears"]
+    monkeypatch.setattr(runtime, "map_bound", lambda: 1)
+    assert runtime.guard() is False            # no compile since the last look: no read
+    f(np.ones(6))
+    assert runtime.guard() is True
+    assert f._cache_size() == 0
+    assert runtime.guard_info()["clears"] == clears + 1
+    np.testing.assert_allclose(f(np.ones(3)), [2.0, 4.0, 6.0])   # compiled again when needed
+
+
+def test_guard_never_clears_inside_a_trace(monkeypatch):
+    monkeypatch.setattr(runtime, "map_bound", lambda: 1)
+    seen = []
+
+    @jax.jit
+    def g(x):
+        seen.append(runtime.guard())
+        return x + 1
+
+    g(np.ones(7))
+    assert seen == [False]
+
+
+def test_fit_entry_runs_the_guard(monkeypatch):
+    from jthermo.data import from_arrays
+    from jthermo.identify.fit import fit
+
+    calls = []
+    monkeypatch.setattr(runtime, "guard", lambda: calls.append(1) or False)
+    rng = np.random.default_rng(0)
+    u = rng.uniform(0, 1, (200, 1))
+    y = np.convolve(u[:, 0], 0.5 ** np.arange(20))[:200, None] + 0.01 * rng.standard_normal((200, 1))
+    fit(from_arrays(u, y, 1.0), "arx", (1, 1, 1))
+    assert calls
+
+
+def test_sweep_pool_recycles_workers():
+    opts = runner.pool_options(multiprocessing.get_context("spawn"))
+    if sys.version_info >= (3, 11):
+        assert opts["max_tasks_per_child"] == runner.TRIALS_PER_WORKER
+        cf.ProcessPoolExecutor(max_workers=1, **opts).shutdown()   # accepted by the executor
+    else:
+        assert "max_tasks_per_child" not in opts
