@@ -199,6 +199,8 @@ def main(argv=None) -> None:
     ap.add_argument("--save-models", help="keep each fitted model and report here")
     ap.add_argument("--before", help="models and reports a --save-models run left: tabulated")
     ap.add_argument("--rows", help="rows one a line as they finish (resumed when present)")
+    ap.add_argument("--table-only", action="store_true",
+                    help="fit nothing: tabulate the rows of --rows (the others: not run)")
     args = ap.parse_args(argv)
     REAL = Path(args.data_dir).resolve() if args.data_dir else REAL
     hidden = ("--data-dir", "--package", "--save-models", "--before", "--rows")
@@ -214,11 +216,14 @@ def main(argv=None) -> None:
         for line in rows_file.read_text().splitlines():
             r = json.loads(line)
             done[(r["record"], r["family"])] = r
-    rows = []
+    rows, missing = [], []
     keep = Path(args.save_models) if args.save_models else None
     with tempfile.TemporaryDirectory() as d:
         for rec in recs:
             for fam in args.families.split(","):
+                if args.table_only and (rec, fam) not in done:
+                    missing.append(f"{rec} {fam}")
+                    continue
                 r = done.get((rec, fam)) or one(rec, fam, args.physics, Path(d), keep)
                 if (rec, fam) not in done and rows_file is not None:
                     with rows_file.open("a") as fh:
@@ -231,7 +236,11 @@ def main(argv=None) -> None:
     if args.package:
         return
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(render(rows, shown, bool(args.before)))
+    text = render(rows, [a for a in shown if a != "--table-only"], bool(args.before))
+    if missing:
+        text += (f"\nNot run in this pass ({len(missing)} of {len(missing) + len(rows)} fits, "
+                 "the time it had on a shared machine): " + ", ".join(missing) + ".\n")
+    OUT.write_text(text)
     print(OUT.read_text().splitlines()[4])
 
 

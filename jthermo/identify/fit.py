@@ -131,7 +131,8 @@ def _fit_heat(data: IOData, family: str, fitter, o: dict | None, criterion: str,
               n_starts: int, progress, **kw):
     """`(result, path, table)` of the heat path (`identify.heat`)."""
     if family == "ss":
-        res, path = heat.fit_ss_heat(data, o, criterion, **kw)
+        res, path = heat.fit_ss_heat(data, o, criterion, fitter, seed=seed, n_starts=n_starts,
+                                     progress=progress, **kw)
         return res, path, None
     if family == "greybox":
         res, path = heat.fit_greybox_heat(data, fitter, seed=seed, n_starts=n_starts,

@@ -5,10 +5,12 @@ that is stable, whose heaters lower no sensor's steady temperature, whose step r
 against their final direction by no more than the noise, and whose steady states over the
 recorded inputs cover the recorded temperatures (`models.plausibility.heat_check`):
 
-- `ss`: the positive (compartmental) state space (`models.positive`, fitted by
-  `positive.fit_positive`): plausible by construction. Automatic orders compare one node per
-  sensor (n = ny) with one more hidden node per sensor (n = 2 ny, the heater's body) by the
-  criterion of their simulation errors.
+- `ss`: the family's own (innovations-form) state space where it passes the check, so a
+  well-excited record's fit is what it would be without the constraint; else the positive
+  (compartmental) state space (`models.positive`, fitted by `positive.fit_positive`):
+  plausible by construction. Its automatic orders compare one node per sensor (n = ny) with
+  one more hidden node per sensor (n = 2 ny, the heater's body) by the criterion of their
+  simulation errors.
 - `arx`, `armax`, `oe`, `bj`: the screened candidates are fitted as before and checked; the
   best plausible one by the criterion is kept. Where none is, the family's first-order model at
   the estimated delay, then the constrained first-order model (`constrained_polynomial`: a
@@ -40,7 +42,7 @@ from .result import FitResult
 PHYSICS = ("heat", "none")
 #: a measured signal whose name holds one of these is the greybox model's surroundings (°C)
 SURROUNDINGS_WORDS = ("amb", "surr", "room", "env")
-#: options of `fit` that the heat path of `ss` takes
+#: options of `fit` that the positive state space (the heat path's fallback for ss) takes
 SS_OPTIONS = ("max_steps",)
 
 
@@ -142,18 +144,34 @@ def _sim_error(r: FitResult, data: IOData) -> np.ndarray:
     return np.asarray(data.y) - np.asarray(ss.y0) - out
 
 
-def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, **kw) -> tuple[FitResult, list]:
-    """The positive state space of order `orders["n"]` or, automatically, n = ny or 2 ny."""
-    bad = sorted(set(kw) - set(SS_OPTIONS))
-    if bad:
-        raise ConfigError(f"fit: option `{bad[0]}` of ss is for physics='none' (the heat path "
-                          "fits the positive state space)")
+def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, *,
+                seed: int = 0, n_starts: int = 8, progress=None,
+                **kw) -> tuple[FitResult, list]:
+    """The family's own state space (`fitter`, the innovations form of `fit_statespace`, with
+    every option) where it passes `heat_check` — a virtual printer's or any well-excited
+    record's fit is left as it was — else the positive state space of order `orders["n"]` or,
+    automatically, n = ny or 2 ny (options: `SS_OPTIONS`)."""
+    path = []
+    if fitter is not None:
+        try:
+            r = fitter.run(data, "ss", orders, seed=seed, n_starts=n_starts, progress=progress,
+                           **kw)
+        except ConfigError:
+            raise
+        except JThermoError as exc:
+            path.append(f"ss {_orders_text(orders or {}) or 'automatic'}: refused ({exc})")
+        else:
+            chk = heat_check(r.model, data)
+            if chk["plausible"]:
+                return r, [f"ss {_orders_text(r.orders)}: plausible"]
+            path.append(f"ss {_orders_text(r.orders)}: implausible ({chk['warnings'][0]})")
+    kw = {k: v for k, v in kw.items() if k in SS_OPTIONS}
     ny = data.n_outputs
     if orders is not None and orders["n"] < ny:
         raise ModelError(f"fit: a positive state space needs n >= {ny} (one node per sensor), "
                          f"got n = {orders['n']}")
     cands = [orders["n"]] if orders is not None else [ny, 2 * ny]
-    path, best = [], None
+    best = None
     for n in cands:
         try:
             r = fit_positive(data, n, **kw)

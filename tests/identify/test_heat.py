@@ -210,3 +210,13 @@ def test_constant_record_without_a_step_is_refused_with_the_reason():
     hot = hot.replace(y=hot.y[::-1].copy())         # starts hot and cools: not a step from rest
     with pytest.raises(JThermoError, match="does not start at rest"):
         fit(hot, "oe")
+
+
+def test_plausible_state_space_is_the_unconstrained_one():
+    """A record heat explains well: the heat path keeps the family's own fit unchanged."""
+    data = from_arrays(*_clean(2), ts=1.0)
+    r = fit(data, "ss", (2,))
+    free = fit(data, "ss", (2,), physics="none")
+    assert r.extra["physics"]["path"] == ["ss n=2: plausible"]
+    for a, b in ((r.model.A, free.model.A), (r.model.B, free.model.B), (r.model.C, free.model.C)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
