@@ -33,7 +33,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("--setpoint", type=float, metavar="C", help="set point, °C (default: the "
                     "record's most common target, else its operating point)")
     sp.add_argument("--steps", type=int, default=None, metavar="K",
-                    help="refinement iterations after the grid of starts (default 20)")
+                    help="compass-search iterations at most after the grid of starts (default 20; it stops once converged)")
     sp.add_argument("--rollouts", type=int, default=None, metavar="B",
                     help="rollouts per scenario (default 4)")
     sp.add_argument("--heater-power", type=float, default=None, metavar="W",

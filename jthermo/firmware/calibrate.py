@@ -54,8 +54,8 @@ FAMILIES = ("arx", "oe")
 HOLD_BACK = 0.3
 #: model-based controllers designed on the design model and judged beside the PID
 MODEL_BASED = ("imc", "lqg")
-#: tuning defaults of the command (cheap; `--steps`, `--rollouts` for more): the refinement's
-#: iterations after the grid of starts, and the rollouts per scenario
+#: tuning defaults of the command (`--steps`, `--rollouts`): the compass search's iterations
+#: at most after the grid of starts (it stops earlier once converged), the rollouts per scenario
 STEPS, ROLLOUTS = 20, 4
 #: the diagnosis' candidates: what a heater with a lagging sensor at 200 °C leaves out
 DIAGNOSE_MECHANISMS = ("heater_lag", "radiative_loss", "input_delay")
@@ -123,6 +123,12 @@ def _fit_best(est, val, seed, say):
     if best is None:
         raise ControlError("calibrate: no model family could be fitted to the record")
     return best
+
+
+def _fit_one(d, fam, seed):
+    from ..identify import fit
+
+    return fit(d, fam, seed=seed)
 
 
 def _fan(d: data_mod.IOData):
@@ -243,8 +249,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     env = res.envelope if getattr(res, "envelope", None) is not None else Envelope.from_model(model)
     r = setpoint if setpoint is not None else _default_setpoint(r_log)
     r = check_reachable(model, env, env.default_setpoint(model) if r is None else r)
-    try:
-        val_model = _fit_best(val, val, seed, lambda s: None)[1].model
+    try:                     # the design's family, fitted to the validation record
+        val_model = _fit_one(val, fam, seed).model
         check_reachable(val_model, env, r)
         plant_name = "a model fitted to the validation record"
     except JThermoError:
@@ -282,8 +288,9 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     dp = design_point(model, setpoint=r)
     cal, ku, tu = _ultimate(dp, model, r, est.n_outputs, max_power, say)
     duration = model_duration(model)
-    say(f"tuning the firmware PID (a grid of {len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)} "
-        f"starts, {steps} refinement steps, {rollouts} rollouts)")
+    n_grid = len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS) * len(tuning.RHOS)
+    say(f"tuning the firmware PID (a grid of {n_grid} starts, at most {steps} search "
+        f"iterations, {rollouts} rollouts)")
     tuned = tuning.tune_firmware_pid(model, env, r, ku, tu, duration=duration, seed=seed,
                                      rollouts=rollouts, steps=steps, kw=kw, load=load, say=say)
     final = tuned["controller"]
@@ -351,8 +358,9 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
               "firmware": {firmware: str(fw_path)}, "controller_file": str(ctrl_path),
               "figures": figs or {},
               "tuning": {"steps": int(steps), "rollouts": int(rollouts), "seed": int(seed),
-                         "start": tuned["start"], "refined": tuned["refined"],
-                         "design_model": tuned["row"]}}
+                         "start": tuned["start"], "factors": tuned["factors"],
+                         "iterations": tuned["iterations"], "converged": tuned["converged"],
+                         "refined": tuned["refined"], "design_model": tuned["row"]}}
     md = out / "report.md"
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]

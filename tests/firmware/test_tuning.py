@@ -21,12 +21,17 @@ def test_grid_holds_ziegler_nichols(n):
     rng = np.random.default_rng(n)
     ku, tu = rng.uniform(0.05, 0.3, n), rng.uniform(20, 90, n)
     grid = dict(tuning.grid(ku, tu))
-    assert len(grid) == len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)
-    zn = grid[(0.6, 0.5, 0.125)]
+    assert len(grid) == (len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)
+                         * len(tuning.RHOS))
+    assert len(grid) % tuning.BATCH == 0          # one compiled batch shape
+    rho = tuning.RHOS[0]
+    zn = grid[(0.6, 0.5, 0.125, rho)]
     kp = 0.6 * ku * 255
     np.testing.assert_allclose(np.asarray(zn.pid_kp), np.round(kp, 3), atol=1e-9)
     np.testing.assert_allclose(np.asarray(zn.pid_ki), np.round(kp / (0.5 * tu), 3), atol=1e-9)
     np.testing.assert_allclose(np.asarray(zn.pid_kd), np.round(kp * 0.125 * tu, 3), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(zn.smooth_time), np.round(rho * 0.125 * tu, 3),
+                               atol=1e-9)
 
 
 def test_ultimate_inverts_pid_calibrate():
