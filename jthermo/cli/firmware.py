@@ -93,5 +93,7 @@ def cmd_calibrate(args: argparse.Namespace) -> dict:
                                  setpoint=args.setpoint, seed=args.seed, progress=say,
                                  command=command, **kw)
     report = write_report(args, js, report)
+    if not report.get("supported", True):      # said even with --quiet
+        print(f"calibrate: not a tuning to use: {report['why_not']}", file=sys.stderr)
     info(args, f"wrote {', '.join(report['files'])}")
     return report

@@ -82,13 +82,14 @@ def padded(ctrls: list, size: int = BATCH) -> list:
     return ctrls + [ctrls[-1]] * ((-n) % size)
 
 
-def runs(ctrls, plant, scs: dict) -> dict:
+def runs(ctrls, plant, scs: dict, size: int = BATCH) -> dict:
     """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated in
-    batches of `BATCH` (the last padded): leading axis the controller, then the rollout."""
-    full = padded(list(ctrls))
+    batches of `size` (the last padded; `BATCH`: the tuning's compiled shape): leading axis
+    the controller, then the rollout."""
+    full = padded(list(ctrls), size)
     out: dict = {}
-    for i in range(0, len(full), BATCH):
-        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *full[i:i + BATCH])
+    for i in range(0, len(full), size):
+        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *full[i:i + size])
         for k, s in scs.items():
             out.setdefault(k, []).append(_runs(plant, stacked, s))
     n = len(ctrls)
