@@ -29,8 +29,10 @@ PKG = "jthermo"
 #: closed loop -> tuning, with the command line and the demo on top.
 LAYERS: list[tuple[str, ...]] = [
     # Utilities that everything may use: errors, type aliases, atomic writes, the family
-    # names, progress bars, the JAX runtime settings (compilation cache, compile timing).
-    ("errors", "_types", "_files", "families", "progress", "runtime"),
+    # names, progress bars, the process's compiled programs (factory cache, memory-map guard).
+    ("errors", "_types", "_files", "families", "progress", "programs"),
+    # The JAX runtime settings (compilation cache, compile timing); it re-exports `programs`.
+    ("runtime",),
     # Traced programs and numbers kept in the compilation cache's directory.
     ("stored",),
     # Shape checks of the public entry points (one-line errors instead of broadcasting ones).
