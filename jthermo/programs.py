@@ -1,5 +1,5 @@
-"""The process's compiled programs: the library's one bounded cache of program factories, and
-the guard that keeps a long-lived process below the system's limit on memory maps.
+"""The process's compiled programs: one bounded cache of program factories, and a guard on
+memory maps.
 
 **Why a guard.** Every XLA CPU executable keeps memory maps of its code; past
 `vm.max_map_count` (65,530 by default) LLVM aborts the process with no Python exception, and
