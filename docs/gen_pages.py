@@ -25,6 +25,10 @@ STUDY_DIRS = ("experiments", "benchmarks")
 #: (they are left out of the page; the file itself keeps them)
 NOT_A_FINDING = re.compile(r"session [0-9]|_s[0-9]{2}\b|issue [0-9]|getloadavg|load average",
                            re.IGNORECASE)
+#: an absolute or home-relative path (`/x...`, `~/x...`) in a command line: where one machine
+#: kept its files, never part of a command that reproduces a result (the repository's own
+#: paths are relative: `experiments/x.py`, `--out results/x.md`)
+MACHINE_PATH = re.compile(r"(?<![\w.~/-])~?/[\w.]")
 
 
 def write(path: Path, text: str) -> bool:
@@ -214,7 +218,7 @@ def recorded_command(md: str, folder: str, name: str) -> str | None:
     """The command a results file says made it (the first code span that runs the script)."""
     for span in re.findall(r"`([^`\n]+)`", md):
         if re.match(rf"(python|bash) +{folder}/{re.escape(name)}\b", span) \
-                and not NOT_A_FINDING.search(span) and "/work/" not in span:
+                and not NOT_A_FINDING.search(span) and not MACHINE_PATH.search(span):
             return " ".join(span.split())
     return None
 
