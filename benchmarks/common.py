@@ -1,5 +1,6 @@
 """Pieces the benchmarks and experiments share: CPU seconds and the machine's load, timed calls,
-a cold child process, interleaved comparisons, where a script's results file lives, and the
+a cold child process, interleaved comparisons, where a script's results file lives, the head of
+a Markdown results table, and the
 dense zero-order hold that `mechanisms.zoh_blocks` replaced (a reference the benchmark of the
 joint fit and the hold's test both use: `tests/diagnose/test_mechanisms_zoh.py` imports it as
 `benchmarks.common`).
@@ -100,6 +101,15 @@ def finish(lines: list[str], load0: str, out: str) -> None:
     print(text)
     if out != "-":
         Path(out).write_text(text)
+
+
+def markdown_table_head(title: str, paragraphs: list[str], columns: list[str]) -> list[str]:
+    """The first lines of a Markdown results file: `# title`, the paragraphs, and the header
+    and separator rows of a table of `columns` (one separator cell per column)."""
+    lines = [f"# {title}", ""]
+    for p in paragraphs:
+        lines += [p, ""]
+    return lines + ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
 
 
 def compare_interleaved(cands: dict, reference, baseline: str = "numpy", repeats: int = 5) -> dict:
