@@ -1,9 +1,10 @@
 """Pieces the benchmarks and experiments share: CPU seconds and the machine's load, timed calls,
 a cold child process, interleaved comparisons, where a script's results file lives, the head of
-a Markdown results table, and the
-dense zero-order hold that `mechanisms.zoh_blocks` replaced (a reference the benchmark of the
-joint fit and the hold's test both use: `tests/diagnose/test_mechanisms_zoh.py` imports it as
-`benchmarks.common`).
+a Markdown results table, and a dense zero-order hold.
+
+The dense hold is the form `mechanisms.zoh_blocks` replaced: the joint fit's benchmark times it,
+and `tests/diagnose/test_mechanisms_zoh.py` (importing this module as `benchmarks.common`)
+checks the blocks against it.
 
 Scripts in `benchmarks/` import it as `common` (their own folder is first on `sys.path` when run
 as `python benchmarks/x.py`); scripts in `experiments/` put `benchmarks/` on `sys.path` first:
