@@ -15,11 +15,11 @@ constant the record does not identify yields to a tied one-parameter mechanism,
 `decide.promotable`); a slow body and an unmeasured drift are ordered by whether the drift
 follows the input-driven temperature, tested on the estimation record's fitted drift and on the
 drift re-estimated on the validation record, combined over the records long enough to test
-(`decide.combined_dependence`: a long designed validation record can settle the pair), and
+(`bodydrift.combined_dependence`: a long designed validation record can settle the pair), and
 failing that by parsimony (a drift that does not out-predict the body beyond the knots it
-re-estimates on the validation record goes behind it, `decide.prefer_fewer_slow`, and so does
+re-estimates on the validation record goes behind it, `bodydrift.prefer_fewer_slow`, and so does
 one that does not fit the estimation record better beyond the parameters it adds,
-`decide.prefer_input_driven`; the body is also fitted from the drift restricted to its form,
+`bodydrift.prefer_input_driven`; the body is also fitted from the drift restricted to its form,
 `slowbody.py`);
 explanations within the test's resolution of the top one are reported as its `rivals`.
 
@@ -27,7 +27,7 @@ The candidate tests fit per zone (series-parallel form): zone i's model sees its
 the bed's measured temperatures, so all zones and candidates are independent small problems
 solved by the compiled masked Levenberg–Marquardt (`fitting.fit_zones`); the validation
 fit then simulates all zones coupled. Where the surroundings are not measured,
-`ambient_variation` is then refitted with one drift for all zones (`joint.common_drift_fit`): a
+`ambient_variation` is then refitted with one drift for all zones (`commondrift.common_drift_fit`): a
 zone's own drift is not identified. The augmented model is then refitted *jointly* over all
 zones (coupled simulation error, `fitting.fit_joint`: zones interact through their simulated
 temperatures and the fitted exchange), with the surroundings at the record's rest level (its
@@ -50,16 +50,18 @@ import numpy as np
 from .. import runtime
 from ..errors import ConfigError, DataError
 from ..models.greybox import first_order_start
+from . import bodydrift as BD
 from . import decide as D
 from . import mechanisms as M
 from . import pool as PL
+from . import starts as ST
+from .commondrift import common_drift_fit
 from .checks import as_records, check_records, pool_records
 from .describe import mechanism_evidence, summary
 from .fitting import fit_records, fit_zones, sim_zones, still_falling
 from .joint import (
     RESTRICT_ABOVE,
     JointFits,
-    common_drift_fit,
     forward_select,
     grid_start,
     joint_active,
@@ -104,7 +106,7 @@ CONTINUE_ROUNDS = 3
 #: Levenberg–Marquardt iterations of a joint fit (it starts from `joint_start`: the separable
 #: grid at the surroundings level, every mechanism at its neutral value)
 JOINT_ITER = 25
-#: most iterations of the common surroundings drift's fit (`joint.common_drift_fit`; it stops
+#: most iterations of the common surroundings drift's fit (`commondrift.common_drift_fit`; it stops
 #: once converged, `fitting.RTOL`): the tests of agreement compare it with the zones' own drifts,
 #: so an unconverged common fit reads as zones that contradict one drift
 COMMON_DRIFT_ITER = 200
@@ -257,20 +259,20 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     neutral = record_starts(neutral, y, level, lengths, lay)
     for grp in ("x0_rec", "ts0_rec"):          # pooled records: each its own, as the baseline's
         neutral[:, lay.sl(grp)] = thb[:, lay.sl(grp)]
-    # a stored-heat body also from slow starts (`mechanisms.body_starts`), radiation from steeper
-    # shares (`mechanisms.rad_starts`), each zone its best (its smallest estimation cost)
-    extra_starts = {m: f(neutral, lay) for m, f in (("heat_accumulation", M.body_starts),
-                                                    ("radiative_loss", M.rad_starts)) if m in cands}
+    # a stored-heat body also from slow starts (`starts.body_starts`), radiation from steeper
+    # shares (`starts.rad_starts`), each zone its best (its smallest estimation cost)
+    extra_starts = {m: f(neutral, lay) for m, f in (("heat_accumulation", ST.body_starts),
+                                                    ("radiative_loss", ST.rad_starts)) if m in cands}
     thc, res_c = fit_sets([(m,) for m in cands] + [(m,) for m, st in extra_starts.items() for _ in st],
                           np.stack([neutral] * K + [t for st in extra_starts.values() for t in st]))
     for m, st in extra_starts.items():   # each call drops its extra fits: the next group's are at K
-        thc, res_c = M.best_of_starts(thc, res_c, cands.index(m), range(K, K + len(st)))
+        thc, res_c = ST.best_of_starts(thc, res_c, cands.index(m), range(K, K + len(st)))
     # and from the fitted drift restricted to a body's form (`slowbody.body_from_drift`)
     thc, res_c = refit_body_from_drift(thc, res_c, cands, fit_sets, rec_e, level, ts_free, ts, lay,
                                        BODY_ITER_FACTOR * n_iter)
     thc_own = thc
     if "ambient_variation" in cands and amb is None and n > 1:
-        # unmeasured surroundings: one drift for every zone (`joint.common_drift_fit`); the zones'
+        # unmeasured surroundings: one drift for every zone (`commondrift.common_drift_fit`); the zones'
         # own drifts are kept for the tests of agreement and input dependence below. Where a
         # surroundings column is measured (constant), the per-zone drifts stay: there an estimated
         # drift contradicts the measurement, and the common one outranked a shared body in the
@@ -389,18 +391,18 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         # (baseline-simulated) temperature through a lag only if it is a body (decide.py)
         # (and, unmeasured, the drift re-estimated on the validation record follows the baseline's
         # simulation of that record: a designed record can show it; the two records' tests are
-        # combined, `decide.combined_dependence`)
+        # combined, `bodydrift.combined_dependence`)
         kstep = round(M.DRIFT_SPACING / ts)
         dr = np.median(thc_own[cands.index("ambient_variation")][:, lay.sl("drift")], axis=0)
-        z_e = D.input_dependence(rec_e["Phi"] @ (dr - dr.mean()), yb_e.mean(axis=1), ts, kstep)
+        z_e = BD.input_dependence(rec_e["Phi"] @ (dr - dr.mean()), yb_e.mean(axis=1), ts, kstep)
         dv = rec_v_fit[1 + cands.index("ambient_variation"), 2 * n:2 * n + kv]
-        z_v = (D.input_dependence(Phi_v @ (dv - dv.mean()), yhat_v[0].mean(axis=1), ts, kstep)
+        z_v = (BD.input_dependence(Phi_v @ (dv - dv.mean()), yhat_v[0].mean(axis=1), ts, kstep)
                if not measured_var else 0.0)
         loc["drift_input_dependence_records_z"] = [z_e, z_v]
-        loc["drift_input_dependence_z"] = D.combined_dependence(
-            [z_e, z_v], [D.dependence_testable(max(lengths) if lengths else T, kstep),
-                         D.dependence_testable(Tv, kstep) and not measured_var])
-        sig = D.order_body_drift(sig, loc["drift_input_dependence_z"])
+        loc["drift_input_dependence_z"] = BD.combined_dependence(
+            [z_e, z_v], [BD.dependence_testable(max(lengths) if lengths else T, kstep),
+                         BD.dependence_testable(Tv, kstep) and not measured_var])
+        sig = BD.order_body_drift(sig, loc["drift_input_dependence_z"])
         # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
         sig = order_by_parsimony(sig, e_c, cands, k_val, loc)
         # and on the estimation record, where both are charged every parameter (`decide.py`)
@@ -424,14 +426,14 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         top = sig[0]
         kt = top["k"]
         slow = ("heat_accumulation", "ambient_variation")
-        tied = top["mechanism"] in slow and D.body_drift_tied([r["mechanism"] for r in sig],
+        tied = top["mechanism"] in slow and BD.body_drift_tied([r["mechanism"] for r in sig],
                                                               loc.get("drift_input_dependence_z", 0.0))
         for r in sig[1:]:
             if (D.is_rival(D.predictive_z(e_c[r["k"]], e_c[kt]))
                     or (tied and r["mechanism"] in slow)):
                 rivals.append(r["mechanism"])
         others = [r for r in ranked if r is not top and r["val_reduction"] > 0]
-        run = D.confidence_runner(top["mechanism"], [r["mechanism"] for r in others], measured_var)
+        run = BD.confidence_runner(top["mechanism"], [r["mechanism"] for r in others], measured_var)
         # the top against another candidate on the estimation record, charged what it adds beyond it
         z_est = lambda r: D.predictive_z(res_c[r["k"]], res_c[kt], dof(top["mechanism"]) - dof(r["mechanism"]))
         z_run, z_run_est = None, None
@@ -446,11 +448,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
             # a body or a drift: only the drift's input dependence separates them (decide.py)
             z_in = loc.get("drift_input_dependence_z", 0.0)
             fits = other_slow["estimation_lr"] >= other_slow["estimation_lr_critical"]
-            if D.slow_rival(top["mechanism"], fits, z_in):
+            if BD.slow_rival(top["mechanism"], fits, z_in):
                 rivals += [other_slow["mechanism"]] if other_slow["mechanism"] not in rivals else []
             if top["mechanism"] in slow and fits:
                 conf_top = min(conf_top, (1.0 - D.p_value(top["validation_z"]))
-                               * D.slow_order_confidence(top["mechanism"], z_in))
+                               * BD.slow_order_confidence(top["mechanism"], z_in))
         if D.uncertain(conf_top):
             # not a confident name: every candidate that improved on the baseline and that the
             # top one does not beat, on the validation record or on the estimation one, is a
