@@ -89,7 +89,7 @@ def refit_body_from_drift(thc, res_c, cands, fit_sets, rec, level, ts_free, ts, 
     follow. `fit_sets(sets, starts, iters=...)` fits candidate sets; `iters` its iterations."""
     if "heat_accumulation" not in cands or "ambient_variation" not in cands:
         return thc, res_c
-    sb = body_from_drift(thc[cands.index("ambient_variation")], rec["ybar"], rec["Phi"], level, ts_free, ts, lay)
+    sb = body_from_drift(thc[cands.index("ambient_variation")], rec.ybar, rec.Phi, level, ts_free, ts, lay)
     if sb is None:
         return thc, res_c
     thd, res_d = fit_sets([("heat_accumulation",)], sb[None], iters=iters)
