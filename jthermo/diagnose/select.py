@@ -53,6 +53,9 @@ MAX_DELAY = 12
 MAX_DELAY_S = 12.0
 #: step of the dead-time scan, in samples (the fit then moves the delay continuously)
 DELAY_STEP = 0.5
+#: most baseline refits of the dead-time scan (`prepare.scan_delay`: the baseline refitted with
+#: its inputs delayed by the scan's best, scanned again until the best stays)
+DELAY_REFITS = 3
 #: mechanisms that need at least two zones
 NEEDS_NEIGHBOURS = ("lateral_conduction",)
 #: actuators whose physics rules a mechanism out: a finding of it is flagged, not headlined
@@ -131,7 +134,7 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
     pb = prepare(records, est, val, mechanisms)
     base = fit_baseline_stage(pb)
     tick(0)
-    locn = localise_stage(pb, base, MAX_DELAY, MAX_DELAY_S, DELAY_STEP)
+    locn = localise_stage(pb, base, MAX_DELAY, MAX_DELAY_S, DELAY_STEP, DELAY_REFITS)
     tick(1)
     fits = ZoneFits(pb=pb, events=locn.events, delay=locn.delay, n_iter=n_iter, rounds=CONTINUE_ROUNDS)
     cands = fit_candidates(pb, base, locn, fits, BODY_ITER_FACTOR * n_iter, COMMON_DRIFT_ITER)

@@ -109,6 +109,15 @@ def fit_baseline(th0, y, u, ts, level, ts_free, lay):
     return baseline.fit(th0, y, u, ts, level, ts_free, lay)
 
 
+def delayed_inputs(rec: RecordArrays, lay, delay: float) -> np.ndarray:
+    """The record(s)' inputs `(T, nu)` after a dead time of `delay` samples (`baseline.held`),
+    each pooled record with its own input before it."""
+    if rec.u_pads is None:
+        return baseline.held(rec.u, rec.u_pad, delay)
+    return np.concatenate([baseline.held(u, up, delay) for u, up in zip(pool.split_rows(rec.u, lay.records),
+                                                                       rec.u_pads)])
+
+
 def simulate_baseline(thb, rec, ts, level, ts_free, lay, delay: float = 0.0):
     """The baseline's simulation `(T, n)` of the record(s) `rec` (`record_arrays`), each pooled
     record from its own initial states with its own input before it."""
@@ -119,5 +128,5 @@ def simulate_baseline(thb, rec, ts, level, ts_free, lay, delay: float = 0.0):
                                                 pool.split_rows(rec.u, lay.records), rec.u_pads)])
 
 
-__all__ = ["RecordArrays", "ambient_column", "fit_baseline", "fit_percent", "problems", "record_arrays", "record_starts",
+__all__ = ["RecordArrays", "ambient_column", "delayed_inputs", "fit_baseline", "fit_percent", "problems", "record_arrays", "record_starts",
            "shared", "simulate_baseline"]
