@@ -3,8 +3,8 @@
 A matrix of `jthermo` calls (each in its own process, with a timeout): `generate` -> `fit`
 (state space with the default order, then every family at its default orders) -> `validate` ->
 `tune` (pi, lqg on the fitted model as the plant) -> `simulate` -> `export` (C, JSON) ->
-`diagnose` -> `sweep` at N = 1, 2, 3, 7, 9, 12, 16, 19 zones; `fit` / `validate` / `tune` / `diagnose`
-on the real recordings of `../shared/data/real/`; bad inputs, each of which must exit 2
+`diagnose` -> `sweep` at N = 1, 2, 3, 7, 9, 12, 16, 19 zones; `fit` / `validate` / `tune` /
+`diagnose` on the real recordings of `../shared/data/real/`; bad inputs, each of which must exit 2
 with one `jthermo: error:` line on stderr and no traceback; and a user's first calls with an
 empty compilation cache (`cold`).
 

@@ -1,20 +1,29 @@
 """`jthermo tune` on the virtual printer at its own scale: every family at N zones with the
-CLI's defaults, each run in its own process under a watchdog.
+CLI's defaults, each run in its own process under a watchdog; `simulate` and `demo` beside.
 
 Per run: exit status, wall time and CPU s of the child (user+sys), the improvement below the
 lambda PI and below the best classical design on the held-out seed, and the Ms guard (the
-chosen loop's peak sensitivity against its bound). `cold`: a fresh compilation cache;
-`warm`: the same command again on that cache.
+chosen loop's peak sensitivity against its bound). `cold`: a fresh compilation cache
+(`JTHERMO_CACHE_DIR`, which `runtime.default_cache_dir` reads first); `warm`: the same command
+again on that cache. Each tune run is the command's own `main` in a child process whose
+`progress.stage` blocks are timed (wall, compile, CPU of the process and of the stage's
+thread): the results file shows where the slowest families' cold runs spend their time.
+
+`--others simulate,demo`: those commands at 16 zones, cold then warm (`--warm`).
 
 `--ab`: the two ways to keep `tune_report`'s two threads off a deadlock, compared on one
 configuration: its threads with LAPACK one matrix at a time (`runtime.one_matrix_at_a_time`,
 as shipped) against no second thread (its work run in turn on the main thread) with the
 batched kernels; each cold then warm, in its own process.
 
+Runs made side by side write their own files (`--out`); `--merge A.md,B.md` gathers their
+rows into the results file (with `--resume`: the finished rows there are kept).
+
 Usage:
     .venv/bin/python experiments/printer_scale.py [--zones 16,9,19]
         [--families pi,pi_ff,lqg,lqg_ff] [--warm] [--limit 1500]
-        [--ab [--ab-steps 10]] [--zones ''] (`--zones ''`: the A/B runs alone) [--resume]
+        [--others simulate,demo] [--ab [--ab-steps 10]] [--zones ''] (`--zones ''`: no tune
+        runs) [--resume] [--out FILE] [--merge FILES]
 Writes `experiments/results/printer_scale.md` (overwritten after every run, so a run cut short
 keeps what it measured).
 """
@@ -157,8 +166,7 @@ def _scalars(rep: dict, prefix="", depth=2) -> dict:
     """The report's numbers and short strings, flattened (`a.b`), for the table."""
     out = {}
     for k, v in rep.items():
-        if isinstance(v, bool) or isinstance(v, (int, float)) or \
-                (isinstance(v, str) and len(v) < 40):
+        if isinstance(v, (bool, int, float)) or (isinstance(v, str) and len(v) < 40):
             out[prefix + k] = v
         elif isinstance(v, dict) and depth > 1:
             out.update(_scalars(v, f"{prefix}{k}.", depth - 1))
@@ -193,7 +201,8 @@ def render_profile(prof: list) -> list[str]:
     lines = []
     for p in prof:
         lines += ["", f"## Where the time goes: `{p['command']}` ({p['cache']})", "",
-                  f"In one process (the command's `main` with its stages timed), measured on a shared, loaded machine (load "
+                  "In one process (the command's `main` with its stages timed), measured on a "
+                  f"shared, loaded machine (load "
                   f"{p.get('load', '?')}): {p['wall']:.0f} s wall, {p['cpu']:.0f} CPU s, of "
                   f"which compiling (JAX's trace, lower and compile events, both threads) "
                   f"{p['compile_s']:.0f} s wall. Per stage of each thread (`progress.stage`, "
@@ -228,20 +237,30 @@ def render_others(others: list) -> list[str]:
 def render(rows, ab, load, prof=(), others=()) -> str:
     zones = ", ".join(str(z) for z in sorted({r["zones"] for r in rows})) or "no"
     lines = [f"# `jthermo tune` on the virtual printer at its scale ({zones} zones measured)", "",
-             "Measured on a shared, loaded 2-core machine (other jobs ran meanwhile; 1-minute "
-             f"load average {load}): wall times are upper bounds, CPU s (user+sys of the child) "
-             "the steadier figure. Seed 11, CLI defaults otherwise; `cold` on an empty "
-             "compilation cache, `warm` on that cache again.", "",
+             "Measured on a shared, loaded 2-core machine (other jobs ran meanwhile, every run "
+             "under `nice -n 10`; 1-minute load average at the end of each run in its row, "
+             f"all: {load}): wall times are upper bounds, CPU s (user+sys of the child) the "
+             "steadier figure. On an idle 2-core machine a run's wall time is at most its CPU "
+             "s (some thread of it is always running: it waits on nothing but the CPU, the "
+             "cache's files aside) and at least half of it (two cores); CPU s measured under "
+             "load are themselves an upper bound (XLA's pool threads spin when descheduled). "
+             "Seed 11, CLI defaults otherwise; `cold` on an empty compilation cache "
+             "(`JTHERMO_CACHE_DIR` a fresh directory), `warm` on that cache again.", "",
              "Reproduce: `python experiments/printer_scale.py --zones 16,9,19 --warm` "
-             "(and `--ab` for the last table).", "",
-             "| family | zones | cache | exit | wall s | CPU s | below lambda PI % | "
+             "(`--others simulate,demo --warm` for the `simulate`/`demo` table, `--ab` for "
+             "the threads table); each row's command is `jthermo tune --controller FAMILY "
+             "--plant printer --zones N --seed 11`.", "",
+             "| command | cache | exit | wall s | CPU s | load | below lambda PI % | "
              "below best classical % (best) | Ms (bound, ok) |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
+    for r in sorted(rows, key=lambda r: (r["zones"] != 16, r["zones"], r["family"],
+                                         r["cache"])):
         ms = "-" if r.get("ms") is None else \
             f"{r['ms']:.2f} ({_f(r.get('ms_max'), 1)}, {r.get('ms_ok')})"
-        lines.append(f"| {r['family']} | {r['zones']} | {r['cache']} | {r['rc']} | "
-                     f"{_f(r['wall_s'], 0)} | {_f(r['cpu_s'], 0)} | {_f(r.get('vs_lambda'))} | "
+        cmd = f"`tune --controller {r['family']} --zones {r['zones']}`"
+        lines.append(f"| {cmd} | {r['cache']} | {r['rc']} | "
+                     f"{_f(r['wall_s'], 0)} | {_f(r['cpu_s'], 0)} | {r.get('load', '?')} | "
+                     f"{_f(r.get('vs_lambda'))} | "
                      f"{_f(r.get('vs_best'))} ({r.get('best', '-')}) | {ms} |")
     bad = [r for r in rows if r["rc"] != 0]
     for r in bad:
@@ -249,11 +268,12 @@ def render(rows, ab, load, prof=(), others=()) -> str:
                      f"last stderr line: `{r['stderr'][:300]}`")
     if ab:
         lines += ["", "## Two threads with LAPACK one matrix at a time, or one thread", "",
-                  "`tune_report('lqg', zones=16, rollouts=16, steps=10, seed=11, lr=0.1)` (`--ab-steps`) in its "
-                  "own process: `threads` as shipped (`runtime.one_matrix_at_a_time`), `serial` "
+                  "`tune_report('lqg', zones=16, rollouts=16, steps=10, seed=11, lr=0.1)` "
+                  "(`--ab-steps`) in its own process: `threads` as shipped (`runtime.one_matrix_at_a_time`), `serial` "
                   "the second thread's work run in turn on the main thread with the batched "
                   "kernels. Same improvement in every run (bit-equal reports).", "",
-                  "| variant | cache | wall s | CPU s | below lambda PI % |", "|---|---|---|---|---|"]
+                  "| variant | cache | wall s | CPU s | below lambda PI % |",
+                  "|---|---|---|---|---|"]
         for r in ab:
             lines.append(f"| {r['variant']} | {r['cache']} | {_f(r.get('wall'), 0)} | "
                          f"{_f(r.get('cpu'), 0)} | {_f(r.get('improvement'), 3)} |")
@@ -265,14 +285,14 @@ def render(rows, ab, load, prof=(), others=()) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _resumed(path: Path = OUT) -> tuple[list, list, list, list]:
+def _resumed(path: Path = OUT, finished: bool = True) -> tuple[list, list, list, list]:
     """The rows, A/B runs and profiles recorded in a results file (`--resume`, `--merge`), else
     empty lists."""
     try:
         text = path.read_text()
         blob = text.rsplit("<!-- rows (read back by --resume): ", 1)[1].rsplit(" -->", 1)[0]
         got = json.loads(blob)
-        return ([r for r in got["rows"] if r.get("rc") == 0], got["ab"],
+        return ([r for r in got["rows"] if r.get("rc") == 0 or not finished], got["ab"],
                 got.get("profile", []), got.get("others", []))
     except (OSError, IndexError, ValueError, KeyError):
         return [], [], [], []
@@ -301,7 +321,7 @@ def main() -> None:
     out_path = Path(a.out)
     rows, ab, prof, others = _resumed(out_path) if a.resume else ([], [], [], [])
     for other in filter(None, a.merge.split(",")):
-        r2, ab2, p2, o2 = _resumed(Path(other))
+        r2, ab2, p2, o2 = _resumed(Path(other), finished=False)
         others = [o for o in others if o["command"] not in {q["command"] for q in o2}] + o2
         keys = {(r["family"], r["zones"], r["cache"]) for r in r2}
         rows = [r for r in rows if (r["family"], r["zones"], r["cache"]) not in keys] + r2
@@ -356,6 +376,7 @@ def main() -> None:
                 ab.append({"variant": variant, "cache": label, **rec})
                 loads.append(load())
                 out_path.write_text(render(rows, ab, " ".join(loads), prof, others))
+    out_path.write_text(render(rows, ab, " ".join(loads), prof, others))
 
 
 if __name__ == "__main__":
