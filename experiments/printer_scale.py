@@ -141,7 +141,7 @@ def tune_row(family, zones, cache, limit, label):
     if rc == 0 and out.strip():
         prof = json.loads(out.strip().splitlines()[-1])
         rc = row["rc"] = prof["rc"]
-        row["profile"] = {"command": "jthermo " + " ".join(argv[:-4] + ["--quiet"]),
+        row["profile"] = {"command": "jthermo " + " ".join(argv[:-3]),
                           "cache": label, **prof}
     if rc == 0 and js.exists():
         r = json.loads(js.read_text())
@@ -278,8 +278,11 @@ def render(rows, ab, load, prof=(), others=()) -> str:
             lines.append(f"| {r['variant']} | {r['cache']} | {_f(r.get('wall'), 0)} | "
                          f"{_f(r.get('cpu'), 0)} | {_f(r.get('improvement'), 3)} |")
     lines += render_others(list(others))
-    lines += render_profile([r["profile"] for r in rows if r.get("profile") and
-                             r["family"] in PROFILED and r["cache"] == "cold"] + list(prof))
+    lines += render_profile([{**r["profile"], "load": r.get("load", "?"),
+                              "command": f"jthermo tune --controller {r['family']} --plant "
+                                         f"printer --zones {r['zones']} --seed 11"}
+                             for r in rows if r.get("profile") and r["family"] in PROFILED
+                             and r["cache"] == "cold"] + list(prof))
     blob = {"rows": rows, "ab": ab, "profile": list(prof), "others": list(others)}
     lines += ["", f"<!-- rows (read back by --resume): {json.dumps(blob)} -->"]
     return "\n".join(lines) + "\n"
@@ -312,6 +315,10 @@ def main() -> None:
     ap.add_argument("--others", default="",
                     help="comma-separated: simulate, demo (cold, then warm with --warm), "
                          "instead of the tune runs")
+    ap.add_argument("--cache", default="",
+                    help="run on this compilation cache (as it is), not a fresh one per family")
+    ap.add_argument("--label", default="",
+                    help="the cache column of these runs (with --cache; default `warm`)")
     ap.add_argument("--out", default=str(OUT), help="results file (default %(default)s)")
     ap.add_argument("--merge", default="",
                     help="comma-separated results files of runs made meanwhile: their rows too")
@@ -357,8 +364,10 @@ def main() -> None:
         return
     for zones in (int(z) for z in a.zones.split(",") if z):
         for family in a.families.split(","):
-            cache = Path(tempfile.mkdtemp(prefix="jthermo-scale-cache-"))
-            for label in ("cold", "warm") if a.warm else ("cold",):
+            cache = Path(a.cache) if a.cache else \
+                Path(tempfile.mkdtemp(prefix="jthermo-scale-cache-"))
+            labels = ("cold", "warm") if a.warm else ("cold",)
+            for label in (a.label or "warm",) if a.cache else labels:
                 if (family, zones, label) in done:
                     continue
                 rows.append({**tune_row(family, zones, cache, a.limit, label), "load": load()})
