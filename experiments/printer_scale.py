@@ -154,8 +154,8 @@ def tune_row(family, zones, cache, limit, label):
     return row
 
 
-#: the families whose cold runs' stages the results file shows (the slowest)
-PROFILED = ("pi_ff", "lqg_ff")
+#: the families whose finished cold runs' stages the results file shows
+PROFILED = ("pi", "pi_ff", "lqg", "lqg_ff")
 #: the other commands at the printer's scale (`--others`): argv after `jthermo`
 OTHERS = {"simulate": ["simulate", "--scenario", "print", "--controller", "pi_lambda",
                        "--zones", "16", "--rollouts", "64"],
@@ -263,6 +263,12 @@ def render(rows, ab, load, prof=(), others=()) -> str:
                      f"{_f(r.get('vs_lambda'))} | "
                      f"{_f(r.get('vs_best'))} ({r.get('best', '-')}) | {ms} |")
     bad = [r for r in rows if r["rc"] != 0]
+    if bad:
+        lines += ["", "Exit `timeout`: the run reached this script's `--limit` (wall) and was "
+                  "killed; `-15`: stopped by hand (SIGTERM) when the study's time was up. Both "
+                  "while still using CPU (the CPU s it had used is in its row): not a hang of "
+                  "the command, whose own watchdog (`--timeout`, 1200 s without progress) "
+                  "never fired; no figures."]
     for r in bad:
         lines.append(f"\n{r['family']} at {r['zones']} zones ({r['cache']}): exit {r['rc']}, "
                      f"last stderr line: `{r['stderr'][:300]}`")
@@ -282,7 +288,7 @@ def render(rows, ab, load, prof=(), others=()) -> str:
                               "command": f"jthermo tune --controller {r['family']} --plant "
                                          f"printer --zones {r['zones']} --seed 11"}
                              for r in rows if r.get("profile") and r["family"] in PROFILED
-                             and r["cache"] == "cold"] + list(prof))
+                             and r["cache"] != "warm"] + list(prof))
     blob = {"rows": rows, "ab": ab, "profile": list(prof), "others": list(others)}
     lines += ["", f"<!-- rows (read back by --resume): {json.dumps(blob)} -->"]
     return "\n".join(lines) + "\n"
