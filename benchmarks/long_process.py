@@ -20,7 +20,6 @@ Writes `benchmarks/results/long_process.md` (overwritten when rerun).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import threading
 import time
