@@ -114,8 +114,8 @@ def test_fit_entry_runs_the_guard(monkeypatch):
 @pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 def test_sweep_pool_recycles_workers(tmp_path, monkeypatch):
     """A fresh pool every `workers * TRIALS_PER_WORKER` trials: every trial completes (a pool
-    whose workers all reached `max_tasks_per_child` together hung on Python 3.11) and no
-    worker runs more than its quota."""
+    whose workers all reached `max_tasks_per_child` together hung on Python 3.11), each pool
+    on fresh processes."""
     from jthermo import sweep
 
     monkeypatch.setattr(runner, "TRIALS_PER_WORKER", 1)

@@ -125,7 +125,8 @@ def _probe(address: str, timeout: float = 5.0) -> None:
         raise ConfigError(f"--ray {address}: cannot connect ({exc.strerror or type(exc).__name__})") from None
 
 
-#: trials a local worker process runs before it is replaced by a fresh one, and a Ray worker
+#: trials per local worker process of one pool (a pool of `workers` processes runs
+#: `workers * TRIALS_PER_WORKER` trials, then fresh processes take over), and of a Ray worker
 #: (`max_calls`): the compiled programs a worker gathers over trials of many record lengths
 #: and orders are released with it, on top of the guard each trial runs (`programs.guard`)
 TRIALS_PER_WORKER = 50
