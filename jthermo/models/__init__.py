@@ -9,5 +9,6 @@ from .polynomial import (
 )
 from .envelope import (
     Envelope as Envelope, check_reachable as check_reachable,
-    equilibrium_input as equilibrium_input, steady_output as steady_output,
+    equilibrium_input as equilibrium_input, steady_gains as steady_gains,
+    steady_output as steady_output,
 )

@@ -202,7 +202,9 @@ class Envelope:
         return steady_output(model, u, self.signals(model))
 
 
-def _gains(model: AbstractModel):
+def steady_gains(model: AbstractModel):
+    """`(ss, G, Gw)`: the model's state space and its static gains from the inputs and from the
+    measured signals, $G = C (I - A)^{-1} B + D$, $G_w = C (I - A)^{-1} B_w$ (°C per unit)."""
     ss = model.to_statespace()
     A, B, C, D, Bw = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C, ss.D, ss.Bw))
     inv = np.linalg.solve(np.eye(A.shape[0]) - A, np.concatenate([B, Bw], axis=1))
@@ -213,7 +215,7 @@ def _gains(model: AbstractModel):
 def steady_output(model: AbstractModel, u, w=None) -> np.ndarray:
     """The model's steady output at constant input `u` (and measured signals `w`, default its
     `w0`), °C."""
-    ss, G1, Gw1 = _gains(model)
+    ss, G1, Gw1 = steady_gains(model)
     u0, w0, y0 = (np.asarray(v, np.float64) for v in (ss.u0, ss.w0, ss.y0))
     dw = np.zeros_like(w0) if w is None else np.asarray(w, np.float64) - w0
     return y0 + G1 @ (np.broadcast_to(np.asarray(u, np.float64), u0.shape) - u0) + Gw1 @ dw
@@ -223,7 +225,7 @@ def equilibrium_input(model: AbstractModel, setpoint, w=None) -> np.ndarray:
     """The constant input that holds the model's outputs at `setpoint` (°C, scalar or per
     output) with measured signals `w` (default its `w0`): $u^* = u_0 + G(1)^{-1}(r - y_w)$
     (least squares when not square)."""
-    ss, G1, _ = _gains(model)
+    ss, G1, _ = steady_gains(model)
     u0 = np.asarray(ss.u0, np.float64)
     r = np.broadcast_to(np.asarray(setpoint, np.float64), (G1.shape[0],))
     return u0 + np.linalg.lstsq(G1, r - steady_output(model, u0, w), rcond=None)[0]
@@ -241,7 +243,7 @@ def change_scale(model: AbstractModel, env: Envelope, setpoint, delta,
     $u^* + sKg$ (up) and $u^* + s(1 - 2K)g$ (down), each kept within [`u_min`, `u_max`].
     The limits then leave room for such a loop; what the plant's own lag still costs any
     controller is `tune.own.tracking_floor`'s (`experiments/own_plant_limits.py`)."""
-    _, G1, _ = _gains(model)
+    _, G1, _ = steady_gains(model)
     u_star = equilibrium_input(model, setpoint, env.signals(model))
     g = np.linalg.lstsq(G1, np.asarray(delta, np.float64) * np.ones(G1.shape[0]), rcond=None)[0]
     lo, hi = np.asarray(env.u_min), np.asarray(env.u_max)
@@ -289,4 +291,4 @@ def _fmt(x, digits: int = 1) -> str:
 
 __all__ = ["CHANGE_SPEEDUP", "HEADROOM", "U_LIMITS", "Envelope", "change_scale",
            "check_reachable", "equilibrium_input",
-           "reach_problem", "steady_output"]
+           "reach_problem", "steady_gains", "steady_output"]
