@@ -21,7 +21,7 @@ from jthermo.identify import fit  # noqa: E402
 from jthermo.identify.heat import heat_data  # noqa: E402
 from jthermo.identify.positive import fit_positive  # noqa: E402
 from jthermo.models import positive  # noqa: E402
-from jthermo.models.plausibility import heat_check  # noqa: E402
+from jthermo.models.plausibility import heat_check, is_setpoint_signal  # noqa: E402
 
 FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
 
@@ -116,6 +116,17 @@ def test_setpoint_signal_left_out_and_constant_input_dropped():
     r = fit(data, "ss")
     assert r.model.n_inputs == 1 and r.model.n_signals == 1     # the fan: a disturbance
     assert r.extra["physics"]["signals"] == ["fan_cmd"]
+
+
+def test_tclab_setpoint_column_left_out():
+    """A TCLab MPC run logs `w_T1_setpoint`: a set point as much as a printer's target."""
+    u, y = _clean(2)
+    w = np.column_stack([np.where(np.arange(len(y)) < 150, 40.0, 50.0), np.full(len(y), 21.0)])
+    data = from_arrays(u, y, ts=1.0, w=w, signal_names=["T1_setpoint", "T_amb"])
+    d, dropped = heat_data(data)
+    assert dropped["dropped_signals"] == ["T1_setpoint"] and d.signal_names == ("T_amb",)
+    assert not any(map(is_setpoint_signal, ("fan_cmd", "T_amb", "heater_pwm")))
+    assert all(map(is_setpoint_signal, ("extruder_target_C", "T2_SetPoint", "bed_set_point")))
 
 
 def coupled_record(T=600, seed=2):
