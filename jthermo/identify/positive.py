@@ -8,7 +8,7 @@ positivity by bounds on the matrices; a bound-free parametrisation keeps the sol
 Operating point: rest with the heaters off ($u_0 = 0$; `y0` the level at rest, estimated), the
 measured signals at their recorded median ($w_0$). The initial state is estimated (`free_x0`)
 or zero (the record starts at rest). The level at rest is the surroundings, which no heated
-body falls below: $y_{0,i} = \bar y_i - e^{\eta_i}$ with the cap $\bar y_i$ the coldest
+body falls below: $y_{0,i} = \\bar y_i - e^{\\eta_i}$ with the cap $\\bar y_i$ the coldest
 reading plus three noise deviations (`level_cap`). Unbounded, a closed-loop record that hovers
 at its set point (a printer bed's heat-up and hold) is fitted as a small, fast response around
 a level near the set point: a local model whose heater-off steady state is far above the room

@@ -231,3 +231,37 @@ def test_plausible_state_space_is_the_unconstrained_one():
     assert r.extra["physics"]["path"] == ["ss n=2: plausible"]
     for a, b in ((r.model.A, free.model.A), (r.model.B, free.model.B), (r.model.C, free.model.C)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def bed_record(T=900, seed=4):
+    """A printer bed under its own on/off-ish control: heat-up at 0.75 from the room (22 °C),
+    a hold at 60 °C while its frame warms slowly (the holding power falls), then heater off.
+    Bed node x0 (tau ~ 100 s) loses heat to the room and to the frame x1 (tau ~ 1500 s)."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros(2)
+    u = np.zeros((T, 1))
+    y = np.empty((T, 1))
+    for k in range(T):
+        y[k] = 22.0 + x[0]
+        u[k] = 0.0 if k > 750 else (0.75 if y[k, 0] < 60.0 else 0.2 * (60.5 - y[k, 0]).clip(0))
+        x = x + np.array([0.6 * u[k, 0] - 0.004 * x[0] - 0.006 * (x[0] - x[1]),
+                          0.0015 * (x[0] - x[1]) - 0.0006 * x[1]])
+    return from_arrays(u, y + 0.05 * rng.standard_normal(y.shape), ts=1.0)
+
+
+def test_positive_level_bounded_and_slow_surroundings_fitted():
+    """A closed-loop heat-up and hold: the positive state space's level at rest stays at or below
+    the coldest reading (+3 sigma), its two nodes find the slow frame, and the model holds its
+    recording (covers 22-60 °C)."""
+    from jthermo.identify.heat import _mean_fit
+    from jthermo.identify.positive import level_cap
+
+    data = bed_record()
+    r = fit_positive(data, 2)
+    cap = level_cap(np.asarray(data.y))
+    assert float(r.model.y0[0]) <= cap[0] + 1e-9
+    assert cap[0] < float(np.min(data.y)) + 0.5
+    assert heat_check(r.model, data)["plausible"]
+    tau = -1.0 / np.log(np.abs(np.linalg.eigvals(np.asarray(r.model.A))))
+    assert tau.max() > 5 * tau.min()            # a fast bed and a slow frame
+    assert _mean_fit(r.model, data) > 90.0
