@@ -1,5 +1,10 @@
 """Pieces the benchmarks and experiments share: CPU seconds and the machine's load, timed calls,
-a cold child process, interleaved comparisons, and where a script's results file lives.
+a cold child process, interleaved comparisons, where a script's results file lives, the head of
+a Markdown results table, and a dense zero-order hold.
+
+The dense hold is the form `mechanisms.zoh_blocks` replaced: the joint fit's benchmark times it,
+and `tests/diagnose/test_mechanisms_zoh.py` (importing this module as `benchmarks.common`)
+checks the blocks against it.
 
 Scripts in `benchmarks/` import it as `common` (their own folder is first on `sys.path` when run
 as `python benchmarks/x.py`); scripts in `experiments/` put `benchmarks/` on `sys.path` first:
@@ -99,6 +104,15 @@ def finish(lines: list[str], load0: str, out: str) -> None:
         Path(out).write_text(text)
 
 
+def markdown_table_head(title: str, paragraphs: list[str], columns: list[str]) -> list[str]:
+    """The first lines of a Markdown results file: `# title`, the paragraphs, and the header
+    and separator rows of a table of `columns` (one separator cell per column)."""
+    lines = [f"# {title}", ""]
+    for p in paragraphs:
+        lines += [p, ""]
+    return lines + ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
 def compare_interleaved(cands: dict, reference, baseline: str = "numpy", repeats: int = 5) -> dict:
     """Print cold seconds and max abs error against `reference` for each zero-argument callable
     in `cands`, then the median and minimum warm seconds and the median of the per-repeat ratios
@@ -123,3 +137,34 @@ def compare_interleaved(cands: dict, reference, baseline: str = "numpy", repeats
         print(k, "median", round(statistics.median(v), 4), "min", round(min(v), 4),
               f"x {baseline}", round(ratio, 2), flush=True)
     return times
+
+
+# ---------------------------------------------------------------- the dense zero-order hold
+
+
+def taylor_expm(Mt, squarings: int = 10, order: int = 10):
+    """$e^{M}$ by the fixed Taylor series and squaring (branch-free) that
+    `mechanisms.zoh_blocks` writes on blocks, here on the dense matrix."""
+    import jax.numpy as jnp
+
+    X = Mt / (2.0 ** squarings)
+    eye = jnp.eye(Mt.shape[-1], dtype=Mt.dtype)
+    term, out = eye, eye
+    for k in range(1, order + 1):
+        term = term @ X / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+def zoh_dense(A, Bc, ts):
+    """`(E, Bd, P1)` of `mechanisms.zoh_blocks` from the Taylor exponential of the dense
+    $2m \\times 2m$ block matrix `[[A, I], [0, 0]] ts` (the form the blocks replaced)."""
+    import jax.numpy as jnp
+
+    m = A.shape[0]
+    dt = A.dtype
+    Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
+    F = taylor_expm(Mt * ts)
+    return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]

@@ -9,7 +9,7 @@ call's models), with the coupled simulation's recurrence differentiated three wa
 - `rule`: `recurrence.radiative` (the tangents obey one linear recurrence, inputs of all steps
   computed outside the loop);
 - `plain`: the same scan body differentiated by JAX (the code before 71aa95f);
-- `rule, dense hold`: the rule, with the zero-order hold as before (`_zoh_dense`: the dense
+- `rule, dense hold`: the rule, with the zero-order hold as before (`common.zoh_dense`: the dense
   $2m \\times 2m$ exponential, instead of `mechanisms.zoh_blocks`'s $m \\times m$ blocks).
 
 CPU s = user + system of the process (load-robust); wall s and the 1-minute load beside.
@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import cpu_seconds  # noqa: E402
+from common import cpu_seconds, zoh_dense  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -55,32 +55,6 @@ def _plain(E, P, a, r, F, sig, s0):
         return jnp.sum(E * s[None, :], axis=1) + jnp.sum(P * q[None, :], axis=1) + fk, s[:n]
 
     return jax.lax.scan(body, s0, (F, sig))[1]
-
-
-def _taylor_expm(Mt, squarings: int = 10, order: int = 10):
-    """$e^{M}$ by a fixed Taylor series and squaring (branch-free), as `zoh_blocks` computed it before."""
-    import jax.numpy as jnp
-
-    X = Mt / (2.0 ** squarings)
-    eye = jnp.eye(Mt.shape[-1], dtype=Mt.dtype)
-    term, out = eye, eye
-    for k in range(1, order + 1):
-        term = term @ X / k
-        out = out + term
-    for _ in range(squarings):
-        out = out @ out
-    return out
-
-
-def _zoh_dense(A, Bc, ts):
-    """`mechanisms.zoh_blocks` before: the Taylor exponential of the dense $2m \\times 2m$ block matrix."""
-    import jax.numpy as jnp
-
-    m = A.shape[0]
-    dt = A.dtype
-    Mt = jnp.zeros((2 * m, 2 * m), dt).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m, dtype=dt))
-    F = _taylor_expm(Mt * ts)
-    return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]
 
 
 def _capture(est, val):
@@ -142,7 +116,7 @@ def main() -> None:
     rows, Js = [], {}
     zoh = M.zoh_blocks
     for name, fn, hold in (("rule", radiative, zoh), ("plain", _plain, zoh),
-                           ("rule, dense hold", radiative, _zoh_dense)):
+                           ("rule, dense hold", radiative, zoh_dense)):
         M.radiative, M.zoh_blocks = fn, hold
         J = jax.jit(jax.vmap(jac))
         c0 = cpu_seconds()

@@ -38,6 +38,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
+from common import markdown_table_head  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_BENCH = ROOT / ".." / "shared" / "bench" / "workloads.py"
@@ -529,22 +530,22 @@ def default_path(W, Ns, families, seed: int = 0, out: Path | None = None,
 
 
 def default_markdown(rows: list[dict]) -> str:
-    lines = ["# Default path: `jthermo fit` with automatic orders, cold, from the shell", "",
-             "W1 records in absolute °C (6000 + 3000 samples, Ts = 1 s), fresh process and empty "
+    intro = ("W1 records in absolute °C (6000 + 3000 samples, Ts = 1 s), fresh process and empty "
              "compilation cache per row; wall, CPU (user + system) and peak RSS by /usr/bin/time; "
              "gap = validation fit (MATLAB compare, initial state estimated) minus the true "
              "model's fit; load = 1-minute load average before / after the row (2-core machine "
              "shared with other jobs: wall times grow with the load, CPU seconds much less). "
              "OpenBLAS threads: OPENBLAS_NUM_THREADS as this script sets it (1 unless set before "
              f"it ran; here {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}): a shell without "
-             "it uses one thread per core, which made small LAPACK calls much slower under load.",
-             "",
-             f"Records: W1 seed {rows[0].get('seed', 0)}, coloured sensor noise std "
-             f"{_fmt(rows[0].get('noise_std', 0.1), 3)} °C, AR(1) pole "
-             f"{_fmt(rows[0].get('noise_pole', 0.7), 2)}.",
-             "",
-             "| family | N | orders | fit % | true % | gap | converged | wall s | CPU s | peak RSS MB | load | note |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "it uses one thread per core, which made small LAPACK calls much slower under load.")
+    records = (f"Records: W1 seed {rows[0].get('seed', 0)}, coloured sensor noise std "
+               f"{_fmt(rows[0].get('noise_std', 0.1), 3)} °C, AR(1) pole "
+               f"{_fmt(rows[0].get('noise_pole', 0.7), 2)}.")
+    lines = markdown_table_head(
+        "Default path: `jthermo fit` with automatic orders, cold, from the shell",
+        [intro, records],
+        ["family", "N", "orders", "fit %", "true %", "gap", "converged", "wall s", "CPU s",
+         "peak RSS MB", "load", "note"])
     for r in rows:
         o = " ".join(f"{k} {v}" for k, v in (r.get("orders") or {}).items())
         rows_ok = r.get("converged_outputs") or []

@@ -30,7 +30,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jthermo  # noqa: E402
-from jthermo import runtime  # noqa: E402
+from jthermo import programs, runtime  # noqa: E402
 from jthermo.data import crop  # noqa: E402
 from jthermo.printer import make_printer  # noqa: E402
 from jthermo.printer.runs import generate  # noqa: E402
@@ -82,13 +82,13 @@ def main(argv=None) -> int:
     ap.add_argument("--step", type=int, default=37)
     ap.add_argument("--source", choices=("crop", "generate"), default="crop")
     ap.add_argument("--bound", type=int, default=None,
-                    help="the guard's bound on memory maps (default runtime.MAP_BOUND)")
+                    help="the guard's bound on memory maps (default programs.MAP_BOUND)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "memory_maps.md"))
     a = ap.parse_args(argv)
     families = [f for f in a.families.split(",") if f]
     zones = [int(z) for z in a.zones.split(",")]
     if a.bound is not None:
-        runtime.MAP_BOUND = a.bound
+        programs.MAP_BOUND = a.bound
     jax.monitoring.register_event_duration_secs_listener(_on_event)
     shown = list(argv if argv is not None else sys.argv[1:])
     if "--out" in shown:                      # where it was written is no part of the figures

@@ -26,6 +26,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import markdown_table_head  # noqa: E402
+
 #: the real recordings (`../shared/data/real` beside the checkout; JTHERMO_REAL_DATA elsewhere)
 REAL = Path(os.environ.get("JTHERMO_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 OUT = ROOT / "experiments" / "results" / "calibrate_real.md"
@@ -99,15 +102,15 @@ def row(res: dict) -> dict:
 
 
 def markdown(results: list[dict]) -> str:
-    lines = ["# `jthermo calibrate` on real recordings", "",
-             "Made by `python experiments/calibrate_real.py`. Each case: `jthermo calibrate EST "
-             "--validation VAL --no-cache` (cold), judged on a model fitted to VAL. "
-             "Times measured on a shared, loaded machine (2 cores, other work running; the load "
-             "average at start and end is given): they are not the unloaded figure.", "",
-             "| case | model (fit %) | two-state fit % | set point °C | tuned MSE °C² | floor + "
-             "noise | vs bound | PID_CALIBRATE MSE (at a limit) | bar | tuned below bar | start-up "
-             "overshoot °C (relay) | load MSE °C² (relay) | wall / CPU s (load) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = markdown_table_head(
+        "`jthermo calibrate` on real recordings",
+        ["Made by `python experiments/calibrate_real.py`. Each case: `jthermo calibrate EST "
+         "--validation VAL --no-cache` (cold), judged on a model fitted to VAL. "
+         "Times measured on a shared, loaded machine (2 cores, other work running; the load "
+         "average at start and end is given): they are not the unloaded figure."],
+        ["case", "model (fit %)", "two-state fit %", "set point °C", "tuned MSE °C²",
+         "floor + noise", "vs bound", "PID_CALIBRATE MSE (at a limit)", "bar", "tuned below bar",
+         "start-up overshoot °C (relay)", "load MSE °C² (relay)", "wall / CPU s (load)"])
     notes = []
     for res in results:
         if "error" in res:

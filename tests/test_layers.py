@@ -1,5 +1,6 @@
 """The import graph of `jthermo/` follows the design: no import circle, layers import only
-downward, and no module reaches for another module's private names.
+downward, and no module reaches for another module's private names; the study scripts
+(`benchmarks/`, `experiments/`) import no circle either.
 
 Every `jthermo/**/*.py` is parsed with `ast`; every import counts (module level, inside
 functions, under `if TYPE_CHECKING:`), relative imports are resolved, and a package's
@@ -29,8 +30,10 @@ PKG = "jthermo"
 #: closed loop -> tuning, with the command line and the demo on top.
 LAYERS: list[tuple[str, ...]] = [
     # Utilities that everything may use: errors, type aliases, atomic writes, the family
-    # names, progress bars, the JAX runtime settings (compilation cache, compile timing).
-    ("errors", "_types", "_files", "families", "progress", "runtime"),
+    # names, progress bars, the process's compiled programs (factory cache, memory-map guard).
+    ("errors", "_types", "_files", "families", "progress", "programs"),
+    # The JAX runtime settings (compilation cache, compile timing); it re-exports `programs`.
+    ("runtime",),
     # Traced programs and numbers kept in the compilation cache's directory.
     ("stored",),
     # Shape checks of the public entry points (one-line errors instead of broadcasting ones).
@@ -295,6 +298,40 @@ def test_no_private_name_crosses_modules(graph):
     assert not bad, f"{len(bad)} private name(s) used outside their module:\n  " + "\n  ".join(bad)
 
 
+STUDY_DIRS = ("benchmarks", "experiments")
+
+
+def _study_edges(scripts: dict[str, Path]) -> dict[str, set[str]]:
+    """`folder/name` -> the study scripts it imports. A script imports another by its bare name
+    (`import identification`, `from common import load`): one of its own folder when there is
+    one, else one of `benchmarks/` (experiments put that folder on `sys.path`)."""
+    edges: dict[str, set[str]] = {key: set() for key in scripts}
+    for key, path in scripts.items():
+        folder = key.partition("/")[0]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names = [node.module]
+            else:
+                continue
+            for name in names:
+                top = name.partition(".")[0]
+                target = next((t for t in (f"{folder}/{top}", f"benchmarks/{top}")
+                               if t in scripts), None)
+                if target is not None and target != key:
+                    edges[key].add(target)
+    return edges
+
+
+def test_no_import_circle_among_study_scripts():
+    scripts = {f"{d}/{p.stem}": p for d in STUDY_DIRS for p in sorted((ROOT / d).glob("*.py"))}
+    assert scripts, f"no study scripts under {', '.join(STUDY_DIRS)}"
+    circles = _cycles(_study_edges(scripts))
+    assert not circles, f"{len(circles)} import circle(s) among the study scripts:\n  " + \
+        "\n  ".join(" -> ".join(c) for c in circles)
+
+
 # --- the checker itself, on a small made-up package ---------------------------------------
 
 def test_checker_finds_circles_and_resolves_relative_imports():
@@ -338,3 +375,25 @@ def test_checker_reads_imports_names_and_aliases():
         "jthermo/control/lqg.py:1: jthermo.control.lqg imports _as_ss from jthermo.control.design",
         "jthermo/control/lqg.py:5: jthermo.control.lqg uses D._private of jthermo.data",
     ]
+
+
+def test_checker_resolves_study_imports(tmp_path):
+    """Own folder first, then `benchmarks/`; package and library imports are no edges."""
+    src = {"benchmarks/common": "import os\n",
+           "benchmarks/identification": "from common import load\nimport peers_fair\n",
+           "benchmarks/peers_fair": "def f():\n    from identification import T\n",
+           "experiments/identify": "import identification, jthermo.data\nfrom . import x\n",
+           "experiments/common": "import numpy\n",
+           "experiments/uses_own": "from common import cpu_seconds\n"}
+    scripts = {}
+    for key, text in src.items():
+        path = tmp_path / f"{key}.py"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(text)
+        scripts[key] = path
+    edges = _study_edges(scripts)
+    assert edges["benchmarks/identification"] == {"benchmarks/common", "benchmarks/peers_fair"}
+    assert edges["experiments/identify"] == {"benchmarks/identification"}
+    assert edges["experiments/uses_own"] == {"experiments/common"}
+    assert _cycles(edges) == [["benchmarks/identification", "benchmarks/peers_fair",
+                               "benchmarks/identification"]]

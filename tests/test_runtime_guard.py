@@ -1,4 +1,5 @@
-"""The process guards its compiled programs: one bounded factory cache, a memory-map guard."""
+"""The process guards its compiled programs (`jthermo.programs`, re-exported by `runtime`):
+one bounded factory cache, a memory-map guard."""
 
 import concurrent.futures as cf
 import multiprocessing
@@ -9,8 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jthermo import runtime
+from jthermo import programs, runtime
 from jthermo.sweep import runner
+
+
+def test_runtime_reexports_the_guard():
+    """The library calls `runtime.guard()`: runtime's names are the programs module's own."""
+    for name in ("guard", "guard_info", "count_compiles", "compiled_programs", "memory_maps",
+                 "map_bound", "program_factory", "clear_programs", "top_level"):
+        assert getattr(runtime, name) is getattr(programs, name), name
 
 
 def test_memory_maps_counts_proc_self_maps():
@@ -23,11 +31,11 @@ def test_memory_maps_counts_proc_self_maps():
 def test_map_bound_below_the_system_limit():
     with open("/proc/sys/vm/max_map_count") as f:
         limit = int(f.read())
-    assert 0 < runtime.map_bound() <= min(runtime.MAP_BOUND, limit // 3)
+    assert 0 < programs.map_bound() <= min(programs.MAP_BOUND, limit // 3)
 
 
 def test_program_factory_is_one_bounded_lru(monkeypatch):
-    monkeypatch.setattr(runtime, "FACTORY_CACHE_SIZE", 3)
+    monkeypatch.setattr(programs, "FACTORY_CACHE_SIZE", 3)
     calls = []
 
     @runtime.program_factory
@@ -66,11 +74,11 @@ def test_guard_clears_at_the_bound(monkeypatch):
     for n in (3, 4, 5):
         f(np.ones(n))
     assert f._cache_size() == 3
-    monkeypatch.setattr(runtime, "map_bound", lambda: 10 ** 9)
+    monkeypatch.setattr(programs, "map_bound", lambda: 10 ** 9)
     assert runtime.guard() is False            # below the bound: nothing dropped
     assert f._cache_size() == 3
     clears = runtime.guard_info()["clears"]
-    monkeypatch.setattr(runtime, "map_bound", lambda: 1)
+    monkeypatch.setattr(programs, "map_bound", lambda: 1)
     assert runtime.guard() is False            # no compile since the last look: no read
     f(np.ones(6))
     assert runtime.guard() is True
@@ -80,7 +88,7 @@ def test_guard_clears_at_the_bound(monkeypatch):
 
 
 def test_guard_never_clears_inside_a_trace(monkeypatch):
-    monkeypatch.setattr(runtime, "map_bound", lambda: 1)
+    monkeypatch.setattr(programs, "map_bound", lambda: 1)
     seen = []
 
     @jax.jit

@@ -110,23 +110,23 @@ def test_unwritable_folder_still_gives_the_result(folder):
 
 
 def test_printer_design_model_read_back_equal(folder, monkeypatch):
-    """`cli.control.stored_printer_model`: the second call reads the file (the program is not run)
-    and gives the same model and the same lambda-PI gains bit for bit as the cache off."""
+    """`cli.printer_model.stored_printer_model`: the second call reads the file (the program is
+    not run) and gives the same model and the same lambda-PI gains bit for bit as the cache off."""
     from jthermo import closedloop
-    from jthermo.cli import control
+    from jthermo.cli import printer_model
     from jthermo.control.design import design
     from jthermo.printer import make_printer
 
     printer = make_printer(2, closedloop.REALISTIC_EFFECTS, powder="PA12", seed=0)
     calls = []
-    program = control.printer_model_program
-    monkeypatch.setattr(control, "printer_model_program",
+    program = printer_model.printer_model_program
+    monkeypatch.setattr(printer_model, "printer_model_program",
                         lambda p: calls.append(1) or program(p))
-    first = control.stored_printer_model(printer)
-    second = control.stored_printer_model(printer)
+    first = printer_model.stored_printer_model(printer)
+    second = printer_model.stored_printer_model(printer)
     assert len(calls) == 1 and len(_files(folder)) == 1
     monkeypatch.setitem(runtime.state, "dir", None)
-    off = control.stored_printer_model(printer)
+    off = printer_model.stored_printer_model(printer)
     assert len(calls) == 2
     for m in (first, second):
         assert jax.tree.structure(m) == jax.tree.structure(off)

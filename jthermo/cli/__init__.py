@@ -29,7 +29,8 @@ Imports of the library are lazy (inside each command), so `jthermo --help` is fa
                 [--heater NAME] [--setpoint C] [--json REPORT.json]
 
 The commands live by family: `identify` (fit, validate), `control` (simulate, generate, tune),
-`diagnose`, `batch` (sweep, demo); `common` holds the argument types and input/output checks.
+`diagnose`, `batch` (sweep, demo); `common` holds the argument types and input/output checks,
+`printer_model` the virtual printer's design model that `simulate` designs on.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """`closedloop.prepare_run`: the run program compiled before the real controller exists (the
 simulate command does it in a thread while the printer's design model is computed), for a
-controller designed on `cli.control.shape_model` (the design model's shapes only)."""
+controller designed on `cli.printer_model.shape_model` (the design model's shapes only)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from jax import monitoring
 
 from jthermo import closedloop as cl
-from jthermo.cli.control import PREPARE_SKIP, shape_model, stored_printer_model
+from jthermo.cli.printer_model import PREPARE_SKIP, shape_model, stored_printer_model
 from jthermo.control.design import FAMILIES, design
 from jthermo.printer import make_printer
 from jthermo.stored import split_arguments

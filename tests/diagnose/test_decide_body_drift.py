@@ -21,31 +21,35 @@ def test_lag_filter_is_a_unit_gain_first_order_lag():
     assert abs(z[-1] - 1.0) < 1e-12
 
 
-def test_exogenous_drift_is_not_input_dependent():
-    """Null: ramps and slow sinusoids unrelated to the drive reach the 5 % level rarely."""
-    rng = np.random.default_rng(1)
+def _dependence_z(seed: int, trials: int, slow) -> np.ndarray:
+    """`decide.input_dependence` of `slow(rng, t, s)` plus sensor noise (0.05 °C) against the
+    drive `s`, for `trials` drives drawn in turn from `default_rng(seed)`."""
+    rng = np.random.default_rng(seed)
     t = np.arange(T) * TS
     z = []
-    for _ in range(30):
+    for _ in range(trials):
         s = _drive(rng)
-        drift = rng.uniform(1.5, 4.0) * (0.5 * (t / t[-1] - 0.5)
-                                         + 0.5 * np.sin(2 * np.pi * t / rng.uniform(2400, 7200)
-                                                        + rng.uniform(0, 6.3)))
-        z.append(D.input_dependence(drift + 0.05 * rng.normal(size=T), s, TS, STEP))
-    assert np.mean(np.asarray(z) >= 1.645) <= 0.1
+        z.append(D.input_dependence(slow(rng, t, s) + 0.05 * rng.normal(size=T), s, TS, STEP))
+    return np.asarray(z)
+
+
+def test_exogenous_drift_is_not_input_dependent():
+    """Null: ramps and slow sinusoids unrelated to the drive reach the 5 % level rarely."""
+    def drift(rng, t, s):
+        return rng.uniform(1.5, 4.0) * (0.5 * (t / t[-1] - 0.5)
+                                        + 0.5 * np.sin(2 * np.pi * t / rng.uniform(2400, 7200)
+                                                       + rng.uniform(0, 6.3)))
+
+    assert np.mean(_dependence_z(1, 30, drift) >= 1.645) <= 0.1
 
 
 def test_body_driven_by_the_inputs_is_input_dependent():
     """A warming body (lag of the drive plus its initial state's decay) is found most times."""
-    rng = np.random.default_rng(2)
-    t = np.arange(T) * TS
-    z = []
-    for _ in range(10):
-        s = _drive(rng)
+    def body(rng, t, s):
         tau = rng.uniform(1200.0, 3600.0)
-        w = D.lag_filter(s - s[0], TS, tau) - rng.uniform(0.0, 10.0) * np.exp(-t / tau)
-        z.append(D.input_dependence(0.4 * w + 0.05 * rng.normal(size=T), s, TS, STEP))
-    assert np.mean(np.asarray(z) >= 1.645) >= 0.5
+        return 0.4 * (D.lag_filter(s - s[0], TS, tau) - rng.uniform(0.0, 10.0) * np.exp(-t / tau))
+
+    assert np.mean(_dependence_z(2, 10, body) >= 1.645) >= 0.5
     assert D.input_dependence(np.zeros(50), np.ones(50), TS, STEP) == 0.0    # too short: no test
 
 

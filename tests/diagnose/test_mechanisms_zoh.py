@@ -1,6 +1,7 @@
 """`mechanisms.zoh_blocks` on the m × m blocks: equal to the exact hold (scipy's exponential of the
-block matrix) and to the same Taylor series on the dense 2m × 2m matrix it replaced (`_expm`, here
-as the reference); its forward-mode derivative against central differences."""
+block matrix) and to the same Taylor series on the dense 2m × 2m matrix it replaced
+(`benchmarks.common.zoh_dense`, the reference the joint fit's benchmark times too); its
+forward-mode derivative against central differences."""
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +10,7 @@ import pytest
 from scipy.linalg import expm
 
 import jthermo.diagnose.mechanisms as M
+from benchmarks.common import taylor_expm, zoh_dense
 
 jax.config.update("jax_enable_x64", True)
 
@@ -19,32 +21,12 @@ def _rates(m, seed):
     return -np.diag(0.002 + 0.3 * rng.random(m)) + 0.01 * rng.random((m, m)) * (1 - np.eye(m))
 
 
-def _expm(Mt, squarings: int = 10, order: int = 10):
-    """$e^{M}$ by the fixed Taylor series and squaring that `zoh_blocks` writes on blocks (dense form)."""
-    n = Mt.shape[-1]
-    X = Mt / (2.0 ** squarings)
-    eye = jnp.eye(n, dtype=Mt.dtype)
-    term, out = eye, eye
-    for k in range(1, order + 1):
-        term = term @ X / k
-        out = out + term
-    for _ in range(squarings):
-        out = out @ out
-    return out
-
-
 def test_expm_matches_scipy():
     rng = np.random.default_rng(2)
     for scale in (0.01, 1.0, 20.0):
         A = scale * rng.normal(size=(6, 6)) - scale * 3 * np.eye(6)
-        np.testing.assert_allclose(np.asarray(_expm(jnp.asarray(A))), expm(A), rtol=1e-9, atol=1e-12)
-
-
-def _dense(A, Bc, ts):
-    m = A.shape[0]
-    Mt = jnp.zeros((2 * m, 2 * m)).at[:m, :m].set(A).at[:m, m:].set(jnp.eye(m))
-    F = _expm(Mt * ts)
-    return F[:m, :m], F[:m, m:] @ Bc, F[:m, m:]
+        np.testing.assert_allclose(np.asarray(taylor_expm(jnp.asarray(A))), expm(A),
+                                   rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("m, ts", [(3, 1.0), (12, 1.0), (6, 5.0)])
@@ -56,7 +38,7 @@ def test_zoh_blocks_match_exact_hold_and_dense_series(m, ts):
     np.testing.assert_allclose(E, F[:m, :m], rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(P1, F[:m, m:], rtol=1e-12, atol=1e-13 * ts)
     np.testing.assert_allclose(Bd, F[:m, m:] @ Bc, rtol=1e-11, atol=1e-12 * ts)
-    for x, y in zip((E, Bd, P1), _dense(jnp.asarray(A), jnp.asarray(Bc), ts)):
+    for x, y in zip((E, Bd, P1), zoh_dense(jnp.asarray(A), jnp.asarray(Bc), ts)):
         np.testing.assert_allclose(x, y, rtol=1e-13, atol=1e-14 * float(jnp.abs(y).max()))
 
 
@@ -71,6 +53,6 @@ def test_zoh_jvp_matches_central_differences_and_dense_series():
     plus, minus = f(A + h * dA, Bc + h * dB), f(A - h * dA, Bc - h * dB)
     for di, p, q in zip(d, plus, minus):
         np.testing.assert_allclose(di, (p - q) / (2 * h), rtol=1e-6, atol=1e-9)
-    _, d2 = jax.jvp(lambda A, B: _dense(A, B, 2.0), (A, Bc), (dA, dB))
+    _, d2 = jax.jvp(lambda A, B: zoh_dense(A, B, 2.0), (A, Bc), (dA, dB))
     for x, y in zip(d, d2):
         np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-14 * float(jnp.abs(y).max()))
