@@ -12,8 +12,10 @@ orders and the selection path of the physics constraint (`--json`'s `physics`).
 Before and after: `--package DIR --save-models M` runs the fits with the `jthermo` package found
 in DIR (an older checkout, e.g. `git archive <commit> jthermo | tar -x -C DIR`) and keeps each
 fitted model and report in M; a later run with `--before M` judges those models with this
-checkout's `heat_check` and tabulates them beside its own fits (exit, fit %, plausible). Rows
-are kept one a line in `--rows FILE` as they finish, so an interrupted run resumes.
+checkout's `heat_check` and tabulates them beside its own fits (exit, fit %, plausible); a
+saved model that took the record's logged set point as a measured signal (†) predicted a closed
+loop's temperature from its own set point and is not compared. Rows are kept one a line in
+`--rows FILE` as they finish, so an interrupted run resumes (delete a row to rerun it).
 
 Usage:  python experiments/own_device_plausibility.py [--records all|issue|NAME,...]
             [--families arx,oe,...] [--physics heat|none] [--data-dir DIR]
