@@ -153,7 +153,7 @@ def main() -> None:
     ap.add_argument("--zone-sample", type=int, default=12, help="per-zone problems refitted per call")
     args = ap.parse_args()
     from jthermo.data import load
-    from jthermo.diagnose import fitting, joint, select, to_json
+    from jthermo.diagnose import candidates, fitting, joint, select, to_json, validation
 
     load0 = load1()
     with tempfile.TemporaryDirectory(prefix="jthermo-anatomy-") as d:
@@ -168,8 +168,8 @@ def main() -> None:
             return out
         return wrapper
 
-    select.fit_zones = keep("fit_zones", select.fit_zones)
-    select.fit_records = keep("fit_records", select.fit_records)
+    candidates.fit_zones = keep("fit_zones", candidates.fit_zones)
+    validation.fit_records = keep("fit_records", validation.fit_records)
     joint.fit_joint = keep("fit_joint", joint.fit_joint)
     c0, t0 = cpu_seconds(), time.perf_counter()
     js = to_json(select.diagnose(est, val))

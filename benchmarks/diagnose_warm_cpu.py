@@ -4,7 +4,7 @@ A/B of two code trees (run it once per tree with `PYTHONPATH=TREE`):
     PYTHONPATH=/path/to/tree python benchmarks/diagnose_warm_cpu.py EST.csv VAL.csv
 
 The diagnosis runs twice in the process (the second is warm); printed per run: CPU s, the
-findings, the mean validation fit, and each `select.fit_zones` call (whether it was a
+findings, the mean validation fit, and each `candidates.fit_zones` call (whether it was a
 continuation round with a budget, the problems it ran, its CPU s).
 """
 
@@ -19,14 +19,14 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np
 
-import jthermo.diagnose.select as S
+import jthermo.diagnose.candidates as C
 from jthermo.data import load_csv
 from jthermo.diagnose import diagnose, to_json
 
 
 def main(argv=None) -> int:
     est_path, val_path = (argv or sys.argv[1:])[:2]
-    orig, calls = S.fit_zones, []
+    orig, calls = C.fit_zones, []
 
     def spy(*a):
         t = time.process_time()
@@ -36,7 +36,7 @@ def main(argv=None) -> int:
                       round(time.process_time() - t, 1)))
         return out
 
-    S.fit_zones = spy
+    C.fit_zones = spy
     est, val = load_csv(est_path), load_csv(val_path)
     for rep in range(2):
         calls.clear()

@@ -45,7 +45,7 @@ sys.path.insert(0, str(HERE.parent / "experiments"))
 
 from jthermo import data
 from jthermo.data import atomic_write_text
-from jthermo.diagnose import fitting, select
+from jthermo.diagnose import candidates, fitting, select
 from jthermo.diagnose import mechanisms as M
 from jthermo.identify.lm import STALL, masked_lm
 
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     est, val = load_record(args.record, args.max_zones)
     calls = []
-    orig = select.fit_zones
+    orig = candidates.fit_zones
 
     def spy(*a):
         t0, c0 = time.perf_counter(), cpu_seconds()
@@ -126,13 +126,13 @@ def main(argv=None) -> int:
                       "cpu_s": cpu_seconds() - c0})
         return out
 
-    select.fit_zones = spy
+    candidates.fit_zones = spy
     t0, c0 = time.perf_counter(), cpu_seconds()
     res = select.to_json(select.diagnose(est, val))
     diag = {"wall_s": time.perf_counter() - t0, "cpu_s": cpu_seconds() - c0,
             "findings": [(f["mechanism"], round(f["confidence"], 4)) for f in res["findings"]],
             "candidates": {r["mechanism"]: round(r["estimation_lr"], 2) for r in res["candidates"]}}
-    select.fit_zones = orig
+    candidates.fit_zones = orig
     n, T = est.n_outputs, est.n_samples
     cands = [m for m in M.MECHANISMS if n >= 2 or m not in select.NEEDS_NEIGHBOURS]
     problems = []

@@ -34,7 +34,7 @@ from common import cpu_seconds
 from diagnose_zone_convergence import load_record
 
 from jthermo.data import atomic_write_text
-from jthermo.diagnose import fitting, select
+from jthermo.diagnose import candidates, fitting, select
 
 
 def run(args, groups):
@@ -64,10 +64,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     est, val = load_record(args.record, args.max_zones)
     calls = []
-    orig = select.fit_zones
-    select.fit_zones = lambda *a: calls.append(a[:7]) or orig(*a)
+    orig = candidates.fit_zones
+    candidates.fit_zones = lambda *a: calls.append(a[:7]) or orig(*a)
     select.diagnose(est, val)
-    select.fit_zones = orig
+    candidates.fit_zones = orig
     a = calls[0]
     free = np.asarray(a[1]).sum(axis=1)
     width = 4 * np.ceil(free / 4).astype(int)

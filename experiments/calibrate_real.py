@@ -42,6 +42,12 @@ CASES = {
     "KP3S extruder (klippy.log)": ((REAL / "klipper_logs/kp3s_b20bob/original_0912.log.gz",
                                     "extruder_seg05.csv"), "extruder_seg08.csv",
                                    ["--firmware", "kalico"], True),
+    "Voron 2.4 extruder (klippy.log, last 30 % held back)": (
+        (REAL / "klipper_logs/voron24_lahn92/original.log.gz", "extruder_seg01.csv"), None,
+        ["--firmware", "klipper"], True),
+    "Ender 3 Pro extruder (klippy.log)": (
+        (REAL / "klipper_logs/ender3pro_gunny0201/original.log.gz", "extruder_seg01.csv"),
+        "extruder_seg03.csv", ["--firmware", "klipper"], True),
     "TCLab two heaters (CACE 2020)": (REAL / "tclab_cace2020/id_2heaters/data.csv",
                                       REAL / "tclab_cace2020/val_2heaters/data.csv", [], False),
 }
@@ -67,9 +73,10 @@ def run_case(name: str, tmp: Path) -> dict:
         rc, *_ = _run([*jt, "import", str(log), "--out", str(case / "imp"), "--quiet"])
         if rc:
             return {"name": name, "error": f"import exit {rc}"}
-        est, val = case / "imp" / seg, case / "imp" / val
+        est, val = case / "imp" / seg, None if val is None else case / "imp" / val
     load0 = os.getloadavg()[0]
-    rc, wall, cpu, tail = _run([*jt, "calibrate", str(est), "--validation", str(val), "--out",
+    vargs = [] if val is None else ["--validation", str(val)]
+    rc, wall, cpu, tail = _run([*jt, "calibrate", str(est), *vargs, "--out",
                                 str(case / "out"), "--json", str(case / "r.json"), "--no-cache",
                                 "--quiet", *extra])
     if rc:
@@ -105,16 +112,18 @@ def markdown(results: list[dict]) -> str:
     lines = markdown_table_head(
         "`jthermo calibrate` on real recordings",
         ["Made by `python experiments/calibrate_real.py`. Each case: `jthermo calibrate EST "
-         "--validation VAL --no-cache` (cold), judged on a model fitted to VAL. "
+         "--validation VAL --no-cache` (cold; the Voron case holds back the last 30 % of EST "
+         "as VAL), judged on a model fitted to VAL. "
          "Times measured on a shared, loaded machine (2 cores, other work running; the load "
          "average at start and end is given): they are not the unloaded figure."],
-        ["case", "model (fit %)", "two-state fit %", "set point °C", "tuned MSE °C²",
-         "floor + noise", "vs bound", "PID_CALIBRATE MSE (at a limit)", "bar", "tuned below bar",
-         "start-up overshoot °C (relay)", "load MSE °C² (relay)", "wall / CPU s (load)"])
+        ["case", "supported", "model (fit %)", "two-state fit %", "set point °C",
+         "tuned MSE °C²", "floor + noise", "vs bound", "PID_CALIBRATE MSE (at a limit)", "bar",
+         "tuned below bar", "start-up overshoot °C (relay)", "load MSE °C² (relay)",
+         "wall / CPU s (load)"])
     notes = []
     for res in results:
         if "error" in res:
-            lines.append(f"| {res['name']} | {res['error']} |" + " |" * 11)
+            lines.append(f"| {res['name']} | {res['error']} |" + " |" * 12)
             continue
         rep, r = res["rep"], row(res)
         m = rep["model"]
@@ -125,9 +134,10 @@ def markdown(results: list[dict]) -> str:
         zl = f" ({zn['load_mse']:.3g})" if zn else ""
         vb = f"{r['vs_bound']:+.1f} %" if r["vs_bound"] is not None else "n/a"
         bb = f"{r['below_bar']:.1f} %" if r["below_bar"] is not None else "n/a"
+        sup = "yes" if rep.get("supported", True) else "**no**"
         lines.append(
-            f"| {res['name']} | {m['family']} ({m['validation_fit_percent']:.1f}) | "
-            f"{mpc['validation_fit_percent']:.1f}" if mpc else f"| {res['name']} | {m['family']} "
+            f"| {res['name']} | {sup} | {m['family']} ({m['validation_fit_percent']:.1f}) | "
+            f"{mpc['validation_fit_percent']:.1f}" if mpc else f"| {res['name']} | {sup} | {m['family']} "
             f"({m['validation_fit_percent']:.1f}) | n/a")
         lines[-1] += (f" | {rep['setpoints']} | {fw['mse']:.4g} | "
                       f"{(r['bound'] or float('nan')):.4g} | {vb} | {zs} | {r['bar']} | {bb} | "
@@ -140,6 +150,8 @@ def markdown(results: list[dict]) -> str:
                      if r["bar_vs_bound"] is not None else ""),
                   f"start-up overshoot ≤ 1 °C: {'yes' if r['ok_overshoot'] else 'no'}",
                   f"≤ 90 s wall: {'yes' if r['ok_time'] else 'no'} (loaded machine)"]
+        if not rep.get("supported", True):
+            checks.insert(0, f"**calibrate says it is not a tuning to use**: {rep['why_not']}")
         notes += [f"- **{res['name']}**: " + "; ".join(checks) + f". Load step: "
                   f"{rep['load']['what']}. Diagnosis: {rep['finding']}"]
         if mpc:

@@ -3,8 +3,8 @@
 A matrix of `jthermo` calls (each in its own process, with a timeout): `generate` -> `fit`
 (state space with the default order, then every family at its default orders) -> `validate` ->
 `tune` (pi, lqg on the fitted model as the plant) -> `simulate` -> `export` (C, JSON) ->
-`diagnose` -> `sweep` at N = 1, 2, 3, 7, 12, 19 zones; `fit` / `validate` / `tune` / `diagnose`
-on the real recordings of `../shared/data/real/`; bad inputs, each of which must exit 2
+`diagnose` -> `sweep` at N = 1, 2, 3, 7, 9, 12, 16, 19 zones; `fit` / `validate` / `tune` /
+`diagnose` on the real recordings of `../shared/data/real/`; bad inputs, each of which must exit 2
 with one `jthermo: error:` line on stderr and no traceback; and a user's first calls with an
 empty compilation cache (`cold`).
 
@@ -39,11 +39,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
-EXE = ROOT / ".venv" / "bin" / "jthermo"
+#: the `jthermo` of the running interpreter's environment (a worktree without its own venv)
+EXE = next((p for p in (Path(sys.executable).with_name("jthermo"),
+                        ROOT / ".venv" / "bin" / "jthermo") if p.exists()),
+           ROOT / ".venv" / "bin" / "jthermo")
 
-ZONES = (1, 2, 3, 7, 12, 19)
+ZONES = (1, 2, 3, 7, 9, 12, 16, 19)
 #: record length (s) per zone count: the default 1 s sample time; shorter at many zones
-RECORD_S = {1: 1800, 2: 1800, 3: 1800, 7: 1200, 12: 900, 19: 600}
+RECORD_S = {1: 1800, 2: 1800, 3: 1800, 7: 1200, 9: 1200, 12: 900, 16: 600, 19: 600}
 FAMILIES = ("arx", "armax", "oe", "bj", "greybox")
 COMMANDS = ("generate", "fit", "families", "validate", "tune", "simulate", "export", "diagnose",
             "sweep")
@@ -138,12 +141,14 @@ class Audit:
         self.work = Path(work)
         self.rows = []
         self.env = None   # the environment of the calls (None: this process's)
+        self.slack = 1.0  # every call's timeout multiplied by this (a loaded machine)
+        self.on_row = None  # called after every call (the results written so far)
 
     def call(self, group, name, argv, *, timeout=600, expect="ok", js=None, checks=()):
         """One CLI call; `checks` are functions of the report -> list of problems."""
         if js is not None:
             argv = [*argv, "--json", js]
-        rc, wall, cpu, out, err = run(argv, timeout, self.work, self.env)
+        rc, wall, cpu, out, err = run(argv, timeout * self.slack, self.work, self.env)
         problems = []
         if "Traceback" in out + err:
             problems.append("traceback")
@@ -184,6 +189,8 @@ class Audit:
         flag = "ok  " if not problems else "FAIL"
         print(f"{flag} {group:10s} {name:42s} rc={rc} {wall:6.1f}s {cpu:6.1f}cpu "
               f"{'; '.join(problems)[:160]}", flush=True)
+        if self.on_row is not None:
+            self.on_row()
         return report
 
 
@@ -520,7 +527,7 @@ def bad_cases(a: Audit):
 # ---------------------------------------------------------------- report
 
 
-def markdown(rows, argv, total_cpu, total_wall, load, commit=""):
+def markdown(rows, argv, total_cpu, total_wall, load, commit="", kept=0):
     n_fail = sum(not r["ok"] for r in rows)
     groups = {}
     for r in rows:
@@ -532,7 +539,9 @@ def markdown(rows, argv, total_cpu, total_wall, load, commit=""):
     lines = ["# Default-path audit", "",
              f"`python experiments/default_path_audit.py {' '.join(argv)}`{commit} — {len(rows)} "
              f"CLI calls as subprocesses, {n_fail} failing a check; {total_wall:.0f} s wall, "
-             f"{total_cpu:.0f} CPU s (children, user+sys), load average {load}. Record lengths "
+             f"{total_cpu:.0f} CPU s (children, user+sys), load average {load}"
+             + (f" (the calls run now; {kept} rows of the groups not run now kept from the "
+                "results before, `--keep-others`)" if kept else "") + ". Record lengths "
              f"(1 s samples): {RECORD_S}. Every group but `cold` runs with this machine's "
              "persistent compilation cache (warm where an earlier run compiled the same "
              "program); `cold` uses an empty one (`JTHERMO_CACHE_DIR`), a user's first calls.", "",
@@ -575,7 +584,8 @@ def render(path):
     path.write_text(json.dumps(res, indent=1) + "\n")
     path.with_suffix(".md").write_text(markdown(res["rows"], res["argv"], res["cpu_s"],
                                                 res["wall_s"], res["load"],
-                                                res.get("commit", "")))
+                                                res.get("commit", ""),
+                                                res.get("kept_rows", 0)))
 
 
 def main(argv=None):
@@ -587,6 +597,10 @@ def main(argv=None):
     ap.add_argument("--families-all", action="store_true")
     ap.add_argument("--work", default=None, help="work directory (default: a temporary one)")
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
+    ap.add_argument("--keep-others", action="store_true",
+                    help="keep the rows of the groups not run now from the results JSON")
+    ap.add_argument("--slack", type=float, default=1.0,
+                    help="multiply every call's timeout (a shared, loaded machine)")
     args = ap.parse_args(argv)
     if args.render:
         return render(args.render)
@@ -596,9 +610,49 @@ def main(argv=None):
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="jthermo_audit_"))
     work.mkdir(parents=True, exist_ok=True)
     a = Audit(work)
+    a.slack = args.slack
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     load0 = os.getloadavg()[0]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = "default_path_audit"
+
+    def write(partial: bool) -> tuple[float, float]:
+        """The results so far (after every call, so that an audit cut short keeps them)."""
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+        wall = time.perf_counter() - t0
+        load = f"{load0:.1f} -> {os.getloadavg()[0]:.1f}"
+        note = commit_note() + (" (still running: the calls made so far)" if partial else "")
+        (out / f"{stem}.json").write_text(relative(json.dumps(
+            {"argv": args.argv, "rows": rows(), "kept_rows": len(rows()) - len(a.rows),
+             "cpu_s": cpu, "wall_s": wall, "load": load,
+             "commit": note}, indent=1)) + "\n")
+        render(out / f"{stem}.json")
+        return cpu, wall
+
+    kept = []
+    if args.keep_others:
+        try:
+            kept = json.loads((out / f"{stem}.json").read_text())["rows"]
+        except (OSError, ValueError, KeyError):
+            kept = []
+
+    def rows():
+        now = {r["group"] for r in a.rows}
+        return [r for r in kept if r["group"] not in now and r["group"] not in running] + a.rows
+
+    running = set()
+    if "zones" in parts:
+        running |= {f"N={N}" for N in map(int, args.zones.split(","))}
+    if "bad" in parts:
+        running.add("bad")
+    if "cold" in parts:
+        running.add("cold N=2")
+    if "real" in parts:
+        running.add("real")
+    a.on_row = lambda: write(True)
     if "bad" in parts:
         bad_cases(a)
     if "zones" in parts:
@@ -608,18 +662,7 @@ def main(argv=None):
         real_cases(a, commands)
     if "cold" in parts:
         cold_cases(a)
-    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
-    wall = time.perf_counter() - t0
-    load = f"{load0:.1f} -> {os.getloadavg()[0]:.1f}"
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = "default_path_audit"
-    (out / f"{stem}.json").write_text(relative(json.dumps({"argv": args.argv, "rows": a.rows,
-                                                   "cpu_s": cpu, "wall_s": wall, "load": load,
-                                                   "commit": commit_note()},
-                                                  indent=1)) + "\n")
-    render(out / f"{stem}.json")
+    cpu, wall = write(False)
     print(f"{sum(not r['ok'] for r in a.rows)} of {len(a.rows)} calls failing; {cpu:.0f} CPU s, "
           f"{wall:.0f} s wall; work dir {work}")
 

@@ -132,7 +132,7 @@ def main(argv=None):
              "fitted); validation z (Diebold-Mariano against the baseline) and MSE reduction. Drift over "
              "body: the Diebold-Mariano z that the drift's residual beats the body's, on the validation "
              "record charged the parameters each re-estimates there (`k_val`), on the estimation record "
-             "the parameters each adds (`k_est`, `decide.prefer_input_driven`).", "",
+             "the parameters each adds (`k_est`, `bodydrift.prefer_input_driven`).", "",
              "| case | set | kind | N | top | rivals | truth LR | body LR | drift LR | truth val z | body val z "
              "| drift val z | truth red. | body red. | drift red. | drift over body z, validation (k_val body, drift) "
              "| drift over body z, estimation (k_est) | body τ s (true) | body share (true) | cpu s |",

@@ -11,7 +11,7 @@ measures, on the estimation run:
   correlation of the two zones' drifts, and the size of their difference against the drift;
 - how much of each zone's drift follows the zone's *own* heater (input-driven temperature
   $s_i = F_{\\tau_i}[u_i]$ through the baseline's zone time constant) against the other one's;
-- `decide.input_dependence` of the drift (the statistic the diagnosis uses for body vs drift);
+- `bodydrift.input_dependence` of the drift (the statistic the diagnosis uses for body vs drift);
 - the diagnosis restricted to the published model's mechanisms (lag, exchange, radiation).
 
     .venv/bin/python experiments/diagnose_cace2_drift.py [--out experiments/results]
@@ -35,7 +35,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 from jthermo.data import atomic_write_text, load
-from jthermo.diagnose import decide as D
+from jthermo.diagnose import bodydrift as BD
 from jthermo.diagnose import diagnose, to_json
 from jthermo.diagnose import mechanisms as M
 
@@ -60,7 +60,7 @@ def drift_evidence(res: dict, est) -> dict:
         t = np.arange(T) / T - 0.5
         r2 = []
         for j in range(u.shape[1]):
-            s = D.lag_filter(u[:, j], ts, float(tau[i]))
+            s = BD.lag_filter(u[:, j], ts, float(tau[i]))
             X = np.stack([np.ones(T), t, s - s.mean()], axis=1)
             c, *_ = np.linalg.lstsq(X, d[:, i], rcond=None)
             X0 = X[:, :2]
@@ -131,7 +131,7 @@ def main(argv=None):
               "- share of the drift's variance beyond a line explained by a heater's input-driven temperature "
               "(partial R², heater 1 / heater 2): "
               + "; ".join(f"zone {i + 1}: {r[0]:.3f} / {r[1]:.3f}" for i, r in enumerate(own)),
-              f"- `decide.input_dependence` z of the drift: {dr['input_dependence_z']:.2f} (one-sided 5 %: 1.64)",
+              f"- `bodydrift.input_dependence` z of the drift: {dr['input_dependence_z']:.2f} (one-sided 5 %: 1.64)",
               "", f"Wall {rec['wall_s']:.0f} s, CPU {rec['cpu_s']:.0f} s, load {rec['load']} (shared 2-core machine).", ""]
     atomic_write_text(out / "diagnose_cace2_drift.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -1,6 +1,6 @@
 """The import graph of `jthermo/` follows the design: no import circle, layers import only
-downward, and no module reaches for another module's private names; the study scripts
-(`benchmarks/`, `experiments/`) import no circle either.
+downward, and no module reaches for another module's private names; no package file is over
+`MAX_LINES` lines, and the study scripts (`benchmarks/`, `experiments/`) import no circle either.
 
 Every `jthermo/**/*.py` is parsed with `ast`; every import counts (module level, inside
 functions, under `if TYPE_CHECKING:`), relative imports are resolved, and a package's
@@ -300,7 +300,17 @@ def test_no_private_name_crosses_modules(graph):
     assert not bad, f"{len(bad)} private name(s) used outside their module:\n  " + "\n  ".join(bad)
 
 
+#: the most lines a file of the package may have (a longer one is split along a seam)
+MAX_LINES = 500
 STUDY_DIRS = ("benchmarks", "experiments")
+
+
+def test_no_package_file_over_max_lines(graph):
+    modules, _ = graph
+    lines = {path: len(path.read_text(encoding="utf-8").splitlines())
+             for path, _ in modules.values()}
+    long = sorted(f"{p.relative_to(ROOT)}: {n} lines" for p, n in lines.items() if n > MAX_LINES)
+    assert not long, f"{len(long)} package file(s) over {MAX_LINES} lines:\n  " + "\n  ".join(long)
 
 
 def _study_edges(scripts: dict[str, Path]) -> dict[str, set[str]]:

@@ -1,9 +1,7 @@
 """The process guards its compiled programs (`jthermo.programs`, re-exported by `runtime`):
 one bounded factory cache, a memory-map guard."""
 
-import concurrent.futures as cf
 import multiprocessing
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -113,10 +111,28 @@ def test_fit_entry_runs_the_guard(monkeypatch):
     assert calls
 
 
-def test_sweep_pool_recycles_workers():
-    opts = runner.pool_options(multiprocessing.get_context("spawn"))
-    if sys.version_info >= (3, 11):
-        assert opts["max_tasks_per_child"] == runner.TRIALS_PER_WORKER
-        cf.ProcessPoolExecutor(max_workers=1, **opts).shutdown()   # accepted by the executor
-    else:
-        assert "max_tasks_per_child" not in opts
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+def test_sweep_pool_recycles_workers(tmp_path, monkeypatch):
+    """A fresh pool every `workers * TRIALS_PER_WORKER` trials: every trial completes (a pool
+    whose workers all reached `max_tasks_per_child` together hung on Python 3.11), each pool
+    on fresh processes."""
+    from jthermo import sweep
+
+    monkeypatch.setattr(runner, "TRIALS_PER_WORKER", 1)
+    cfg = sweep.parse_config("""
+[sweep]
+name = "recycle"
+kind = "arx"
+[data]
+zones = 1
+samples = 300
+[space]
+na = [1, 2]
+nb = [1, 2]
+nk = [1]
+""")
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl", workers=2)
+    assert rep["n_run"] == 4
+    pids = [r["worker"]["pid"] for r in sweep.read_results(tmp_path / "r.jsonl")]
+    assert len(set(pids)) == 4
+    assert "max_tasks_per_child" not in runner.pool_options(multiprocessing.get_context("spawn"))

@@ -33,7 +33,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("--setpoint", type=float, metavar="C", help="set point, °C (default: the "
                     "record's most common target, else its operating point)")
     sp.add_argument("--steps", type=int, default=None, metavar="K",
-                    help="refinement iterations after the grid of starts (default 20)")
+                    help="compass-search iterations at most after the grid of starts (default 20; it stops once converged)")
     sp.add_argument("--rollouts", type=int, default=None, metavar="B",
                     help="rollouts per scenario (default 4)")
     sp.add_argument("--heater-power", type=float, default=None, metavar="W",
@@ -93,5 +93,7 @@ def cmd_calibrate(args: argparse.Namespace) -> dict:
                                  setpoint=args.setpoint, seed=args.seed, progress=say,
                                  command=command, **kw)
     report = write_report(args, js, report)
+    if not report.get("supported", True):      # said even with --quiet
+        print(f"calibrate: not a tuning to use: {report['why_not']}", file=sys.stderr)
     info(args, f"wrote {', '.join(report['files'])}")
     return report

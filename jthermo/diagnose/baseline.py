@@ -26,7 +26,7 @@ from .mechanisms import PAD, Layout
 U_OFF = 1e-12
 
 
-def _held(u, u_pad, delay):
+def held(u, u_pad, delay):
     """Inputs `(T, nu)` after a dead time of `delay` samples ($\\ge 0$, any fraction), the samples
     before the record at `u_pad`: $(1 - f) u_{k-i} + f u_{k-i-1}$, $d = i + f$."""
     d = float(np.clip(delay, 0.0, PAD - 2.0))
@@ -58,7 +58,7 @@ def simulate(theta, u, u_pad, ts: float, level: float, ts_free: float, lay: Layo
     """Simulated temperatures `(T, n)` °C of the baseline zones `theta (n, P)` on inputs `u`
     (`u_pad` before the record), each zone from its own `x0`, with a dead time of `delay`
     samples."""
-    uh = _held(np.asarray(u, float), np.asarray(u_pad, float), delay)
+    uh = held(np.asarray(u, float), np.asarray(u_pad, float), delay)
     uh = np.where(uh > U_OFF, uh, 0.0)
     th = np.asarray(theta, float)
     T = uh.shape[0]
@@ -73,4 +73,4 @@ def simulate(theta, u, u_pad, ts: float, level: float, ts_free: float, lay: Layo
     return out
 
 
-__all__ = ["fit", "simulate"]
+__all__ = ["fit", "held", "simulate"]

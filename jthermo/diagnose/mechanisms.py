@@ -115,7 +115,7 @@ def n_added_per_zone(mech: str, lay) -> int:
 def n_added(mech: str, lay, shared_drift: bool) -> int:
     """Parameters `mech` adds to the `lay.n`-zone model, the degrees of freedom of its tests:
     its `MECH_PARAMS` in every zone, but a surroundings drift shared by every zone (unmeasured
-    surroundings are one temperature: `joint.common_drift_fit`, the joint fits' record drift)
+    surroundings are one temperature: `commondrift.common_drift_fit`, the joint fits' record drift)
     only its `lay.n_drift` knots."""
     if mech == "ambient_variation" and shared_drift:
         return lay.n_drift
@@ -430,55 +430,6 @@ def initial_theta(lay: Layout, *, log_a, log_b, x0, ts0=0.0, xw0=0.0) -> np.ndar
     th[lay.sl("dfrac")] = 0.0                              # the delay scan's best
     th[lay.sl("drift")] = 0.0
     return th
-
-
-#: effective time constants $\tau_w / (1 + \gamma)$ (s) of a stored-heat body's extra starts
-#: (`body_starts`): a body slower than the neutral start's 500 s (chamber walls, 20-60 min) is
-#: otherwise lost to the local optimum at the shortest time constant the model allows (set on
-#: development set 6's slow bodies)
-BODY_START_TAUS = (1500.0, 4000.0)
-
-
-def body_starts(theta: np.ndarray, lay: Layout, taus=BODY_START_TAUS) -> list:
-    """Copies of the starts `theta (..., P)` with the wall's effective time constant
-    $\\tau_w / (1 + \\gamma)$ at each of `taus` (s), $\\gamma$ left at its start."""
-    th = np.asarray(theta, float)
-    _, gam = wall_parameters(th[..., lay.sl("log_tauw")], th[..., lay.sl("log_gamma")])
-    out = []
-    for tau in taus:
-        t = th.copy()
-        t[..., lay.sl("log_tauw")] = np.log(np.maximum(tau * (1.0 + gam) - TAUW_MIN, 1.0))
-        out.append(t)
-    return out
-
-
-#: shares ρ of the tangent loss at which radiation's extra fits start (`rad_starts`): from the neutral
-#: 0.5 a steep loss (ρ > 1, convection) is reached slowly, and a fit stopped at the iteration cap
-#: misjudges the mechanism (a steep loss is read as too shallow at the cap)
-RAD_SHARE_STARTS = (1.5, 3.0)
-
-
-def rad_starts(theta: np.ndarray, lay: Layout, shares=None) -> list:
-    """Copies of the starts `theta (..., P)` with the radiative share at each of `shares`
-    (default `RAD_SHARE_STARTS`; every share in (0, `RAD_SHARE_MAX`))."""
-    shares = RAD_SHARE_STARTS if shares is None else shares
-    return [np.where(lay.mask(("rad_share",)) > 0, share_parameter(s), np.asarray(theta, float))
-            for s in shares]
-
-
-def best_of_starts(theta: np.ndarray, resid: np.ndarray, k: int, extra) -> tuple:
-    """Candidate fits `theta (S, n, P)` and estimation residuals `resid (S, T, n)` with each
-    zone's fit of candidate `k` replaced by the one of the fits `extra` (indices of other
-    starts of the same candidate) with the smallest sum of squared residuals; the extra fits
-    are dropped (the zones' problems are independent, so each keeps its own best start)."""
-    idx = [k] + list(extra)
-    sse = np.stack([np.sum(np.asarray(resid[j]) ** 2, axis=0) for j in idx])    # (starts, n)
-    best = np.argmin(np.where(np.isfinite(sse), sse, np.inf), axis=0)
-    th, rs = np.array(theta), np.array(resid)
-    for i, b in enumerate(best):
-        th[k, i], rs[k, :, i] = theta[idx[b], i], resid[idx[b], :, i]
-    keep = [j for j in range(th.shape[0]) if j not in set(extra)]
-    return th[keep], rs[keep]
 
 
 def physical_parameters(Theta, mech: str, lay: Layout, ts: float, extra: dict) -> dict:

@@ -20,8 +20,10 @@ import math
 
 import numpy as np
 
+from . import bodydrift as BD
 from . import decide as D
 from . import mechanisms as M
+from . import starts as ST
 
 #: effective body time constants tried (s), as multiples of the record length
 TAU_GRID_RECORDS = np.geomspace(0.1, 4.0, 16)
@@ -56,7 +58,7 @@ def body_from_drift(theta_drift, ybar, Phi, level, ts_free, ts, lay, taus=None):
         s = np.asarray(ybar, float) - L
         best = None
         for tau in taus:
-            X = np.stack([np.ones(T), D.lag_filter(s, ts, tau), np.exp(-t / tau)], axis=1)
+            X = np.stack([np.ones(T), BD.lag_filter(s, ts, tau), np.exp(-t / tau)], axis=1)
             coef, *_ = np.linalg.lstsq(X, d, rcond=None)
             sse = float(np.sum((d - X @ coef) ** 2))
             if coef[1] > 0 and (best is None or sse < best[0]):
@@ -87,16 +89,16 @@ def refit_body_from_drift(thc, res_c, cands, fit_sets, rec, level, ts_free, ts, 
     follow. `fit_sets(sets, starts, iters=...)` fits candidate sets; `iters` its iterations."""
     if "heat_accumulation" not in cands or "ambient_variation" not in cands:
         return thc, res_c
-    sb = body_from_drift(thc[cands.index("ambient_variation")], rec["ybar"], rec["Phi"], level, ts_free, ts, lay)
+    sb = body_from_drift(thc[cands.index("ambient_variation")], rec.ybar, rec.Phi, level, ts_free, ts, lay)
     if sb is None:
         return thc, res_c
     thd, res_d = fit_sets([("heat_accumulation",)], sb[None], iters=iters)
-    return M.best_of_starts(np.concatenate([thc, thd]), np.concatenate([res_c, res_d]),
+    return ST.best_of_starts(np.concatenate([thc, thd]), np.concatenate([res_c, res_d]),
                             cands.index("heat_accumulation"), [len(cands)])
 
 
 def order_by_parsimony(sig, e_c, cands, k_val, loc) -> list:
-    """The significant candidates `sig` (best first) reordered by `decide.prefer_fewer_slow`: an
+    """The significant candidates `sig` (best first) reordered by `bodydrift.prefer_fewer_slow`: an
     `ambient_variation` drift, which re-fits the slow part on the validation record, goes behind
     a `heat_accumulation` body that it does not out-predict there beyond its extra re-estimated
     parameters (`k_val(set)`); `e_c` the candidates' validation residuals (order of `cands`).
@@ -106,11 +108,11 @@ def order_by_parsimony(sig, e_c, cands, k_val, loc) -> list:
     kb, kd = ("heat_accumulation",), ("ambient_variation",)
     loc["drift_over_body_z"] = D.predictive_z(e_c[cands.index(kb[0])], e_c[cands.index(kd[0])],
                                               k_val(kd) - k_val(kb))
-    return D.prefer_fewer_slow(sig, loc["drift_over_body_z"], k_val(kb), k_val(kd))
+    return BD.prefer_fewer_slow(sig, loc["drift_over_body_z"], k_val(kb), k_val(kd))
 
 
 def order_by_estimation(sig, res_c, cands, dof, loc) -> list:
-    """The significant candidates `sig` (best first) reordered by `decide.prefer_input_driven`: a
+    """The significant candidates `sig` (best first) reordered by `bodydrift.prefer_input_driven`: a
     `heat_accumulation` body goes ahead of an `ambient_variation` drift that does not fit the
     estimation record better beyond the parameters it adds (`dof(mechanism)`, the tests' degrees
     of freedom); `res_c` the candidates' estimation residuals (order of `cands`). Records the
@@ -120,7 +122,7 @@ def order_by_estimation(sig, res_c, cands, dof, loc) -> list:
     kb, kd = "heat_accumulation", "ambient_variation"
     z = D.predictive_z(res_c[cands.index(kb)], res_c[cands.index(kd)], dof(kd) - dof(kb))
     loc["drift_over_body_estimation_z"] = z
-    return D.prefer_input_driven(sig, z)
+    return BD.prefer_input_driven(sig, z)
 
 
 __all__ = ["body_from_drift", "order_by_estimation", "order_by_parsimony", "refit_body_from_drift"]

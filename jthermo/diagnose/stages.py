@@ -7,12 +7,13 @@ record's input before it (`u_pads`) and a drift basis of one block per record.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 
-from . import baseline
+from . import baseline, pool
 from . import mechanisms as M
-from . import pool
 
 
 def fit_percent(y, yhat):
@@ -32,10 +33,22 @@ def ambient_column(data):
     return None
 
 
-def record_arrays(data, amb_col, level, n_knots, lengths=()):
-    """What every fit of a record needs (NumPy): outputs, each zone's neighbours, the mean zone
-    temperature, the surroundings' deviation from `level`, the drift basis, the inputs and the
-    input before the record (its mean); pooled `lengths`: each record's (`u_pads`)."""
+@dataclasses.dataclass(frozen=True)
+class RecordArrays:
+    """What every fit of a record needs (NumPy); pooled records: their concatenation in time."""
+    y: np.ndarray          # (T, n) zone temperatures, °C
+    ynb: np.ndarray        # (n, T, n-1) each zone's neighbours (zeros for one zone)
+    ybar: np.ndarray       # (T,) the mean zone temperature
+    wdev: np.ndarray       # (T,) the surroundings' deviation from the level (zeros: not measured)
+    Phi: np.ndarray        # (T, K) the drift basis (pooled: one block per record)
+    u: np.ndarray          # (T, nu) the inputs
+    u_pad: np.ndarray      # (nu,) the input before the record: its mean
+    u_pads: np.ndarray | None = None   # (R, nu) pooled records: each record's
+
+
+def record_arrays(data, amb_col, level, n_knots, lengths=()) -> RecordArrays:
+    """A record's `RecordArrays`: the surroundings' deviation from `level` where column `amb_col`
+    measures them; pooled `lengths`: each record's input before it (`u_pads`)."""
     y = np.asarray(data.y, float)
     u = np.asarray(data.u, float)
     T, n = y.shape
@@ -44,24 +57,23 @@ def record_arrays(data, amb_col, level, n_knots, lengths=()):
     else:
         wdev = np.zeros(T)
     ynb = np.stack([np.delete(y, i, axis=1) if n > 1 else np.zeros((T, 1)) for i in range(n)])
-    out = {"y": y, "ynb": ynb, "ybar": y.mean(axis=1), "wdev": wdev,
-           "Phi": (pool.drift_basis(lengths, data.ts)[0] if lengths else M.drift_basis(T, data.ts, n_knots)),
-           "u": u, "u_pad": u.mean(axis=0)}
-    if lengths:
-        out["u_pads"] = np.stack([x.mean(axis=0) for x in pool.split_rows(u, lengths)])
-    return out
+    Phi = pool.drift_basis(lengths, data.ts)[0] if lengths else M.drift_basis(T, data.ts, n_knots)
+    u_pads = np.stack([x.mean(axis=0) for x in pool.split_rows(u, lengths)]) if lengths else None
+    return RecordArrays(y=y, ynb=ynb, ybar=y.mean(axis=1), wdev=wdev, Phi=Phi, u=u, u_pad=u.mean(axis=0),
+                        u_pads=u_pads)
 
 
 def problems(rec, K, events=None, delays=None):
-    """Per-problem dict for K candidates × n zones (zone index fastest)."""
-    y = rec["y"]
+    """The fits' per-problem inputs (the simulator's dict) for K candidates × n zones of the
+    record `rec` (zone index fastest)."""
+    y = rec.y
     T, n = y.shape
     ev = np.zeros((K, T, n)) if events is None else events
     dl = np.zeros(K) if delays is None else np.asarray(delays, float)
     return {
         "y": jnp.asarray(np.tile(y.T, (K, 1))),
-        "ynb": jnp.asarray(np.tile(rec["ynb"], (K, 1, 1))),
-        "ybar": jnp.asarray(np.tile(rec["ybar"], (K * n, 1))),
+        "ynb": jnp.asarray(np.tile(rec.ynb, (K, 1, 1))),
+        "ybar": jnp.asarray(np.tile(rec.ybar, (K * n, 1))),
         "events": jnp.asarray(np.concatenate([ev[k].T for k in range(K)], axis=0)),
         "delay": jnp.asarray(np.repeat(dl, n)),
     }
@@ -69,12 +81,12 @@ def problems(rec, K, events=None, delays=None):
 
 def shared(rec, level, ts_free, ts, t_ref):
     """The entries of a simulation's dict common to every problem of a record."""
-    out = {"u": jnp.asarray(rec["u"]), "ts_level": jnp.asarray(level), "ts_free": jnp.asarray(ts_free),
-           "wdev": jnp.asarray(rec["wdev"]), "Phi": jnp.asarray(rec["Phi"]),
-           "u_pad": jnp.asarray(rec["u_pad"]), "ts": jnp.asarray(float(ts)),
+    out = {"u": jnp.asarray(rec.u), "ts_level": jnp.asarray(level), "ts_free": jnp.asarray(ts_free),
+           "wdev": jnp.asarray(rec.wdev), "Phi": jnp.asarray(rec.Phi),
+           "u_pad": jnp.asarray(rec.u_pad), "ts": jnp.asarray(float(ts)),
            "t_ref": jnp.asarray(float(t_ref))}
-    if "u_pads" in rec:
-        out["u_pads"] = jnp.asarray(rec["u_pads"])
+    if rec.u_pads is not None:
+        out["u_pads"] = jnp.asarray(rec.u_pads)
     return out
 
 
@@ -97,15 +109,24 @@ def fit_baseline(th0, y, u, ts, level, ts_free, lay):
     return baseline.fit(th0, y, u, ts, level, ts_free, lay)
 
 
+def delayed_inputs(rec: RecordArrays, lay, delay: float) -> np.ndarray:
+    """The record(s)' inputs `(T, nu)` after a dead time of `delay` samples (`baseline.held`),
+    each pooled record with its own input before it."""
+    if rec.u_pads is None:
+        return baseline.held(rec.u, rec.u_pad, delay)
+    return np.concatenate([baseline.held(u, up, delay) for u, up in zip(pool.split_rows(rec.u, lay.records),
+                                                                       rec.u_pads)])
+
+
 def simulate_baseline(thb, rec, ts, level, ts_free, lay, delay: float = 0.0):
     """The baseline's simulation `(T, n)` of the record(s) `rec` (`record_arrays`), each pooled
     record from its own initial states with its own input before it."""
-    if "u_pads" not in rec:
-        return baseline.simulate(thb, rec["u"], rec["u_pad"], ts, level, ts_free, lay, delay)
+    if rec.u_pads is None:
+        return baseline.simulate(thb, rec.u, rec.u_pad, ts, level, ts_free, lay, delay)
     return np.concatenate([baseline.simulate(th, u, up, ts, level, ts_free, lay, delay)
                            for th, u, up in zip(pool.record_thetas(thb, lay),
-                                                pool.split_rows(rec["u"], lay.records), rec["u_pads"])])
+                                                pool.split_rows(rec.u, lay.records), rec.u_pads)])
 
 
-__all__ = ["ambient_column", "fit_baseline", "fit_percent", "problems", "record_arrays", "record_starts",
+__all__ = ["RecordArrays", "ambient_column", "delayed_inputs", "fit_baseline", "fit_percent", "problems", "record_arrays", "record_starts",
            "shared", "simulate_baseline"]

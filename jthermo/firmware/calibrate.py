@@ -54,13 +54,20 @@ FAMILIES = ("arx", "oe")
 HOLD_BACK = 0.3
 #: model-based controllers designed on the design model and judged beside the PID
 MODEL_BASED = ("imc", "lqg")
-#: tuning defaults of the command (cheap; `--steps`, `--rollouts` for more): the refinement's
-#: iterations after the grid of starts, and the rollouts per scenario
+#: tuning defaults of the command (`--steps`, `--rollouts`): the compass search's iterations
+#: at most after the grid of starts (it stops earlier once converged), the rollouts per scenario
 STEPS, ROLLOUTS = 20, 4
 #: the diagnosis' candidates: what a heater with a lagging sensor at 200 °C leaves out
 DIAGNOSE_MECHANISMS = ("heater_lag", "radiative_loss", "input_delay")
 #: the fan signal's name in a record (`w_<name>`), matched by this part
 FAN = "fan"
+#: the design and the judging models must agree on the relay test's ultimate gain and period
+#: within these factors: a loop tuned on one is otherwise a guess on the other (the records
+#: do not pin the dynamics near the crossover, e.g. a short closed-loop heat-up)
+KU_AGREEMENT, TU_AGREEMENT = 2.0, 1.5
+#: the start-up overshoot (°C) and the share of the time at an input limit that a tuned loop
+#: may show on the judging plant to be reported as a tuning to use
+ACCEPT_OVERSHOOT_C, ACCEPT_SATURATED = 1.0, 0.25
 
 
 def _heater_names(d: data_mod.IOData) -> list[str]:
@@ -123,6 +130,12 @@ def _fit_best(est, val, seed, say):
     if best is None:
         raise ControlError("calibrate: no model family could be fitted to the record")
     return best
+
+
+def _fit_one(d, fam, seed):
+    from ..identify import fit
+
+    return fit(d, fam, seed=seed)
 
 
 def _fan(d: data_mod.IOData):
@@ -205,7 +218,9 @@ def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
         groups.setdefault(jax.tree_util.tree_structure(c), []).append(n)
     table, first = {}, {}
     for names in groups.values():
-        trajs = tuning.runs([ctrls[n] for n in names], plant, scs)
+        pid = isinstance(ctrls[names[0]], KlipperPID)     # the tuning's compiled batch
+        trajs = tuning.runs([ctrls[n] for n in names], plant, scs,
+                            tuning.BATCH if pid else len(names))
         for i, (n, row) in enumerate(zip(names, tuning.rows(trajs, scs, len(names)))):
             table[n] = row
             first[n] = {k: tuple(np.asarray(a[i, 0]) for a in (t.y, t.u, t.r))
@@ -243,8 +258,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     env = res.envelope if getattr(res, "envelope", None) is not None else Envelope.from_model(model)
     r = setpoint if setpoint is not None else _default_setpoint(r_log)
     r = check_reachable(model, env, env.default_setpoint(model) if r is None else r)
-    try:
-        val_model = _fit_best(val, val, seed, lambda s: None)[1].model
+    try:                     # the design's family, fitted to the validation record
+        val_model = _fit_one(val, fam, seed).model
         check_reachable(val_model, env, r)
         plant_name = "a model fitted to the validation record"
     except JThermoError:
@@ -281,9 +296,13 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     kw = {"ts": float(est.ts), "max_power": max_power, "smooth_time": smooth, "u_hold": u_hold}
     dp = design_point(model, setpoint=r)
     cal, ku, tu = _ultimate(dp, model, r, est.n_outputs, max_power, say)
+    agree = _agreement(ku, tu, val_model, model, r, max_power)
+    if agree:
+        say(agree)
     duration = model_duration(model)
-    say(f"tuning the firmware PID (a grid of {len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)} "
-        f"starts, {steps} refinement steps, {rollouts} rollouts)")
+    n_grid = len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS) * len(tuning.RHOS)
+    say(f"tuning the firmware PID (a grid of {n_grid} starts, at most {steps} search "
+        f"iterations, {rollouts} rollouts)")
     tuned = tuning.tune_firmware_pid(model, env, r, ku, tu, duration=duration, seed=seed,
                                      rollouts=rollouts, steps=steps, kw=kw, load=load, say=say)
     final = tuned["controller"]
@@ -308,12 +327,17 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
                                                              seed + 1, rollouts, load))
     lim = limits(val_model, env, r, duration, seed)
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
+    why_not = _why_not(agree, table["firmware_pid"])
+    if why_not:
+        say(f"not a tuning to use: {why_not}")
     controllers = [{"name": n, "kind": kinds[n], **{k: table[n][k] for k in keys}} for n in ctrls]
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     note = (f"jthermo calibrate: {fam} model, set point {np.round(r, 1).tolist()} C, "
             f"sample time {est.ts:g} s")
+    if why_not:
+        note = f"NOT A TUNING TO USE: {why_not}\n{note}"
     consts = {heaters[0]: two["constants"]} if two else None
     fw_text = {"klipper": lambda: settings.klipper_cfg(final, heaters, note),
                "kalico": lambda: settings.kalico_cfg(final, heaters, consts, note),
@@ -342,6 +366,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
               "setpoints": np.asarray(r).tolist(), "heaters": heaters, "ts": float(est.ts),
               "finding": diag["finding"], "diagnosis": diag,
               "verdict": _verdict(table, lim), "judged_on": plant_name,
+              "supported": why_not is None, "why_not": why_not,
               "controllers": controllers,
               "floor_plus_noise": lim["tracking_bound_mse"], "limits": lim,
               "load": {"what": load_what, "duty": None if load is None else float(load[0]),
@@ -351,12 +376,51 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
               "firmware": {firmware: str(fw_path)}, "controller_file": str(ctrl_path),
               "figures": figs or {},
               "tuning": {"steps": int(steps), "rollouts": int(rollouts), "seed": int(seed),
-                         "start": tuned["start"], "refined": tuned["refined"],
-                         "design_model": tuned["row"]}}
+                         "start": tuned["start"], "factors": tuned["factors"],
+                         "iterations": tuned["iterations"], "converged": tuned["converged"],
+                         "refined": tuned["refined"], "design_model": tuned["row"]}}
     md = out / "report.md"
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
     return report
+
+
+def _agreement(ku, tu, val_model, model, r, max_power) -> str | None:
+    """None when the judging model's relay test (`PID_CALIBRATE` on it) gives $K_u$ and $T_u$
+    within `KU_AGREEMENT`, `TU_AGREEMENT` of the design model's, per heater; else the sentence
+    saying how far apart they are."""
+    if val_model is model:
+        return None
+    _, ku_v, tu_v = _ultimate(design_point(val_model, setpoint=r), val_model, r,
+                              len(np.atleast_1d(ku)), max_power, lambda s: None)
+    rk = np.maximum(ku / ku_v, ku_v / ku)
+    rt = np.maximum(tu / tu_v, tu_v / tu)
+    if np.all(rk <= KU_AGREEMENT) and np.all(rt <= TU_AGREEMENT):
+        return None
+    i = int(np.argmax(np.maximum(rk / KU_AGREEMENT, rt / TU_AGREEMENT)))
+    return (f"the estimation and validation records disagree on the loop's dynamics: the relay "
+            f"test on their models gives K_u {ku[i]:.3g} and {ku_v[i]:.3g} duty/°C, T_u "
+            f"{tu[i]:.3g} and {tu_v[i]:.3g} s (heater {i}; at most a factor "
+            f"{KU_AGREEMENT:g} and {TU_AGREEMENT:g} apart for a tuning the data support)")
+
+
+def _why_not(agree: str | None, fw: dict) -> str | None:
+    """Why the tuned PID is not a tuning to use (None when it is): the records disagree
+    (`_agreement`), or on the judging plant it overshoots its start-up by more than
+    `ACCEPT_OVERSHOOT_C` or sits at an input limit more than `ACCEPT_SATURATED` of the
+    set-point changes or the load step."""
+    parts = [agree] if agree else []
+    if not all(math.isfinite(fw[k]) for k in ("mse", "overshoot_C", "saturated_fraction")):
+        parts.append("the tuned loop gives non-finite figures on the judging plant")
+    else:
+        if fw["overshoot_C"] > ACCEPT_OVERSHOOT_C:
+            parts.append(f"on the judging plant the tuned loop overshoots its start-up by "
+                         f"{fw['overshoot_C']:.2f} °C (at most {ACCEPT_OVERSHOOT_C:g})")
+        sat = max(fw["saturated_fraction"], fw.get("load_saturated_fraction", 0.0))
+        if sat > ACCEPT_SATURATED:
+            parts.append(f"on the judging plant the tuned loop sits at an input limit "
+                         f"{100 * sat:.0f} % of the time (at most {100 * ACCEPT_SATURATED:.0f} %)")
+    return "; ".join(parts) or None
 
 
 def _verdict(table: dict, lim: dict) -> str:
@@ -390,4 +454,5 @@ def _verdict(table: dict, lim: dict) -> str:
     return "; ".join(parts)
 
 
-__all__ = ["DIAGNOSE_MECHANISMS", "FAMILIES", "HOLD_BACK", "MODEL_BASED", "calibrate"]
+__all__ = ["ACCEPT_OVERSHOOT_C", "ACCEPT_SATURATED", "DIAGNOSE_MECHANISMS", "FAMILIES",
+           "HOLD_BACK", "KU_AGREEMENT", "MODEL_BASED", "TU_AGREEMENT", "calibrate"]

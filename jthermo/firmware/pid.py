@@ -29,6 +29,7 @@ import math
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -63,16 +64,17 @@ class KlipperPIDState(eqx.Module):
 
 class KlipperPID(AbstractController):
     """One Klipper `ControlPID` per heater with the config's gains `pid_kp`, `pid_ki`, `pid_kd`
-    (array leaves, Klipper's units: tuned and exported as they are), `max_power`,
-    `smooth_time` (s) and `ts` (s, the update period) static; `u_hold` (static, per heater) the
-    duty a settled loop starts from."""
+    and its derivative smoothing `smooth_time` (s; a scalar for every heater or one per heater)
+    as array leaves (Klipper's units: tuned and exported as they are, one compiled program for
+    any values), `max_power` and `ts` (s, the update period) static; `u_hold` (static, per
+    heater) the duty a settled loop starts from."""
 
     pid_kp: Float[Array, " zones"]
     pid_ki: Float[Array, " zones"]
     pid_kd: Float[Array, " zones"]
+    smooth_time: Float[Array, " zones"]
     ts: float = eqx.field(static=True, default=1.0)
     max_power: float = eqx.field(static=True, default=1.0)
-    smooth_time: float = eqx.field(static=True, default=SMOOTH_TIME)
     u_hold: tuple[float, ...] = eqx.field(static=True, default=())
     pwm_hold: bool = eqx.field(static=True, default=True)
 
@@ -82,15 +84,23 @@ class KlipperPID(AbstractController):
         if not (g[0].ndim == 1 and g[0].shape == g[1].shape == g[2].shape):
             raise ControlError("KlipperPID: pid_kp, pid_ki and pid_kd must be 1-D of one length")
         self.pid_kp, self.pid_ki, self.pid_kd = g
-        self.ts, self.max_power, self.smooth_time = float(ts), float(max_power), float(smooth_time)
         n = int(g[0].shape[0])
+        tau = jnp.broadcast_to(jnp.asarray(smooth_time, g[0].dtype), (n,))
+        try:
+            bad = not bool(np.all(np.asarray(tau) > 0))
+        except jax.errors.ConcretizationTypeError:     # built inside a trace: checked outside
+            bad = False
+        if bad:
+            raise ControlError("KlipperPID: smooth_time must be positive")
+        self.smooth_time = tau
+        self.ts, self.max_power = float(ts), float(max_power)
         hold = np.zeros(n) if u_hold is None else np.broadcast_to(np.asarray(u_hold, float), (n,))
         self.u_hold = tuple(float(v) for v in hold)
         self.pwm_hold = bool(pwm_hold)
 
     def __check_init__(self):
-        if not (self.ts > 0 and self.smooth_time > 0 and 0 < self.max_power <= 1):
-            raise ControlError("KlipperPID: needs ts > 0, smooth_time > 0, 0 < max_power <= 1")
+        if not (self.ts > 0 and 0 < self.max_power <= 1):
+            raise ControlError("KlipperPID: needs ts > 0, 0 < max_power <= 1")
 
     @property
     def zones(self) -> int:
@@ -120,10 +130,8 @@ class KlipperPID(AbstractController):
         r = jnp.asarray(r)[:self.zones]
         dt, tau = self.ts, self.smooth_time
         diff = y - state.prev_temp
-        if dt >= tau:
-            deriv = diff / dt
-        else:
-            deriv = (state.deriv * (tau - dt) + diff) / tau
+        deriv = jnp.where(dt >= tau, diff / dt,
+                          (state.deriv * jnp.maximum(tau - dt, 0.0) + diff) / tau)
         err = r - y
         integ = jnp.clip(state.integ + err * dt, 0.0, self.integ_max())
         co = (self.pid_kp * err + self.pid_ki * integ - self.pid_kd * deriv) / PID_PARAM_BASE
@@ -140,17 +148,19 @@ class KlipperPID(AbstractController):
                                       since=since)
 
     def gains(self) -> list[dict]:
-        """Per heater `{pid_Kp, pid_Ki, pid_Kd}` (Klipper's config units)."""
-        return [{"pid_Kp": float(a), "pid_Ki": float(b), "pid_Kd": float(c)} for a, b, c in
-                zip(np.asarray(self.pid_kp), np.asarray(self.pid_ki), np.asarray(self.pid_kd))]
+        """Per heater `{pid_Kp, pid_Ki, pid_Kd, smooth_time}` (Klipper's config units, s)."""
+        return [{"pid_Kp": float(a), "pid_Ki": float(b), "pid_Kd": float(c),
+                 "smooth_time": float(t)} for a, b, c, t in
+                zip(*(np.asarray(x) for x in (self.pid_kp, self.pid_ki, self.pid_kd,
+                                              self.smooth_time)))]
 
     def rounded(self, digits: int = 3) -> KlipperPID:
         """The controller with its gains rounded as they are written to `printer.cfg`
         (`PID_CALIBRATE` writes `%.3f`), so that what is judged is what the printer runs."""
         rnd = [jnp.asarray(np.round(np.asarray(g, np.float64), digits))
-               for g in (self.pid_kp, self.pid_ki, self.pid_kd)]
-        return KlipperPID(*rnd, ts=self.ts, max_power=self.max_power,
-                          smooth_time=self.smooth_time, u_hold=self.u_hold,
+               for g in (self.pid_kp, self.pid_ki, self.pid_kd, self.smooth_time)]
+        return KlipperPID(*rnd[:3], ts=self.ts, max_power=self.max_power,
+                          smooth_time=jnp.maximum(rnd[3], 10.0 ** -digits), u_hold=self.u_hold,
                           pwm_hold=self.pwm_hold)
 
 

@@ -56,7 +56,10 @@ def markdown(rep: dict, fw_text: str, figs: dict | None, command: str) -> str:
               "limits does better on the set-point changes): "
               f"{'none for this plant' if bound is None else f'{bound:.4g} °C²'}. "
               f"Load step: {rep['load']['what']}.")
-    lines = ["# Heater calibration", "", f"Diagnosis: {rep['finding']}", "",
+    lines = ["# Heater calibration", ""]
+    if not rep.get("supported", True):
+        lines += [f"**Not a tuning to use:** {rep['why_not']}.", ""]
+    lines += [f"Diagnosis: {rep['finding']}", "",
              f"Verdict: {rep['verdict']}.", "", model, "", judged, "", *rows, ""]
     if mpc:
         c = mpc["constants"]

@@ -53,7 +53,7 @@ def klipper_cfg(ctrl: KlipperPID, heaters, note: str = "") -> str:
     for h, g in zip(heaters, ctrl.gains()):
         out += [f"[{section_name(h)}]", "control: pid", f"pid_Kp: {_f(g['pid_Kp'])}",
                 f"pid_Ki: {_f(g['pid_Ki'])}", f"pid_Kd: {_f(g['pid_Kd'])}",
-                f"max_power: {ctrl.max_power:g}", f"smooth_time: {ctrl.smooth_time:g}", ""]
+                f"max_power: {ctrl.max_power:g}", f"smooth_time: {g['smooth_time']:g}", ""]
     return "\n".join(out)
 
 
@@ -135,7 +135,8 @@ def c_source(ctrl: KlipperPID, name: str = "jthermo_heater") -> str:
 static const double {name}_kp[{n}] = {{{arr('pid_Kp')}}};
 static const double {name}_ki[{n}] = {{{arr('pid_Ki')}}};
 static const double {name}_kd[{n}] = {{{arr('pid_Kd')}}};
-static const double {name}_max_power = {ctrl.max_power!r}, {name}_smooth = {ctrl.smooth_time!r};
+static const double {name}_smooth[{n}] = {{{arr('smooth_time')}}};
+static const double {name}_max_power = {ctrl.max_power!r};
 typedef struct {{ double prev_temp, deriv, integ, last_pwm, since; }} {name}_state;
 
 double {name}_update({name}_state *s, int i, double dt, double temp, double target) {{
@@ -143,8 +144,8 @@ double {name}_update({name}_state *s, int i, double dt, double temp, double targ
     double kp = {name}_kp[i] / base, ki = {name}_ki[i] / base, kd = {name}_kd[i] / base;
     double imax = ki > 0 ? {name}_max_power / ki : 0.0;
     double diff = temp - s->prev_temp, deriv, err = target - temp, integ, co, v;
-    deriv = dt >= {name}_smooth ? diff / dt
-                               : (s->deriv * ({name}_smooth - dt) + diff) / {name}_smooth;
+    double tau = {name}_smooth[i];
+    deriv = dt >= tau ? diff / dt : (s->deriv * (tau - dt) + diff) / tau;
     integ = fmin(fmax(s->integ + err * dt, 0.0), imax);
     co = kp * err + ki * integ - kd * deriv;
     v = fmin(fmax(co, 0.0), {name}_max_power);

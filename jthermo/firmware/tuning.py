@@ -1,21 +1,28 @@
 """Tuning Klipper's PID law on a fitted model for what a printer's user judges: the set-point
 changes' MSE with a start-up that does not overshoot and a loop that is not bang-bang.
 
-1. **Starts.** The relay / Ziegler–Nichols design (`PID_CALIBRATE`'s $K_u$, $T_u$ per heater)
-   spans a grid of standard-form PIDs $K_p = \\alpha K_u$, $T_i = \\beta T_u$,
-   $T_d = \\gamma T_u$ (`ALPHAS` × `BETAS` × `GAMMAS`, one $(\\alpha, \\beta, \\gamma)$ for
-   every heater), each under Klipper's law (`pid.from_standard`). Ziegler–Nichols is the
-   point $(0.6, 0.5, 0.125)$; the grid reaches from a quarter of its gain to it, with slower
-   integrals and longer derivatives (a heater whose sensor lags its block needs them).
+1. **Parameters.** The relay / Ziegler–Nichols design (`PID_CALIBRATE`'s $K_u$, $T_u$ per
+   heater) scales a standard-form PID under Klipper's law (`pid.from_standard`):
+   $K_p = \\alpha K_u$, $T_i = \\beta T_u$, $T_d = \\gamma T_u$ and the derivative smoothing
+   `smooth_time` $\\tau = \\rho T_d$ (Klipper's `smooth_time`: a first-order filter of the
+   measurement's derivative; $\\tau$ below the sample time is the raw difference), one
+   $(\\alpha, \\beta, \\gamma, \\rho)$ for every heater. Ziegler–Nichols is
+   $(0.6, 0.5, 0.125)$. The derivative smoothing matters as much as the gains: on a record
+   whose noise moves the raw difference, an unsmoothed derivative swings the duty across its
+   limits and the loop is bang-bang long before its gain is high enough to follow a change.
 2. **Score** on the design model's held-out rollouts (`evaluate`): admissible when the
    start-up overshoot is at most `MAX_OVERSHOOT_C`, the loop sits at an input limit at most
    `MAX_SATURATED` of the set-point changes and of the load step, and everything is finite;
    among admissible loops the lowest `score`, the set-point changes' MSE plus `LOAD_WEIGHT`
    times the load step's. An inadmissible loop ranks after every admissible one, by how far
    it is outside.
-3. **Refine.** The best start is tuned by `tune.tune_own_plant` on the set-point changes,
-   the load and the start-up (its overshoot term), and kept only when it scores better on
-   the same held-out rollouts: the refinement never makes the result worse.
+3. **Search.** The grid `ALPHAS` × `BETAS` × `GAMMAS` × `RHOS`, then a compass search from its
+   best point in the logarithms of the four factors: each iteration scores the `2 * 4`
+   neighbours at a factor `STEP` (one batch), moves to the best when it ranks better and
+   halves the step's logarithm otherwise, and stops when the step is below `MIN_STEP` (converged) or
+   after `steps` iterations. Every batch holds `BATCH` controllers, so the grid, every
+   iteration and the judgement of the Klipper PIDs run one compiled program. The search
+   never makes the result worse than its start.
 """
 
 from __future__ import annotations
@@ -30,14 +37,19 @@ import numpy as np
 
 from ..closedloop import metrics, model_scenario
 from ..closedloop import rollouts as run_rollouts
-from ..errors import ControlError
-from ..tune.own import STARTUP, tune_own_plant
+from ..tune.own import STARTUP
 from .pid import PID_PARAM_BASE, KlipperPID, from_standard
 
-#: the grid of starts: $K_p = \\alpha K_u$, $T_i = \\beta T_u$, $T_d = \\gamma T_u$
-ALPHAS = (0.15, 0.25, 0.4, 0.6)
-BETAS = (0.5, 1.0, 2.0)
-GAMMAS = (0.125, 0.25, 0.4)
+#: the grid of starts: $K_p = \\alpha K_u$, $T_i = \\beta T_u$, $T_d = \\gamma T_u$,
+#: `smooth_time` $= \\rho T_d$
+ALPHAS = (0.3, 0.6, 1.0, 1.6)
+BETAS = (0.5, 1.2)
+GAMMAS = (0.05, 0.125)
+RHOS = (0.1, 0.4)
+#: the compass search's first step and the step below which it has converged (factors)
+STEP, MIN_STEP = 1.6, 1.04
+#: controllers per simulated batch (the grid's size is a multiple)
+BATCH = 8
 #: the start-up overshoot a tuned loop may have, °C (the acceptance asks for at most 1 °C)
 MAX_OVERSHOOT_C = 0.8
 #: a loop at an input limit longer than this share of the set-point changes is bang-bang
@@ -64,11 +76,25 @@ def _runs(plant, stacked, sc):
     return eqx.filter_vmap(lambda c: run_rollouts(plant, c, sc))(stacked)
 
 
-def runs(ctrls, plant, scs: dict) -> dict:
-    """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated as one
-    batch: leading axis the controller, then the rollout."""
-    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *ctrls)
-    return {k: _runs(plant, stacked, s) for k, s in scs.items()}
+def padded(ctrls: list, size: int = BATCH) -> list:
+    """`ctrls` repeated at the end to a multiple of `size` (one compiled batch shape)."""
+    n = len(ctrls)
+    return ctrls + [ctrls[-1]] * ((-n) % size)
+
+
+def runs(ctrls, plant, scs: dict, size: int = BATCH) -> dict:
+    """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated in
+    batches of `size` (the last padded; `BATCH`: the tuning's compiled shape): leading axis
+    the controller, then the rollout."""
+    full = padded(list(ctrls), size)
+    out: dict = {}
+    for i in range(0, len(full), size):
+        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *full[i:i + size])
+        for k, s in scs.items():
+            out.setdefault(k, []).append(_runs(plant, stacked, s))
+    n = len(ctrls)
+    return {k: jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:n], *v)
+            for k, v in out.items()}
 
 
 def rows(trajs: dict, scs: dict, n: int) -> list[dict]:
@@ -82,7 +108,7 @@ def rows(trajs: dict, scs: dict, n: int) -> list[dict]:
 
 
 def evaluate_many(ctrls, plant, scs: dict) -> list[dict]:
-    """`evaluate` of controllers of one structure, simulated as one batch."""
+    """`evaluate` of controllers of one structure, simulated in batches."""
     return rows(runs(ctrls, plant, scs), scs, len(ctrls))
 
 
@@ -121,14 +147,19 @@ def rank(row: dict) -> tuple:
     return (v > 0, v, score(row))
 
 
-def grid(ku, tu, **kw) -> list[tuple[tuple, KlipperPID]]:
-    """`[((alpha, beta, gamma), KlipperPID)]` over the grid (module docstring), gains rounded
-    as `printer.cfg` takes them; `ku` duty per °C and `tu` s per heater."""
+def controller(factors, ku, tu, **kw) -> KlipperPID:
+    """The Klipper PID of factors $(\\alpha, \\beta, \\gamma, \\rho)$ (module docstring), gains
+    and smoothing rounded as `printer.cfg` takes them; `ku` duty per °C and `tu` s per heater;
+    `kw` the law's other settings (`ts`, `max_power`, `u_hold`)."""
+    a, b, g, rho = (float(f) for f in factors)
     ku, tu = np.asarray(ku, np.float64), np.asarray(tu, np.float64)
-    out = []
-    for a, b, g in itertools.product(ALPHAS, BETAS, GAMMAS):
-        out.append(((a, b, g), from_standard(a * ku, b * tu, g * tu, **kw).rounded()))
-    return out
+    return from_standard(a * ku, b * tu, g * tu, smooth_time=rho * g * tu, **kw).rounded()
+
+
+def grid(ku, tu, **kw) -> list[tuple[tuple, KlipperPID]]:
+    """`[((alpha, beta, gamma, rho), KlipperPID)]` over the grid (module docstring)."""
+    return [(f, controller(f, ku, tu, **kw))
+            for f in itertools.product(ALPHAS, BETAS, GAMMAS, RHOS)]
 
 
 def ultimate(cal) -> tuple[np.ndarray, np.ndarray]:
@@ -139,39 +170,55 @@ def ultimate(cal) -> tuple[np.ndarray, np.ndarray]:
     return kp / (0.6 * PID_PARAM_BASE), 2.0 * kp / ki
 
 
+def compass(start, row, score_batch, steps: int, step: float = STEP,
+            min_step: float = MIN_STEP) -> tuple:
+    """Compass search (module docstring) from factors `start` with figures `row`:
+    `score_batch(list of factors) -> list of rows`. Returns (factors, row, iterations, converged)."""
+    x = np.log(np.asarray(start, np.float64))
+    h = math.log(step)
+    it = 0
+    while it < steps and h >= math.log(min_step):
+        it += 1
+        cands = [x + sgn * h * e for e in np.eye(x.size) for sgn in (1.0, -1.0)]
+        figs = score_batch([tuple(np.exp(c)) for c in cands])
+        j = min(range(len(cands)), key=lambda i: rank(figs[i]))
+        if rank(figs[j]) < rank(row):
+            x, row = cands[j], figs[j]
+        else:
+            h *= 0.5
+    return tuple(float(v) for v in np.exp(x)), row, it, h < math.log(min_step)
+
+
 def tune_firmware_pid(model, env, r, ku, tu, *, duration: float, seed: int, rollouts: int,
                       steps: int, kw: dict, load=None, say=lambda s: None) -> dict:
-    """The grid, the best start refined (module docstring). Returns `controller` (rounded
-    gains), `row` (its `evaluate` figures on the design model), `start` ((alpha, beta, gamma)
-    of the best start), `refined` (whether the refinement was kept) and `grid` (every start's
-    figures)."""
+    """The grid, then the compass search from its best point (module docstring). `kw`: the
+    law's `ts`, `max_power`, `u_hold` (its `smooth_time` is tuned). Returns `controller`
+    (rounded gains), `row` (its `evaluate` figures on the design model), `start` (the grid's
+    best factors), `factors` (the result's), `iterations`, `converged`, `refined` (whether
+    the search moved) and `grid` (every start's figures)."""
+    kw = {k: v for k, v in kw.items() if k != "smooth_time"}
     scs = scenarios(model, env, r, duration, seed, rollouts, load)
-    starts = grid(ku, tu, **kw)
-    figs = evaluate_many([c for _, c in starts], model, scs)
-    rows = [(abc, c, f) for (abc, c), f in zip(starts, figs)]
-    rows.sort(key=lambda t: rank(t[2]))
-    abc, best, row = rows[0]
-    say(f"best start alpha {abc[0]:g}, beta {abc[1]:g}, gamma {abc[2]:g}: set-point MSE "
-        f"{row['mse']:.3g} °C², start-up overshoot {row['overshoot_C']:.2f} °C")
-    refined = False
-    if steps > 0:
-        try:
-            res = tune_own_plant("pid_relay", model, envelope=env, setpoint=r, rollouts=rollouts,
-                                 steps=steps, seed=seed, start=best, duration=duration,
-                                 kinds=KINDS, classical=("pi_lambda",))
-            cand = res["tuned"].rounded()
-            crow = evaluate(cand, model, scs)
-            if rank(crow) < rank(row):
-                best, row, refined = cand, crow, True
-        except ControlError as exc:
-            say(f"refinement left out: {exc}")
+
+    def score_batch(factors):
+        return evaluate_many([controller(f, ku, tu, **kw) for f in factors], model, scs)
+
+    starts = list(itertools.product(ALPHAS, BETAS, GAMMAS, RHOS))
+    table = sorted(zip(starts, score_batch(starts)), key=lambda t: rank(t[1]))
+    abc, row0 = table[0]
+    say(f"best start alpha {abc[0]:g}, beta {abc[1]:g}, gamma {abc[2]:g}, rho {abc[3]:g}: "
+        f"set-point MSE {row0['mse']:.3g} °C², start-up overshoot {row0['overshoot_C']:.2f} °C")
+    factors, row, its, conv = compass(abc, row0, score_batch, int(steps))
+    best = controller(factors, ku, tu, **kw)
     say(f"firmware PID: set-point MSE {row['mse']:.3g} °C², start-up overshoot "
-        f"{row['overshoot_C']:.2f} °C ({'refined' if refined else 'the grid start'})")
-    return {"controller": best, "row": row, "start": list(abc), "refined": refined,
-            "grid": [{"alpha": a[0], "beta": a[1], "gamma": a[2], **rw} for a, _, rw in rows]}
+        f"{row['overshoot_C']:.2f} °C ({its} search iterations, "
+        f"{'converged' if conv else 'not converged'})")
+    return {"controller": best, "row": row, "start": list(abc), "factors": list(factors),
+            "iterations": its, "converged": bool(conv), "refined": factors != tuple(abc),
+            "grid": [{"alpha": a[0], "beta": a[1], "gamma": a[2], "rho": a[3], **rw}
+                     for a, rw in table]}
 
 
-__all__ = ["ALPHAS", "BETAS", "GAMMAS", "KINDS", "LOAD_WEIGHT", "MAX_OVERSHOOT_C",
-           "MAX_SATURATED", "evaluate", "evaluate_many", "grid", "rank", "rows", "runs",
-           "scenarios", "score",
+__all__ = ["ALPHAS", "BATCH", "BETAS", "GAMMAS", "KINDS", "LOAD_WEIGHT", "MAX_OVERSHOOT_C",
+           "MAX_SATURATED", "MIN_STEP", "RHOS", "STEP", "compass", "controller", "evaluate",
+           "evaluate_many", "grid", "padded", "rank", "rows", "runs", "scenarios", "score",
            "tune_firmware_pid", "ultimate", "violation"]

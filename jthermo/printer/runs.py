@@ -14,6 +14,7 @@ from jaxtyping import Array, Float
 
 from ..data import IOData, from_arrays
 from ..errors import ConfigError
+from ..identify.padding import bucket
 from ..runtime import one_shot
 from .geometry import AREA_NAMES
 from .plant import Printer, steady_state
@@ -143,8 +144,41 @@ def _generate_fn(printer, u, key, u_mean, noise_std, steady: bool):
 def _generate_core():
     """`_generate_fn` compiled with `runtime.one_shot()` options (-O0; probed on first use, not
     at import): an experiment is simulated once per record shape, so a compile in less CPU
-    time is worth a slower run (the same outputs to rounding)."""
+    time is worth a slower run (the same outputs to rounding). `generate` runs it on lengths
+    from `identify.padding.bucket`'s small set."""
     return eqx.filter_jit(_generate_fn, compiler_options=one_shot())
+
+
+def experiment_input(experiment: str, seed: int, n_samples: int, n_inputs: int,
+                     levels) -> np.ndarray:
+    """The input `(T, nu)` of an open-loop experiment (see `generate`). A PRBS is drawn for
+    the padded length `bucket(T)` and cut to `T`: its first `T` samples are those drawn for
+    `T` itself (every draw is indexed by its sample; tested), and one program draws every
+    length of a bucket."""
+    T, (lo, hi) = int(n_samples), levels
+    if experiment == "prbs":
+        L = bucket(T) if jax.config.jax_threefry_partitionable else T
+        return np.array(_prbs(seed, L, n_inputs, (lo, hi))[:T])
+    if experiment == "step":
+        u = np.full((T, n_inputs), lo)
+        u[T // 4:] = hi
+        return u
+    return np.full((T, n_inputs), 0.5 * (lo + hi))
+
+
+def _generate_padded(printer: Printer, u: np.ndarray, key, u_mean, noise_std, steady: bool):
+    """`_generate_fn` on `u (T, nu)` padded to `bucket(T)` samples (its last sample repeated),
+    the outputs `(T, ny)` and disturbances cut back to `T` as NumPy arrays. The simulation,
+    the disturbances and the noise are causal and their random draws are indexed by sample
+    (Threefry in its partitionable form, JAX's default; without it nothing is padded), so the first `T` samples are those of
+    the unpadded run to rounding (tested); a process generating records of many lengths
+    compiles one simulation per bucket, not per length."""
+    T = u.shape[0]
+    L = bucket(T) if jax.config.jax_threefry_partitionable else T
+    u_pad = np.pad(np.asarray(u, float), ((0, L - T), (0, 0)), mode="edge")
+    y, d = _generate_core()(printer, jnp.asarray(u_pad, printer.capacity.dtype), key,
+                            u_mean, noise_std, steady)
+    return np.asarray(y)[:T], jax.tree.map(lambda a: np.asarray(a)[:T], d)
 
 
 def input_names(printer: Printer) -> tuple[str, ...]:
@@ -181,18 +215,9 @@ def generate(printer: Printer, experiment: str = "prbs", duration: float = 3600.
     if not (math.isfinite(noise_std) and noise_std >= 0):
         raise ConfigError(f"generate: noise_std must be >= 0, got {noise_std!r}")
     T = int(round(duration / printer.ts))
-    nu = printer.n_inputs
-    if experiment == "prbs":
-        u = _prbs(seed, T, nu, (lo, hi))
-    elif experiment == "step":
-        u = np.full((T, nu), lo)
-        u[T // 4:] = hi
-    else:
-        u = np.full((T, nu), 0.5 * (lo + hi))
+    u = experiment_input(experiment, seed, T, printer.n_inputs, (lo, hi))
     key = jax.random.key(int(seed))
-    y, d = _generate_core()(printer, jnp.asarray(u, printer.capacity.dtype), key,
-                          0.5 * (lo + hi), noise_std, start == "steady")
-    y = np.asarray(y)
+    y, d = _generate_padded(printer, u, key, 0.5 * (lo + hi), noise_std, start == "steady")
     measured = printer.has("ambient_variation") and bool(printer.param("ambient_variation", "measured"))
     amb = np.asarray(d.ambient) if measured else np.full(T, float(printer.surroundings))
     w = [amb]

@@ -37,7 +37,9 @@ Parameters are the order names (`na`, `nb`, `nk`, `nc`, `nd`, `nf`, `n`), `famil
 model at its `setpoint` (`tune.tune_own_plant`). Names are checked when the configuration is
 read: a `[data]` key or a parameter that the kind does not read is a `ConfigError`
 (`DATA_KEYS`, `trial_settings`). Trial settings may also sit in `[data]`, the same for every
-trial and outside the trial ids.
+trial and outside the trial ids; the other way round, the keys of a simulated record
+(`RECORD_KEYS`: `zones`, `samples` or `duration`, `data_seed`, ...) may be parameters, a sweep
+over record lengths and zone counts.
 
 In a random sweep a parameter may also be a range table `{low = 1e-3, high = 1.0, log = true}`
 (floats) or `{low = 1, high = 5}` (integers). Each trial has a stable id (a hash of its
@@ -57,7 +59,8 @@ from .config import (
     DEFAULT_CONFIG as DEFAULT_CONFIG, KINDS as KINDS, check_config as check_config,
     count_trials as count_trials, default_config as default_config, load_config as load_config,
     parse_config as parse_config, trial_id as trial_id, trials as trials, DATA_KEYS as DATA_KEYS,
-    SETTINGS as SETTINGS, trial_settings as trial_settings, TRIAL_FORMAT as TRIAL_FORMAT,
+    SETTINGS as SETTINGS, RECORD_KEYS as RECORD_KEYS, trial_settings as trial_settings,
+    TRIAL_FORMAT as TRIAL_FORMAT,
     trial_salt as trial_salt, current_rows as current_rows,
 )
 from .tasks import run_trial as run_trial

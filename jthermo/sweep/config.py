@@ -33,6 +33,14 @@ SETTINGS = {
     "identify": ("family", "seed", "n_starts", "criterion"),
     "tune": ("controller", "rollouts", "steps", "seed", "lr", "duration", "setpoint"),
 }
+#: the `[data]` keys of a simulated record that a trial may also take as parameters ([space],
+#: [fixed]): a sweep over record lengths, zone counts or data seeds. With `data = "file"`
+#: they have nothing to act on and are refused.
+RECORD_KEYS = {
+    "arx": ("zones", "samples", "noise", "data_seed"),
+    "identify": ("zones", "duration", "data_seed"),
+    "tune": (),
+}
 
 DEFAULT_CONFIG = """
 # The embedded default: ARX orders on a simulated two-zone bed (each trial a `fit` and a
@@ -145,8 +153,8 @@ def check_config(raw: dict, source: str = "config") -> dict:
 
 
 def trial_settings(kind: str) -> frozenset[str]:
-    """The names a trial of `kind` reads from its parameters (see `SETTINGS`)."""
-    names = set(SETTINGS[kind])
+    """The names a trial of `kind` reads from its parameters (see `SETTINGS`, `RECORD_KEYS`)."""
+    names = set(SETTINGS[kind]) | set(RECORD_KEYS[kind])
     if kind in ("arx", "identify"):
         import inspect
 
@@ -178,6 +186,9 @@ def _check_names(cfg: dict, source: str) -> None:
             if key not in known:
                 raise ConfigError(f"{source}: unknown parameter `{key}` in [{table}] for kind "
                                   f"{kind} (known: {', '.join(sorted(known))})")
+            if key in RECORD_KEYS[kind] and "data" in cfg["data"]:
+                raise ConfigError(f"{source}: parameter `{key}` in [{table}] describes a "
+                                  f"simulated record, but [data] names a data file")
 
 
 def count_trials(cfg: dict) -> int:

@@ -9,7 +9,6 @@ import json
 import math
 import multiprocessing
 import os
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -126,19 +125,38 @@ def _probe(address: str, timeout: float = 5.0) -> None:
         raise ConfigError(f"--ray {address}: cannot connect ({exc.strerror or type(exc).__name__})") from None
 
 
-#: trials a local worker process runs before it is replaced by a fresh one (Python >= 3.11's
-#: `max_tasks_per_child`), and a Ray worker (`max_calls`): the compiled programs a worker
-#: gathers over trials of many record lengths and orders are released with it, on top of the
-#: guard each trial runs (`runtime.guard`)
+#: trials per local worker process of one pool (a pool of `workers` processes runs
+#: `workers * TRIALS_PER_WORKER` trials, then fresh processes take over), and of a Ray worker
+#: (`max_calls`): the compiled programs a worker gathers over trials of many record lengths
+#: and orders are released with it, on top of the guard each trial runs (`programs.guard`)
 TRIALS_PER_WORKER = 50
 
 
 def pool_options(ctx) -> dict:
-    """`ProcessPoolExecutor` arguments that recycle workers where this Python can."""
-    opts = {"mp_context": ctx}
-    if sys.version_info >= (3, 11):
-        opts["max_tasks_per_child"] = TRIALS_PER_WORKER
-    return opts
+    """`ProcessPoolExecutor` arguments. Workers are recycled by `_pool_run` (a fresh pool per
+    `workers * TRIALS_PER_WORKER` trials), not by `max_tasks_per_child`: on Python 3.11 a pool
+    whose workers all reach their quota together replaces none of them and waits for ever
+    (a 1,000-trial sweep on 2 workers stopped after trial 100)."""
+    return {"mp_context": ctx}
+
+
+def _pool_run(kind, todo, settings, workers: int, on_done):
+    """The trials on `workers` local processes, a fresh pool for every
+    `workers * TRIALS_PER_WORKER` of them (spawned: never fork a process that holds JAX
+    threads)."""
+    ctx = multiprocessing.get_context("spawn")
+    per_pool = workers * TRIALS_PER_WORKER
+    for start in range(0, len(todo), per_pool):
+        with cf.ProcessPoolExecutor(max_workers=workers, **pool_options(ctx)) as pool:
+            futures = [pool.submit(run_trial, kind, t, settings)
+                       for t in todo[start:start + per_pool]]
+            try:
+                for fut in cf.as_completed(futures):
+                    on_done(fut.result())
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
 
 
 def _ray_run(kind, todo, settings, address, on_done):
@@ -210,16 +228,7 @@ def run_sweep(cfg: dict, results: str | os.PathLike, *, ray_address: str | None 
         for t in todo:
             on_done(run_trial(kind, t, settings))
     else:
-        ctx = multiprocessing.get_context("spawn")  # never fork a process that holds JAX threads
-        with cf.ProcessPoolExecutor(max_workers=workers, **pool_options(ctx)) as pool:
-            futures = [pool.submit(run_trial, kind, t, settings) for t in todo]
-            try:
-                for fut in cf.as_completed(futures):
-                    on_done(fut.result())
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
+        _pool_run(kind, todo, settings, int(workers), on_done)
     rows = read_results(path)
     return SweepResult({"name": cfg["name"], "kind": kind, "results": str(path),
                         "n_total": len(all_trials), "n_skipped": len(all_trials) - len(todo),

@@ -11,6 +11,7 @@ configuration is left as it was (an in-process sweep changes nothing for its cal
 from __future__ import annotations
 
 import math
+import os
 import time
 import traceback
 from collections.abc import Callable
@@ -20,7 +21,7 @@ import numpy as np
 
 from .. import runtime
 from ..errors import ConfigError, JThermoError
-from .config import trial_salt, trial_settings
+from .config import RECORD_KEYS, trial_salt, trial_settings
 
 #: trial settings that `fit` takes as named arguments (the rest are family options)
 _FIT_ARGS = ("seed", "n_starts", "criterion")
@@ -103,10 +104,10 @@ def _fit_trial(kind: str, params: dict, settings: dict) -> dict:
     if given and len(given) != len(names):
         raise ConfigError(f"{kind} trial: {family} needs all of the orders {', '.join(names)}")
     orders = tuple(setting(n, params, settings) for n in names) if given else None
-    skip = {"family", *names, *(n for o in ORDER_NAMES.values() for n in o)}
+    skip = {"family", *names, *(n for o in ORDER_NAMES.values() for n in o), *RECORD_KEYS[kind]}
     options = {k: setting(k, params, settings) for k in trial_settings(kind) - skip
                if setting(k, params, settings) is not None}
-    est, val = _records(kind, settings)
+    est, val = _records(kind, {**settings, **{k: params[k] for k in RECORD_KEYS[kind] if k in params}})
     res = fit(est, family, orders, **options)
     cmp = compare(res.model, val)
     return {"family": family, "orders": dict(res.orders or {}), "options": options,
@@ -189,6 +190,8 @@ def run_trial(kind: str, trial: dict, settings: dict) -> dict:
                       where=traceback.format_exc(limit=2).splitlines()[-1][:200])
     record["seconds"] = time.perf_counter() - t0
     record["finished_at"] = time.time()
+    # the process that ran it and its memory maps at the end (a worker's health over a sweep)
+    record["worker"] = {"pid": os.getpid(), "maps": runtime.memory_maps()}
     return record
 
 

@@ -4,6 +4,7 @@ gains revive only after 200-800 iterations)."""
 
 import numpy as np
 
+import jthermo.diagnose.candidates as C
 import jthermo.diagnose.select as S
 from jthermo.diagnose import diagnose
 from jthermo.diagnose.fitting import FALL_LR, FALL_WINDOW, fit_zones, still_falling
@@ -31,7 +32,7 @@ def test_zone_fits_still_falling_at_the_cap_are_continued(monkeypatch):
         calls.append(np.asarray(a[8]) if len(a) > 8 else None)
         return fit_zones(*a)
 
-    monkeypatch.setattr(S, "fit_zones", spy)
+    monkeypatch.setattr(C, "fit_zones", spy)
     sse = lambda r: float(np.sum(r["_arrays"]["resid_est_candidates"]["input_nonlinearity"] ** 2))
     run = lambda: diagnose(est, val, mechanisms=("input_nonlinearity",), n_iter=5)
     cont = run()

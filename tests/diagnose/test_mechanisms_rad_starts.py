@@ -6,6 +6,7 @@ import numpy as np
 
 from jthermo.diagnose import diagnose
 from jthermo.diagnose import mechanisms as M
+from jthermo.diagnose import starts as ST
 
 from .records import record
 
@@ -13,7 +14,7 @@ from .records import record
 def test_rad_starts_set_the_share_and_nothing_else():
     lay = M.make_layout(2, 2, 5)
     th = np.stack([M.initial_theta(lay, log_a=np.log(1 / 300), log_b=np.log([0.1, 0.1]), x0=40.0)] * 2)
-    starts = M.rad_starts(th, lay, shares=(1.5, 3.0))
+    starts = ST.rad_starts(th, lay, shares=(1.5, 3.0))
     assert len(starts) == 2
     other = np.ones(lay.size, bool)
     other[lay.sl("rad_share")] = False
@@ -21,7 +22,7 @@ def test_rad_starts_set_the_share_and_nothing_else():
         share = M.RAD_SHARE_MAX / (1.0 + np.exp(-s[:, lay.sl("rad_share")]))
         np.testing.assert_allclose(share, rho, rtol=1e-12)
         np.testing.assert_array_equal(s[:, other], th[:, other])
-    assert len(M.rad_starts(th, lay)) == len(M.RAD_SHARE_STARTS)
+    assert len(ST.rad_starts(th, lay)) == len(ST.RAD_SHARE_STARTS)
 
 
 def test_diagnosis_keeps_each_zones_best_radiative_start(monkeypatch):
@@ -30,14 +31,14 @@ def test_diagnosis_keeps_each_zones_best_radiative_start(monkeypatch):
     one iteration a start at 0.3 is far better than the neutral 0.5 in zone 1, no worse in zone 2."""
     est, val = record(None, 0)
     calls = []
-    real = M.rad_starts
-    monkeypatch.setattr(M, "rad_starts", lambda th, lay, shares=None: calls.append(th.shape) or real(th, lay, shares))
+    real = ST.rad_starts
+    monkeypatch.setattr(ST, "rad_starts", lambda th, lay, shares=None: calls.append(th.shape) or real(th, lay, shares))
     run = lambda: diagnose(est, val, mechanisms=("radiative_loss", "heater_lag"), n_iter=1)
     sse = lambda r: np.sum(r["_arrays"]["resid_est_candidates"]["radiative_loss"] ** 2, axis=0)
-    monkeypatch.setattr(M, "RAD_SHARE_STARTS", (0.3,))
+    monkeypatch.setattr(ST, "RAD_SHARE_STARTS", (0.3,))
     got = run()
     assert calls == [(2, got["_models"]["layout"].size)]
-    monkeypatch.setattr(M, "RAD_SHARE_STARTS", ())
+    monkeypatch.setattr(ST, "RAD_SHARE_STARTS", ())
     neutral = run()
     assert np.all(sse(got) <= sse(neutral) * (1 + 1e-9))
     assert np.any(sse(got) < 0.9 * sse(neutral))            # the extra start's fit is the one kept

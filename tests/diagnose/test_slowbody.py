@@ -1,11 +1,12 @@
 """A slow stored-heat body is started from the fitted drift restricted to a body's
 form (`slowbody.body_from_drift`), and a drift that does not out-predict a body with fewer
-re-estimated parameters does not go ahead of it (`decide.prefer_fewer_slow`)."""
+re-estimated parameters does not go ahead of it (`bodydrift.prefer_fewer_slow`)."""
 
 import math
 
 import numpy as np
 
+from jthermo.diagnose import bodydrift as BD
 from jthermo.diagnose import decide as D
 from jthermo.diagnose import mechanisms as M
 from jthermo.diagnose.slowbody import body_from_drift
@@ -29,7 +30,7 @@ def test_body_start_recovers_the_body_a_drift_stands_for():
     level, a, c, tau, gam, w0 = 20.0, 1 / 400.0, 0.4 / 400.0, 2400.0, 1.0, -8.0
     rng = np.random.default_rng(0)
     ybar = level + 40.0 + 10.0 * (rng.random(T // 300).repeat(300) - 0.5)
-    W = D.lag_filter(ybar - level, TS, tau) / (1 + gam) + w0 * np.exp(-t / tau)
+    W = BD.lag_filter(ybar - level, TS, tau) / (1 + gam) + w0 * np.exp(-t / tau)
     knots = (c / a) * W[np.minimum(np.arange(kn) * int(M.DRIFT_SPACING / TS), T - 1)]
     th = body_from_drift(_drift_theta(lay, knots, a), ybar, Phi, level, 1.0, TS, lay,
                          taus=[600.0, 1200.0, 2400.0, 4800.0])
@@ -54,17 +55,17 @@ def test_no_body_start_from_a_falling_drift():
 def test_a_drift_not_beating_the_body_goes_behind_it():
     rows = [{"mechanism": m} for m in ("ambient_variation", "radiative_loss", "heat_accumulation")]
     names = lambda rs: [r["mechanism"] for r in rs]
-    assert names(D.prefer_fewer_slow(rows, 1.0, 2, 7)) == ["heat_accumulation", "ambient_variation",
+    assert names(BD.prefer_fewer_slow(rows, 1.0, 2, 7)) == ["heat_accumulation", "ambient_variation",
                                                            "radiative_loss"]
-    assert names(D.prefer_fewer_slow(rows, 2.0, 2, 7)) == names(rows)       # the drift beats it
-    assert names(D.prefer_fewer_slow(rows, 1.0, 7, 7)) == names(rows)       # not fewer parameters
-    assert names(D.prefer_fewer_slow(rows[:2], 0.0, 2, 7)) == names(rows[:2])
+    assert names(BD.prefer_fewer_slow(rows, 2.0, 2, 7)) == names(rows)       # the drift beats it
+    assert names(BD.prefer_fewer_slow(rows, 1.0, 7, 7)) == names(rows)       # not fewer parameters
+    assert names(BD.prefer_fewer_slow(rows[:2], 0.0, 2, 7)) == names(rows[:2])
 
 
 def test_a_drift_not_fitting_the_estimation_record_better_goes_behind_the_body():
     """`slowbody.order_by_estimation`: on the estimation record both are charged every parameter;
     a drift whose residual is no smaller than the body's, beyond the parameters it adds, goes
-    behind it (`decide.prefer_input_driven`); one that fits clearly better keeps its place."""
+    behind it (`bodydrift.prefer_input_driven`); one that fits clearly better keeps its place."""
     from jthermo.diagnose.slowbody import order_by_estimation
 
     rng = np.random.default_rng(3)
@@ -82,6 +83,6 @@ def test_a_drift_not_fitting_the_estimation_record_better_goes_behind_the_body()
         assert names(order_by_estimation(rows, res, cands, dof, loc)) == order
         assert D.is_rival(loc["drift_over_body_estimation_z"]) == (e_drift is tied)
     assert names(order_by_estimation(rows, [e_body] * 2, cands[1:], dof, {})) == names(rows)
-    assert names(D.prefer_input_driven(rows, 1.0)) == ["heat_accumulation", "ambient_variation",
+    assert names(BD.prefer_input_driven(rows, 1.0)) == ["heat_accumulation", "ambient_variation",
                                                         "radiative_loss"]
-    assert names(D.prefer_input_driven(rows, 2.0)) == names(rows)
+    assert names(BD.prefer_input_driven(rows, 2.0)) == names(rows)

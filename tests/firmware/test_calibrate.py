@@ -40,7 +40,8 @@ def test_firmware_file_and_report(calibrated):
                                                "load_mse"))
     cfg = (calibrated / "res" / "firmware.cfg").read_text()
     assert "[extruder]" in cfg and "control: pid" in cfg
-    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]): ([\d.]+)$", cfg, re.MULTILINE)}
+    gains = {k: float(v) for k, v in re.findall(r"^(pid_K[pid]|smooth_time): ([\d.]+)$", cfg,
+                                                re.MULTILINE)}
     ctrl = io.load_controller(calibrated / "res" / "controller.jtm")
     assert isinstance(ctrl, KlipperPID)
     assert ctrl.gains()[0] == pytest.approx(gains, abs=0)    # the file runs what was judged
@@ -51,6 +52,10 @@ def test_firmware_file_and_report(calibrated):
         assert (calibrated / "res" / name).stat().st_size > 0 and f"]({name})" in md
     assert set(rep["figures"]) == {"fit", "step", "startup", "changes", "comparison"}
     assert rep["load"]["what"] and np.isfinite(rep["load"]["firmware_pid_load_mse"])
+    assert isinstance(rep["supported"], bool)
+    assert rep["supported"] == (rep["why_not"] is None)
+    assert ("Not a tuning to use" in md) == (not rep["supported"])
+    assert ("NOT A TUNING TO USE" in cfg) == (not rep["supported"])
 
 
 def test_marlin_file_has_mpc_line(calibrated):
@@ -74,3 +79,31 @@ def test_bad_heater_exit_2(calibrated, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "--heater bed" in err
     assert not (calibrated / "bad").exists()
+
+
+@pytest.mark.parametrize("n", [1, 16])
+def test_disagreeing_records_are_not_a_tuning(n):
+    """Design and judging models whose relay tests are far apart in K_u (one with ten times
+    the other's): the tuning is said to be unsupported; the same model agrees with itself."""
+    from jthermo.control.design import design_point
+    from jthermo.firmware import calibrate as cal
+    from jthermo.firmware.pid import pid_calibrate
+    from jthermo.firmware.tuning import ultimate
+    from jthermo.models import StateSpace
+
+    from .test_pid_law import hotend
+
+    a = hotend(n=n)
+    b = StateSpace(a.A, 10.0 * np.asarray(a.B), a.C, ts=a.ts, u0=np.full(n, 0.07),
+                   y0=a.y0)                      # the same equilibria, ten times the gain
+    r = np.full(n, 200.0)
+    ku, tu = ultimate([pid_calibrate(design_point(a, setpoint=r), 200.0, i) for i in range(n)])
+    assert cal._agreement(ku, tu, a, a, r, 1.0) is None
+    text = cal._agreement(ku, tu, b, a, r, 1.0)
+    assert text and "disagree" in text
+    ok = {"mse": 1.0, "saturated_fraction": 0.1, "overshoot_C": 0.5, "load_mse": 1.0,
+          "load_saturated_fraction": 0.0}
+    assert cal._why_not(None, ok) is None
+    assert "overshoots" in cal._why_not(None, {**ok, "overshoot_C": 2.0})
+    assert "input limit" in cal._why_not(None, {**ok, "load_saturated_fraction": 0.5})
+    assert cal._why_not(text, ok).startswith("the estimation and validation records disagree")

@@ -36,11 +36,15 @@ def read_cfg(text, heater):
                                                 body, re.MULTILINE)}
 
 
-@pytest.mark.parametrize("n, smooth, max_power", [(1, 1.0, 1.0), (1, 2.5, 0.8), (16, 1.0, 1.0)])
+@pytest.mark.parametrize("n, smooth, max_power", [(1, 1.0, 1.0), (1, 2.5, 0.8), (16, 1.0, 1.0),
+                                                   (16, "each", 1.0)])
 def test_exported_gains_match_jthermo_loop(n, smooth, max_power):
+    """`smooth="each"`: one derivative smoothing per heater (0.5 to 20 s), as the tuning sets."""
     plant = hotend(n=n)
     rng = np.random.default_rng(n)
     kp, ki, kd = (rng.uniform(lo, hi, n) for lo, hi in ((10, 40), (0.5, 2.0), (40, 150)))
+    if smooth == "each":
+        smooth = np.round(rng.uniform(0.5, 20.0, n), 3)
     ctrl = KlipperPID(kp, ki, kd, ts=1.0, max_power=max_power, smooth_time=smooth,
                       u_hold=np.full(n, 0.6)).rounded()
     names = ["extruder"] + [f"extruder{i}" for i in range(1, n)]
@@ -52,8 +56,9 @@ def test_exported_gains_match_jthermo_loop(n, smooth, max_power):
     r, v, dy = (np.asarray(a) for a in (sc.r, sc.v, sc.d.dy))
     for i, h in enumerate(names):
         g = read_cfg(text, h)
-        assert g["max_power"] == max_power and g["smooth_time"] == smooth
-        heater = ref.KlipperHeater(g["pid_Kp"], g["pid_Ki"], g["pid_Kd"], max_power, smooth)
+        tau = float(np.broadcast_to(smooth, (n,))[i])
+        assert g["max_power"] == max_power and g["smooth_time"] == tau
+        heater = ref.KlipperHeater(g["pid_Kp"], g["pid_Ki"], g["pid_Kd"], max_power, tau)
         s = slice(2 * i, 2 * i + 2)
         x0 = np.linalg.solve(np.eye(2) - A[s, s], B[s, i] * (0.6 - u0[i]))
         ys, us = ref.closed_loop(A[s, s], B[s, i], C[i, s], u0[i], y0[i], heater, r[:, i], x0,

@@ -21,12 +21,17 @@ def test_grid_holds_ziegler_nichols(n):
     rng = np.random.default_rng(n)
     ku, tu = rng.uniform(0.05, 0.3, n), rng.uniform(20, 90, n)
     grid = dict(tuning.grid(ku, tu))
-    assert len(grid) == len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)
-    zn = grid[(0.6, 0.5, 0.125)]
+    assert len(grid) == (len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS)
+                         * len(tuning.RHOS))
+    assert len(grid) % tuning.BATCH == 0          # one compiled batch shape
+    rho = tuning.RHOS[0]
+    zn = grid[(0.6, 0.5, 0.125, rho)]
     kp = 0.6 * ku * 255
     np.testing.assert_allclose(np.asarray(zn.pid_kp), np.round(kp, 3), atol=1e-9)
     np.testing.assert_allclose(np.asarray(zn.pid_ki), np.round(kp / (0.5 * tu), 3), atol=1e-9)
     np.testing.assert_allclose(np.asarray(zn.pid_kd), np.round(kp * 0.125 * tu, 3), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(zn.smooth_time), np.round(rho * 0.125 * tu, 3),
+                               atol=1e-9)
 
 
 def test_ultimate_inverts_pid_calibrate():
@@ -63,3 +68,54 @@ def test_tuned_on_hotend(n):
     scs = tuning.scenarios(plant, env, r, 600.0, 0, 1)
     zrow = tuning.evaluate(zn, plant, scs)
     assert tuning.rank(row) <= tuning.rank(zrow)
+
+
+@pytest.mark.parametrize("dim", [1, 4])
+def test_compass_converges_on_a_quadratic(dim):
+    """The compass search in log-factors reaches the minimum of a separable quadratic within
+    its convergence step, never ranks worse than its start, and stops once converged."""
+    rng = np.random.default_rng(dim)
+    best = rng.uniform(0.2, 3.0, dim)
+    calls = []
+
+    def score_batch(factors):
+        calls.append(len(factors))
+        return [{"mse": float(np.sum((np.log(f) - np.log(best)) ** 2)),
+                 "saturated_fraction": 0.0, "load_mse": 0.0, "load_saturated_fraction": 0.0,
+                 "overshoot_C": 0.0, "startup_mse": 0.0} for f in factors]
+
+    start = np.ones(dim)
+    row0 = score_batch([tuple(start)])[0]
+    x, row, its, conv = tuning.compass(start, row0, score_batch, steps=200)
+    assert conv and its < 200
+    assert row["mse"] <= row0["mse"]
+    np.testing.assert_allclose(np.log(x), np.log(best), atol=np.log(tuning.MIN_STEP))
+    assert set(calls[1:]) == {2 * dim}              # one batch of neighbours per iteration
+
+
+def test_compass_keeps_an_admissible_start():
+    """Neighbours that overshoot rank after the admissible start: the search stays there."""
+    def score_batch(factors):
+        return [{"mse": 0.0, "saturated_fraction": 0.0, "load_mse": 0.0,
+                 "load_saturated_fraction": 0.0, "overshoot_C": 5.0, "startup_mse": 0.0}
+                for _ in factors]
+
+    ok = {"mse": 1.0, "saturated_fraction": 0.0, "load_mse": 0.0, "load_saturated_fraction": 0.0,
+          "overshoot_C": 0.0, "startup_mse": 0.0}
+    x, row, its, conv = tuning.compass((1.0, 2.0), ok, score_batch, steps=50)
+    assert x == pytest.approx((1.0, 2.0)) and row is ok and conv
+
+
+def test_padded_batches_match_one_by_one():
+    """Batched, padded simulation gives each controller's own figures (N = 2, 3 controllers)."""
+    plant = hotend(n=2)
+    env = Envelope.from_model(plant)
+    r = np.full(2, 200.0)
+    kw = {"ts": 1.0, "u_hold": equilibrium_input(plant, r, env.signals(plant))}
+    ctrls = [tuning.controller(f, [0.1, 0.12], [40.0, 50.0], **kw)
+             for f in ((0.3, 1.0, 0.1, 0.2), (0.6, 0.5, 0.125, 0.1), (1.0, 1.2, 0.05, 0.4))]
+    scs = tuning.scenarios(plant, env, r, 300.0, 0, 1)
+    many = tuning.evaluate_many(ctrls, plant, scs)
+    for c, row in zip(ctrls, many):
+        one = tuning.rows(tuning.runs([c], plant, scs, size=1), scs, 1)[0]
+        assert row == pytest.approx(one, rel=1e-6, abs=1e-9)

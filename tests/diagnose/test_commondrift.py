@@ -7,7 +7,7 @@ from scipy.stats import chi2
 
 from jthermo.diagnose import decide as D
 from jthermo.diagnose import mechanisms as M
-from jthermo.diagnose.joint import common_drift_fit
+from jthermo.diagnose.commondrift import common_drift_fit
 
 jax.config.update("jax_enable_x64", True)
 
