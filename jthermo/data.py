@@ -19,11 +19,10 @@ import numpy as np
 
 from ._files import atomic_write_text as atomic_write_text
 from .errors import DataError
+from .time_grid import JITTER_TOLERANCE as JITTER_TOLERANCE
+from .time_grid import MAX_GAP_SAMPLES as MAX_GAP_SAMPLES
+from .time_grid import uniform_time as _uniform_time
 
-#: jitter allowed in logged time stamps before re-gridding is refused (fraction of Ts)
-JITTER_TOLERANCE = 0.2
-#: longest gap (in samples) that re-gridding may bridge by interpolation
-MAX_GAP_SAMPLES = 3
 #: how far apart two sample times may be and still be the same (a logged record's median step
 #: wanders ~0.2 % around its nominal Ts; a model at 1 s run on 2 s data is another system)
 TS_TOLERANCE = 0.05
@@ -166,9 +165,10 @@ def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
                  jitter_tolerance: float = JITTER_TOLERANCE, row_offset: int = 0) -> IOData:
     """Build `IOData` from named columns (`t`, `u_*`, `y_*`, `w_*`), checking the time axis.
 
-    Logged time stamps with jitter (steps within `jitter_tolerance`·Ts of the median step) or a
-    dropped sample (a gap of up to `MAX_GAP_SAMPLES` steps) are re-gridded onto a uniform grid by
-    linear interpolation, and the returned `notes` say so. Anything else is refused. Rows in
+    Logged time stamps with jitter (steps within `jitter_tolerance`·Ts of whole sample times), a
+    dropped sample (a gap of up to `MAX_GAP_SAMPLES` steps), or a few isolated late or displaced
+    stamps (`time_grid._off_grid`) are re-gridded onto a uniform grid by linear interpolation, and the
+    returned `notes` say what was repaired. Anything else is refused. Rows in
     messages count samples from 1, plus `row_offset` (1 for a file with a header row).
     """
     if "t" not in columns:
@@ -213,41 +213,6 @@ def from_columns(columns: dict[str, np.ndarray], *, source: str = "data",
                   ts=ts, t0=float(t[0]), input_names=tuple(c[2:] for c in ucols),
                   output_names=tuple(c[2:] for c in ycols), signal_names=tuple(c[2:] for c in wcols),
                   notes=tuple(notes))
-
-
-def _uniform_time(t: np.ndarray, mat: np.ndarray, source: str, tol: float, row_offset: int = 0):
-    dt = np.diff(t)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        r = int(bad[0]) + 2 + row_offset
-        kind = "duplicated" if dt[bad[0]] == 0 else "decreasing"
-        raise DataError(f"{source}: time `t` is {kind} at row {r} (t={t[bad[0] + 1]:g})")
-    step = float(np.median(dt))
-    dev = np.abs(dt - step) / step
-    if dev.max() <= 1e-6:
-        n = len(t)
-        t_uniform = t[0] + step * np.arange(n)
-        return t_uniform, np.column_stack([t_uniform, mat[:, 1:]]), []
-    # Jitter or dropped samples: each step must be close to a whole number of sample times.
-    ratio = dt / step
-    whole = np.round(ratio)
-    off = np.abs(ratio - whole)
-    worst = int(np.argmax(np.where(whole >= 1, off, np.inf) if (whole < 1).any() else off))
-    if (whole < 1).any() or off.max() > tol or whole.max() > MAX_GAP_SAMPLES:
-        i = int(np.flatnonzero((whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES))[0]) if (
-            (whole < 1) | (off > tol) | (whole > MAX_GAP_SAMPLES)).any() else worst
-        raise DataError(
-            f"{source}: time `t` is not uniform: step {dt[i]:g} s at row {i + 2 + row_offset} against a median "
-            f"of {step:g} s (more than {tol:.0%} jitter or a gap over {MAX_GAP_SAMPLES} samples)")
-    n = int(round((t[-1] - t[0]) / step)) + 1
-    grid = t[0] + step * np.arange(n)
-    grid = grid[grid <= t[-1] + 1e-9 * step]
-    out = np.column_stack([grid] + [np.interp(grid, t, mat[:, j]) for j in range(1, mat.shape[1])])
-    gaps = int((whole[whole > 1] - 1).sum())
-    msg = (f"re-gridded onto a uniform Ts = {step:g} s by linear interpolation "
-           f"(time-step jitter up to {off.max():.0%}")
-    msg += f", {gaps} dropped sample(s) filled)" if gaps else ")"
-    return grid, out, [msg]
 
 
 def _parse_csv_text(text: str, source: str) -> dict[str, np.ndarray]:

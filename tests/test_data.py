@@ -121,8 +121,15 @@ def test_time_axis_errors():
     with pytest.raises(DataError, match="time `t` is decreasing at row 11"):
         data.from_columns({**c, "t": t})
     t = c["t"].copy()
-    t[20:] += 0.5           # one step of 1.5 Ts
+    t[20:] += 0.5           # three off-grid steps in a row (1.5, 1.4, 1.3 Ts): an irregular clock
+    t[21:] += 0.4
+    t[22:] += 0.3
     with pytest.raises(DataError, match="time `t` is not uniform: step 1.5 s at row 21"):
+        data.from_columns({**c, "t": t})
+    t = c["t"].copy()
+    t[10] -= 0.6            # a step under half a sample that no displaced stamp explains
+    t[11:] -= 0.6
+    with pytest.raises(DataError, match="step 0.4 s at row 11"):
         data.from_columns({**c, "t": t})
     t = c["t"].copy()
     t[20:] += 4.0           # a gap of 5 samples
@@ -343,6 +350,56 @@ def test_real_dropped_sample_filled():
     np.testing.assert_allclose(np.diff(d.t), d.ts)
 
 
-def test_real_unrepairable_refused():
-    with pytest.raises(DataError, match="time `t` is not uniform: step 1.64302 s at row 10"):
-        data.load(_real("tclab_cace2020/mpc_arx_b"))
+def test_late_sample_regridded():
+    """One late sample (the logger's loop overran; the stamps after it follow on from it)."""
+    c = _cols(T=60)
+    t = c["t"].copy()
+    t[20:] += 0.4           # one step of 1.4 Ts, the others on a shifted grid
+    d = data.from_columns({**c, "t": t})
+    assert "1 late sample(s) of 1.40 Ts" in d.notes[0] and "dropped" not in d.notes[0]
+    np.testing.assert_allclose(np.diff(d.t), 1.0)
+    # the grid point between the late sample's neighbours is their linear interpolation
+    y = c["y_z1"]
+    np.testing.assert_allclose(d.y[20, 0], y[19] + (y[20] - y[19]) / 1.4)
+    np.testing.assert_allclose(d.y[:20, 0], y[:20])
+
+
+def test_displaced_stamp_regridded():
+    """One stamp written late, the others on the grid: the pair of steps around it sums to 2 Ts."""
+    c = _cols(T=60)
+    for shift, note in ((0.45, "between steps of 1.45 and 0.55 Ts"),
+                        (0.7, "between steps of 1.70 and 0.30 Ts")):
+        t = c["t"].copy()
+        t[30] += shift
+        d = data.from_columns({**c, "t": t})
+        assert f"1 displaced stamp(s) {note}" in d.notes[0], d.notes
+        assert d.n_samples == 60 and "late" not in d.notes[0]
+        # samples on the grid are kept exactly; the displaced one is re-read off the line
+        np.testing.assert_allclose(d.y[29, 0], c["y_z1"][29])
+        np.testing.assert_allclose(d.y[31, 0], c["y_z1"][31])
+
+
+def test_irregular_record_refused():
+    """Late stamps are repairable only when isolated and few: an irregular clock is refused."""
+    c = _cols(T=200)
+    rng = np.random.default_rng(0)
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.55, 1.45, 199))])
+    with pytest.raises(DataError, match="time `t` is not uniform"):
+        data.from_columns({**c, "t": t})
+    t = c["t"].copy()
+    for k in range(10, 200, 20):    # 10 late samples in 200: more than 2 %
+        t[k:] += 0.4
+    with pytest.raises(DataError, match="step 1.4 s at row 11"):
+        data.from_columns({**c, "t": t})
+    t = c["t"].copy()
+    t[30] += 0.45
+    t[31] += 0.9                # two displaced stamps in a row: not one
+    with pytest.raises(DataError, match="time `t` is not uniform"):
+        data.from_columns({**c, "t": t})
+
+
+def test_real_late_samples_regridded():
+    d = data.load(_real("tclab_cace2020/mpc_arx_b"))
+    assert "4 late sample(s) of 1.27-1.64 Ts" in d.notes[0]
+    np.testing.assert_allclose(np.diff(d.t), d.ts, rtol=1e-9)
+    assert d.n_samples == 602 and d.signal_names == ("T1_setpoint", "T2_setpoint")

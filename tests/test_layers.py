@@ -41,6 +41,8 @@ LAYERS: list[tuple[str, ...]] = [
     # The package root `jthermo/__init__.py`: `__version__`, the error classes and a lazy
     # (PEP 562) facade, so it may import utilities only; that keeps `import jthermo` cheap.
     ("",),
+    # A logged time axis onto a uniform grid (the records' loader uses it).
+    ("time_grid",),
     # Records and excitation signals.
     ("data", "inputs"),
     ("models",),

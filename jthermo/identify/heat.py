@@ -5,11 +5,13 @@ that is stable, whose heaters lower no sensor's steady temperature, whose step r
 against their final direction by no more than the noise, and whose steady states over the
 recorded inputs cover the recorded temperatures (`models.plausibility.heat_check`):
 
-- `ss`: the family's own (innovations-form) state space where it passes the check, so a
-  well-excited record's fit is what it would be without the constraint; else the positive
+- `ss`: the family's own (innovations-form) state space where it passes the check and
+  simulates its record to `OWN_FIT_KEEP` %, so a well-excited record's fit is what it would be
+  without the constraint; else the better plausible one of it and the positive
   (compartmental) state space (`models.positive`, fitted by `positive.fit_positive`):
   plausible by construction. Its automatic orders compare one node per sensor (n = ny) with
-  one more hidden node per sensor (n = 2 ny, the heater's body) by the criterion of their
+  one more hidden node per sensor (n = 2 ny: the heater's body, or the sensor's slow
+  surroundings, `positive.SLOW_SHARES`) by the criterion of their
   simulation errors.
 - `arx`, `armax`, `oe`, `bj`: the screened candidates are fitted as before and checked; the
   best plausible one by the criterion is kept. Where none is, the family's first-order model at
@@ -20,7 +22,7 @@ recorded inputs cover the recorded temperatures (`models.plausibility.heat_check
 - `greybox`: positive by construction (first-order zones, log-parametrised gains); a measured
   signal is its surroundings only when its name says so (`SURROUNDINGS_WORDS`).
 
-Before any family: a logged set point (`w_*target*`) is left out (neither an input nor a
+Before any family: a logged set point (`w_*target*`, `w_*setpoint*`) is left out (neither an input nor a
 disturbance), so is an input constant over the record (a heater kept off); the remaining
 measured signals (a fan) are disturbances of the plant.
 """
@@ -34,6 +36,7 @@ import numpy as np
 from ..data import IOData, idle_inputs, keep_inputs
 from ..errors import ConfigError, DataError, FitError, JThermoError, ModelError
 from ..models.plausibility import heat_check, is_setpoint_signal, starts_at_rest
+from ..models import statespace_numpy
 from ..models.polynomial import Polynomial
 from .orders import information_criterion
 from .positive import fit_positive
@@ -44,6 +47,10 @@ PHYSICS = ("heat", "none")
 SURROUNDINGS_WORDS = ("amb", "surr", "room", "env")
 #: options of `fit` that the positive state space (the heat path's fallback for ss) takes
 SS_OPTIONS = ("max_steps",)
+#: the family's own plausible state space is kept without trying the positive one when it
+#: simulates its record at least this well (mean fit %): a well-excited record's fit stays as
+#: it was, a closed-loop hold (a printer bed) gets the better of the two
+OWN_FIT_KEEP = 90.0
 
 
 def heat_data(data: IOData) -> tuple[IOData, dict]:
@@ -148,10 +155,11 @@ def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, 
                 seed: int = 0, n_starts: int = 8, progress=None,
                 **kw) -> tuple[FitResult, list]:
     """The family's own state space (`fitter`, the innovations form of `fit_statespace`, with
-    every option) where it passes `heat_check` — a virtual printer's or any well-excited
-    record's fit is left as it was — else the positive state space of order `orders["n"]` or,
-    automatically, n = ny or 2 ny (options: `SS_OPTIONS`)."""
-    path = []
+    every option) where it passes `heat_check` and simulates its record to `OWN_FIT_KEEP` —
+    a virtual printer's or any well-excited record's fit is left as it was — else the positive
+    state space of order `orders["n"]` or, automatically, n = ny or 2 ny (options:
+    `SS_OPTIONS`), or the plausible own fit where that simulates its record better."""
+    path, own = [], None
     if fitter is not None:
         try:
             r = fitter.run(data, "ss", orders, seed=seed, n_starts=n_starts, progress=progress,
@@ -163,8 +171,13 @@ def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, 
         else:
             chk = heat_check(r.model, data)
             if chk["plausible"]:
-                return r, [f"ss {_orders_text(r.orders)}: plausible"]
-            path.append(f"ss {_orders_text(r.orders)}: implausible ({chk['warnings'][0]})")
+                own_fit = _mean_fit(r.model, data)
+                path.append(f"ss {_orders_text(r.orders)}: plausible, fit {own_fit:.1f} %")
+                if own_fit >= OWN_FIT_KEEP or orders is not None and orders["n"] < data.n_outputs:
+                    return r, path
+                own = (own_fit, r)
+            else:
+                path.append(f"ss {_orders_text(r.orders)}: implausible ({chk['warnings'][0]})")
     kw = {k: v for k, v in kw.items() if k in SS_OPTIONS}
     ny = data.n_outputs
     if orders is not None and orders["n"] < ny:
@@ -187,8 +200,31 @@ def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, 
         if best is None or key < best[0]:
             best = (key, r)
     if best is None:
+        if own is not None:
+            return own[1], path
         raise FitError(f"fit: no positive state space could be fitted ({path[-1]})")
+    if own is not None and not best[0][0]:
+        pos_fit = _mean_fit(best[1].model, data)
+        if own[0] >= pos_fit:
+            path.append(f"ss {_orders_text(own[1].orders)} kept: fit {own[0]:.1f} % against the "
+                        f"positive state space's {pos_fit:.1f} %")
+            return own[1], path
+        path.append(f"ss n={best[1].orders['n']} positive chosen: fit {pos_fit:.1f} % against "
+                    f"{own[0]:.1f} %")
+    elif own is not None:
+        return own[1], path
     return best[1], path
+
+
+def _mean_fit(model, data: IOData) -> float:
+    """Mean simulation fit % of a state-space model on `data` from the least-squares initial
+    state (what `validate.compare` and `jthermo fit` report)."""
+    w = np.asarray(data.w)[:, :model.n_signals] if model.n_signals else None
+    _, yhat = statespace_numpy.initial_state(model, data.y, data.u, w)
+    y = np.asarray(data.y, np.float64)
+    num = np.linalg.norm(y - yhat, axis=0)
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    return float(np.mean(100.0 * (1.0 - num / np.where(den > 0, den, 1.0))))
 
 
 def first_order(family: str, nk: int) -> dict:

@@ -179,10 +179,14 @@ def check_fit(model: AbstractModel, envelope: Envelope | None = None, *,
 COVERAGE_SHARE = 0.05
 
 
+#: a measured signal whose name holds one of these is a logged set point
+SETPOINT_WORDS = ("target", "setpoint", "set_point")
+
+
 def is_setpoint_signal(name: str) -> bool:
-    """A logged set point (`w_<heater>_target_C`, as printer logs carry): neither a plant input
-    nor a disturbance of it."""
-    return "target" in str(name).lower()
+    """A logged set point (`w_<heater>_target_C`, as printer logs carry, or `w_T1_setpoint`, as
+    TCLab MPC runs do): neither a plant input nor a disturbance of it."""
+    return any(word in str(name).lower() for word in SETPOINT_WORDS)
 
 
 def coverage(model: AbstractModel, u_range, w_range=None, y_range=None, noise_std=None,

@@ -21,7 +21,7 @@ from jthermo.identify import fit  # noqa: E402
 from jthermo.identify.heat import heat_data  # noqa: E402
 from jthermo.identify.positive import fit_positive  # noqa: E402
 from jthermo.models import positive  # noqa: E402
-from jthermo.models.plausibility import heat_check  # noqa: E402
+from jthermo.models.plausibility import heat_check, is_setpoint_signal  # noqa: E402
 
 FAMILIES = ("arx", "armax", "oe", "bj", "ss", "greybox")
 
@@ -116,6 +116,17 @@ def test_setpoint_signal_left_out_and_constant_input_dropped():
     r = fit(data, "ss")
     assert r.model.n_inputs == 1 and r.model.n_signals == 1     # the fan: a disturbance
     assert r.extra["physics"]["signals"] == ["fan_cmd"]
+
+
+def test_tclab_setpoint_column_left_out():
+    """A TCLab MPC run logs `w_T1_setpoint`: a set point as much as a printer's target."""
+    u, y = _clean(2)
+    w = np.column_stack([np.where(np.arange(len(y)) < 150, 40.0, 50.0), np.full(len(y), 21.0)])
+    data = from_arrays(u, y, ts=1.0, w=w, signal_names=["T1_setpoint", "T_amb"])
+    d, dropped = heat_data(data)
+    assert dropped["dropped_signals"] == ["T1_setpoint"] and d.signal_names == ("T_amb",)
+    assert not any(map(is_setpoint_signal, ("fan_cmd", "T_amb", "heater_pwm")))
+    assert all(map(is_setpoint_signal, ("extruder_target_C", "T2_SetPoint", "bed_set_point")))
 
 
 def coupled_record(T=600, seed=2):
@@ -217,6 +228,42 @@ def test_plausible_state_space_is_the_unconstrained_one():
     data = from_arrays(*_clean(2), ts=1.0)
     r = fit(data, "ss", (2,))
     free = fit(data, "ss", (2,), physics="none")
-    assert r.extra["physics"]["path"] == ["ss n=2: plausible"]
+    path = r.extra["physics"]["path"]
+    assert len(path) == 1 and path[0].startswith("ss n=2: plausible, fit ")     # no positive fit
+    assert float(path[0].split("fit ")[1].split(" %")[0]) >= 90.0
     for a, b in ((r.model.A, free.model.A), (r.model.B, free.model.B), (r.model.C, free.model.C)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def bed_record(T=900, seed=4):
+    """A printer bed under its own on/off-ish control: heat-up at 0.75 from the room (22 °C),
+    a hold at 60 °C while its frame warms slowly (the holding power falls), then heater off.
+    Bed node x0 (tau ~ 100 s) loses heat to the room and to the frame x1 (tau ~ 1500 s)."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros(2)
+    u = np.zeros((T, 1))
+    y = np.empty((T, 1))
+    for k in range(T):
+        y[k] = 22.0 + x[0]
+        u[k] = 0.0 if k > 750 else (0.75 if y[k, 0] < 60.0 else 0.2 * (60.5 - y[k, 0]).clip(0))
+        x = x + np.array([0.6 * u[k, 0] - 0.004 * x[0] - 0.006 * (x[0] - x[1]),
+                          0.0015 * (x[0] - x[1]) - 0.0006 * x[1]])
+    return from_arrays(u, y + 0.05 * rng.standard_normal(y.shape), ts=1.0)
+
+
+def test_positive_level_bounded_and_slow_surroundings_fitted():
+    """A closed-loop heat-up and hold: the positive state space's level at rest stays at or below
+    the coldest reading (+3 sigma), its two nodes find the slow frame, and the model holds its
+    recording (covers 22-60 °C)."""
+    from jthermo.identify.heat import _mean_fit
+    from jthermo.identify.positive import level_cap
+
+    data = bed_record()
+    r = fit_positive(data, 2)
+    cap = level_cap(np.asarray(data.y))
+    assert float(r.model.y0[0]) <= cap[0] + 1e-9
+    assert cap[0] < float(np.min(data.y)) + 0.5
+    assert heat_check(r.model, data)["plausible"]
+    tau = -1.0 / np.log(np.abs(np.linalg.eigvals(np.asarray(r.model.A))))
+    assert tau.max() > 5 * tau.min()            # a fast bed and a slow frame
+    assert _mean_fit(r.model, data) > 90.0

@@ -8,6 +8,7 @@ import json
 
 import jax
 import numpy as np
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 
@@ -21,21 +22,28 @@ from jthermo.data import from_arrays  # noqa: E402
 
 
 def _fit_plant(tmp_path, n=1):
+    """A fitted plant of `n` heaters and sensors (n = 2: TCLab-like) from a record that also
+    logs a fan and a set point per sensor (left out of the plant)."""
     u, y = _clean(n, T=300)
-    w = np.column_stack([np.where(np.arange(300) > 200, 1.0, 0.0)])   # a fan, off mostly
-    data = from_arrays(u, y, ts=1.0, w=w, signal_names=["fan_cmd"])
+    fan = np.where(np.arange(300) > 200, 1.0, 0.0)      # a fan, off mostly
+    target = np.repeat(np.where(np.arange(300) < 150, 30.0, 35.0)[:, None], n, axis=1)
+    w = np.column_stack([fan, target])
+    names = ["fan_cmd"] + [f"T{i + 1}_setpoint" for i in range(n)]
+    data = from_arrays(u, y, ts=1.0, w=w, signal_names=names)
     rec, model = tmp_path / "rec.csv", tmp_path / "p.jtm"
     save_csv(data, rec)
     assert cli.main(["fit", str(rec), "--model", "ss", "--out", str(model), "--quiet"]) == 0
     return data, model
 
 
-def test_operating_point_is_the_plants_everywhere(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("n", [1, 2])
+def test_operating_point_is_the_plants_everywhere(tmp_path, capsys, monkeypatch, n):
     from jthermo import tune
     from jthermo.control.design import design
 
-    data, pfile = _fit_plant(tmp_path)
+    data, pfile = _fit_plant(tmp_path, n)
     plant = io.load_model(pfile)
+    assert plant.n_inputs == n and plant.n_signals == 1     # the fan; no set point
     env = io.load_envelope(pfile)
     op = operating_point(plant, env)
     # the default: the middle of the recorded range (reachable here), the fan at its median (0)
@@ -63,7 +71,8 @@ def test_operating_point_is_the_plants_everywhere(tmp_path, capsys, monkeypatch)
         assert rc == 0, err
         assert "operating point: set point" in out + err
         reports.append(json.loads(js.read_text())["operating_point"])
-    assert all(r == op.to_dict() for r in reports), reports
+    assert len(reports) == 3 and all(r == op.to_dict() for r in reports), reports
+    assert len(op.setpoint) == n and op.signals == (0.0,)
     assert np.allclose(seen["setpoint"], op.setpoint)
     assert io.load_header(ctrl)["meta"]["operating_point"] == op.to_dict()
     # a given set point is the caller's
