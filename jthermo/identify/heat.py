@@ -51,6 +51,10 @@ SS_OPTIONS = ("max_steps",)
 #: simulates its record at least this well (mean fit %): a well-excited record's fit stays as
 #: it was, a closed-loop hold (a printer bed) gets the better of the two
 OWN_FIT_KEEP = 90.0
+#: ... and when the record has more sensors than this: the positive fit's dense Jacobian has
+#: ~n² columns for n ≥ 2 ny states, so at a printer's 16 zones the alternative alone costs
+#: ~900 CPU s against seconds for the plausible model already in hand
+ALTERNATIVE_MAX_OUTPUTS = 4
 
 
 def heat_data(data: IOData) -> tuple[IOData, dict]:
@@ -155,7 +159,8 @@ def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, 
                 seed: int = 0, n_starts: int = 8, progress=None,
                 **kw) -> tuple[FitResult, list]:
     """The family's own state space (`fitter`, the innovations form of `fit_statespace`, with
-    every option) where it passes `heat_check` and simulates its record to `OWN_FIT_KEEP` —
+    every option) where it passes `heat_check` and simulates its record to `OWN_FIT_KEEP` (or
+    has more than `ALTERNATIVE_MAX_OUTPUTS` sensors) —
     a virtual printer's or any well-excited record's fit is left as it was — else the positive
     state space of order `orders["n"]` or, automatically, n = ny or 2 ny (options:
     `SS_OPTIONS`), or the plausible own fit where that simulates its record better."""
@@ -173,7 +178,8 @@ def fit_ss_heat(data: IOData, orders: dict | None, criterion: str, fitter=None, 
             if chk["plausible"]:
                 own_fit = _mean_fit(r.model, data)
                 path.append(f"ss {_orders_text(r.orders)}: plausible, fit {own_fit:.1f} %")
-                if own_fit >= OWN_FIT_KEEP or orders is not None and orders["n"] < data.n_outputs:
+                if (own_fit >= OWN_FIT_KEEP or data.n_outputs > ALTERNATIVE_MAX_OUTPUTS
+                        or orders is not None and orders["n"] < data.n_outputs):
                     return r, path
                 own = (own_fit, r)
             else:

@@ -256,7 +256,8 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
     """Is `model` a plant heat could be, judged on its recording `data` (an `IOData`)?
     The step-response findings of `check_fit` (stable, no heater cooling its sensor, no inverse
     response beyond the noise), the sign of every static gain (no heater lowers any sensor's
-    steady temperature beyond the noise) and `coverage` of the recorded temperatures, with
+    steady temperature beyond the noise and `COVERAGE_SHARE` of the strongest heater effect on
+    that sensor) and `coverage` of the recorded temperatures, with
     zero input counted among the recorded ones when the record starts at rest
     (`starts_at_rest`).
 
@@ -269,10 +270,16 @@ def heat_check(model: AbstractModel, data, envelope: Envelope | None = None) -> 
     warnings = list(found["warnings"])
     sigma = np.asarray(env.noise_std, np.float64)
     names_y, names_u = data.output_names, data.input_names
+    # A heater lowers a sensor's steady temperature when its effect over its recorded range is
+    # negative beyond the noise and `COVERAGE_SHARE` of the largest heater effect on that sensor:
+    # at many zones a far heater's true effect is nil and its estimate scatters around zero.
+    effect = np.zeros((data.n_outputs, data.n_inputs))
     for p, (i, j) in zip(found["pairs"], np.ndindex(data.n_outputs, data.n_inputs)):
-        span = env.u_max[j] - env.u_min[j]
-        if p["dc_gain"] * span < -max(NOISE_SIGMAS * sigma[i], p["threshold_C"]) \
-                and not p["cools_own_sensor"]:
+        effect[i, j] = p["dc_gain"] * (env.u_max[j] - env.u_min[j])
+    strongest = np.max(np.abs(effect), axis=1) if effect.size else np.zeros(data.n_outputs)
+    for p, (i, j) in zip(found["pairs"], np.ndindex(data.n_outputs, data.n_inputs)):
+        tol = max(NOISE_SIGMAS * sigma[i], p["threshold_C"], COVERAGE_SHARE * strongest[i])
+        if effect[i, j] < -tol and not p["cools_own_sensor"]:
             warnings.append(f"{names_u[j]} -> {names_y[i]}: static gain {p['dc_gain']:.3g} °C per "
                             "unit input: a heater that lowers a sensor's steady temperature")
     shape_ok = not warnings

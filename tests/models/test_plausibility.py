@@ -11,7 +11,8 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 from jthermo.models import StateSpace, steady_output  # noqa: E402
-from jthermo.models.plausibility import coverage  # noqa: E402
+from jthermo.data import from_arrays  # noqa: E402
+from jthermo.models.plausibility import coverage, heat_check  # noqa: E402
 
 
 def _model(n, nw, seed):
@@ -55,3 +56,28 @@ def test_coverage_sees_every_input_at_many_zones():
     assert got["covered"]
     far = coverage(model, ur, None, np.stack([np.full(n, 20.0), np.full(n, 40.0)]))
     assert not far["covered"] and len(far["warnings"]) == n
+
+
+def _record(model, T=600, seed=0):
+    rng = np.random.default_rng(seed)
+    nu = model.B.shape[1]
+    u = np.repeat(rng.uniform(0, 1, (T // 30, nu)), 30, axis=0)
+    A, B, C = (np.asarray(m) for m in (model.A, model.B, model.C))
+    x = np.zeros(A.shape[0])
+    y = []
+    for k in range(T):
+        y.append(C @ x + 20.0)
+        x = A @ x + B @ u[k]
+    return from_arrays(u, np.array(y) + 0.01 * rng.standard_normal((T, C.shape[0])), ts=1.0)
+
+
+@pytest.mark.parametrize("cross,flagged", [(-0.02, False), (-0.2, True)])
+def test_a_heater_lowering_a_sensor_is_judged_against_the_strongest_effect(cross, flagged):
+    """Own gains of 10 °C per unit: a cross gain of -0.2 °C (2 %, a far zone's estimate
+    scattering around zero) is no finding; one of -2 °C (20 %) is."""
+    B = np.array([[1.0, cross], [0.0, 1.0]])
+    model = StateSpace(0.9 * np.eye(2), B, np.eye(2), ts=1.0, u0=np.zeros(2),
+                       y0=np.full(2, 20.0))
+    found = heat_check(model, _record(model))
+    lowers = [w for w in found["warnings"] if "lowers a sensor" in w]
+    assert bool(lowers) == flagged
