@@ -1,15 +1,11 @@
 """The process guards its compiled programs (`jthermo.programs`, re-exported by `runtime`):
 one bounded factory cache, a memory-map guard."""
 
-import multiprocessing
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from jthermo import programs, runtime
-from jthermo.sweep import runner
 
 
 def test_runtime_reexports_the_guard():
@@ -109,30 +105,3 @@ def test_fit_entry_runs_the_guard(monkeypatch):
     y = np.convolve(u[:, 0], 0.5 ** np.arange(20))[:200, None] + 0.01 * rng.standard_normal((200, 1))
     fit(from_arrays(u, y, 1.0), "arx", (1, 1, 1))
     assert calls
-
-
-@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
-def test_sweep_pool_recycles_workers(tmp_path, monkeypatch):
-    """A fresh pool every `workers * TRIALS_PER_WORKER` trials: every trial completes (a pool
-    whose workers all reached `max_tasks_per_child` together hung on Python 3.11), each pool
-    on fresh processes."""
-    from jthermo import sweep
-
-    monkeypatch.setattr(runner, "TRIALS_PER_WORKER", 1)
-    cfg = sweep.parse_config("""
-[sweep]
-name = "recycle"
-kind = "arx"
-[data]
-zones = 1
-samples = 300
-[space]
-na = [1, 2]
-nb = [1, 2]
-nk = [1]
-""")
-    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl", workers=2)
-    assert rep["n_run"] == 4
-    pids = [r["worker"]["pid"] for r in sweep.read_results(tmp_path / "r.jsonl")]
-    assert len(set(pids)) == 4
-    assert "max_tasks_per_child" not in runner.pool_options(multiprocessing.get_context("spawn"))

@@ -219,7 +219,7 @@ def coverage(model: AbstractModel, u_range, w_range=None, y_range=None, noise_st
                 "warnings": ["the model is not stable: it has no steady states"]}
     # Each output's extremes over the box, term by term: y0 - G u0 - Gw w0 plus, per input,
     # the smaller (larger) of G_ij u_min,j and G_ij u_max,j. Exact for any number of inputs.
-    _, G, Gw = steady_gains(model)
+    _, G, Gw = steady_gains(ss)
     u0, w0, y0 = (np.asarray(v, np.float64).reshape(-1) for v in (ss.u0, ss.w0, ss.y0))
     base = y0 - G @ u0
     lo_u, hi_u = np.minimum(G * ur[0], G * ur[1]).sum(1), np.maximum(G * ur[0], G * ur[1]).sum(1)

@@ -1,12 +1,14 @@
 """Sweeps: configuration, trial generation, append-as-you-go results, resume, pool and Ray."""
 
 import json
+import multiprocessing
 
 import pytest
 
 import jthermo
 from jthermo import sweep
 from jthermo.errors import ConfigError
+from jthermo.sweep import runner
 
 CFG = """
 [sweep]
@@ -420,3 +422,17 @@ def test_resume_after_an_upgrade_reruns_and_ignores_stale_rows(tmp_path, monkeyp
     df = upgraded.to_dataframe()
     assert set(df["id"]) == ids_after
     assert len(sweep.results_frame(sweep.read_results(res), cfg, stale=True)) == 8
+
+
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+def test_sweep_pool_recycles_workers(tmp_path, monkeypatch):
+    """A fresh pool every `workers * TRIALS_PER_WORKER` trials: every trial completes (a pool
+    whose workers all reached `max_tasks_per_child` together hung on Python 3.11), each pool
+    on fresh processes."""
+    monkeypatch.setattr(runner, "TRIALS_PER_WORKER", 1)
+    cfg = sweep.parse_config(CFG)
+    rep = sweep.run_sweep(cfg, tmp_path / "r.jsonl", workers=2)
+    assert rep["n_run"] == 4
+    pids = [r["worker"]["pid"] for r in sweep.read_results(tmp_path / "r.jsonl")]
+    assert len(set(pids)) == 4
+    assert "max_tasks_per_child" not in runner.pool_options(multiprocessing.get_context("spawn"))
