@@ -105,3 +105,18 @@ def test_fit_entry_runs_the_guard(monkeypatch):
     y = np.convolve(u[:, 0], 0.5 ** np.arange(20))[:200, None] + 0.01 * rng.standard_normal((200, 1))
     fit(from_arrays(u, y, 1.0), "arx", (1, 1, 1))
     assert calls
+
+
+def test_diagnose_runs_the_guard_between_its_stages(monkeypatch):
+    """A diagnosis compiles ~3,500 maps of programs: the guard runs at its start and after each
+    stage, before the stage is reported."""
+    from jthermo.diagnose import diagnose
+    from tests.diagnose.records import record
+
+    calls, seen = [], []
+    monkeypatch.setattr(runtime, "guard", lambda: calls.append(1) or False)
+    est, val = record(None, 0)          # the canonical records (tests/diagnose/records.py)
+    diagnose(est, val, progress=lambda i, n, info: seen.append((i, len(calls))))
+    assert [i for i, _ in seen] == [1, 2, 3, 4, 5, 6]
+    assert [c for _, c in seen] == sorted(c for _, c in seen) and seen[0][1] >= 2
+    assert all(b > a for (_, a), (_, b) in zip(seen, seen[1:]))

@@ -129,7 +129,11 @@ def diagnose(est, val, *, seed: int = 0, progress=None, mechanisms=M.MECHANISMS,
         raise ConfigError("diagnose: no candidate mechanism left to try (neighbour mechanisms "
                           "need at least two zones)")
     stages = ("baseline", "localisation", "candidates", "validation", "combination", "done")
-    tick = (lambda i: progress(i + 1, len(stages), {"stage": stages[i]})) if progress is not None else (lambda i: None)
+
+    def tick(i):
+        runtime.guard()     # between stages too: one diagnosis compiles ~3,500 maps of programs
+        if progress is not None:
+            progress(i + 1, len(stages), {"stage": stages[i]})
 
     pb = prepare(records, est, val, mechanisms)
     base = fit_baseline_stage(pb)
