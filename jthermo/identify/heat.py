@@ -22,9 +22,10 @@ recorded inputs cover the recorded temperatures (`models.plausibility.heat_check
 - `greybox`: positive by construction (first-order zones, log-parametrised gains); a measured
   signal is its surroundings only when its name says so (`SURROUNDINGS_WORDS`).
 
-Before any family: a logged set point (`w_*target*`, `w_*setpoint*`) is left out (neither an input nor a
-disturbance), so is an input constant over the record (a heater kept off); the remaining
-measured signals (a fan) are disturbances of the plant.
+Before any family: a logged set point (a `w_` column whose name holds `target`, `setpoint` or
+`set_point`, `models.plausibility.SETPOINT_WORDS`) is left out (neither an input nor a
+disturbance), so is an input constant over the record (a heater kept off); the remaining measured
+signals (a fan) are disturbances of the plant.
 """
 
 from __future__ import annotations
