@@ -15,9 +15,11 @@ recorded inputs cover the recorded temperatures (`models.plausibility.heat_check
   simulation errors.
 - `arx`, `armax`, `oe`, `bj`: the screened candidates are fitted as before and checked; the
   best plausible one by the criterion is kept. Where none is, the family's first-order model at
-  the estimated delay, then the constrained first-order model (`constrained_polynomial`: a
-  positive, uncoupled one-node-per-sensor fit written as the family's polynomials, so stable
-  with non-negative impulse responses by construction). Every step is reported in
+  the estimated delay, then the better fit of two plausible-by-construction models (stable,
+  non-negative impulse responses): the constrained first order (`constrained_polynomial`: a
+  positive, uncoupled one-node-per-sensor fit from rest) and, up to `ALTERNATIVE_MAX_OUTPUTS`
+  sensors, the positive state space of `fit_ss_heat` (coupled nodes, free initial state)
+  written as the family's polynomials (`positive_polynomial`). Every step is reported in
   `extra["physics"]["path"]`.
 - `greybox`: positive by construction (first-order zones, log-parametrised gains); a measured
   signal is its surroundings only when its name says so (`SURROUNDINGS_WORDS`).
@@ -275,10 +277,10 @@ def positive_polynomial(ss, family: str, horizon: int = 400) -> Polynomial | Non
     """The discrete state space `ss` (D = 0, u0 = 0: a positive fit) written as `family`'s
     polynomials, or None where that loses digits (`CONVERSION_TOL`).
 
-    Each output gets the common denominator $a(q^{-1}) = \det(I - A q^{-1})$
+    Each output gets the common denominator $a(q^{-1}) = \\det(I - A q^{-1})$
     (`np.poly` of A: its roots are A's eigenvalues, so stability carries over); with the
     Markov parameters $h_k = C A^{k-1} B$ the numerators are
-    $n_k = \sum_{m=0}^{k-1} a_m h_{k-m}$, $k = 1..n$ ($a_0 = 1$), since $a \cdot H = N$ has
+    $n_k = \\sum_{m=0}^{k-1} a_m h_{k-m}$, $k = 1..n$ ($a_0 = 1$), since $a \\cdot H = N$ has
     degree n in $q^{-1}$. ARX/ARMAX take $A_i = a$, OE/BJ $F_{ij} = a$ (C = D = 1), nk = 1: the
     impulse responses are the state space's, non-negative when it is positive."""
     A, B, C = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C))
@@ -326,7 +328,11 @@ def positive_as_polynomial(data: IOData, family: str, criterion: str) -> tuple[F
     """The heat path's positive state space (`fit_ss_heat` without the family's own fit:
     coupled nodes, free initial state; measured signals left out, as polynomials carry none)
     written as `family`'s polynomials: `(result or None, path)`; None where no positive fit
-    could be made or written as polynomials."""
+    could be made or written as polynomials, or the record has more than
+    `ALTERNATIVE_MAX_OUTPUTS` sensors."""
+    if data.n_outputs > ALTERNATIVE_MAX_OUTPUTS:
+        return None, [f"{family} from the positive state space: not tried beyond "
+                      f"{ALTERNATIVE_MAX_OUTPUTS} sensors (its fit's cost grows as n^2 columns)"]
     if data.w.shape[1]:         # polynomials carry no measured signals: fitted without them
         data = data.replace(w=np.zeros((data.n_samples, 0)), signal_names=())
     key = _record_key(data, criterion)
