@@ -139,9 +139,9 @@ def before_row(rec: str, family: str, models: Path) -> dict:
 
 
 def used_setpoint(rec: str, mod: Path) -> bool:
-    """Did the saved model take a logged set point (`w_*target*`, `w_*setpoint*`) as a measured
-    signal? Such a model predicts a closed loop's temperature from its own set point: its fit is
-    no plant's and is not compared."""
+    """Did the saved model take a logged set point (`w_*target*`, `w_*setpoint*`, `w_*set_point*`)
+    as a measured signal? Such a model predicts a closed loop's temperature from its own set
+    point: its fit is no plant's and is not compared."""
     from jthermo.models.plausibility import is_setpoint_signal
 
     n = jio.load_model(mod).n_signals

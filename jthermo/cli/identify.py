@@ -47,8 +47,9 @@ def add_parsers(sub) -> None:
     sp.add_argument("--physics", choices=("heat", "none"), default="heat",
                     help="heat (default: inputs are heat commands, outputs temperatures; the "
                     "model is stable, no heater lowers a sensor's steady temperature, no "
-                    "inverse step response, logged set points w_*target* left out) or none "
-                    "(any linear system, every column as given)")
+                    "inverse step response; a logged set point, a w_ column whose name holds "
+                    "target, setpoint or set_point, is left out: neither an input nor a "
+                    "disturbance) or none (any linear system, every column as given)")
     sp.add_argument("--rest-level", metavar="T[,T...]",
                     help="arx/armax/oe/bj: the outputs' level at rest with zero input when known "
                     "(e.g. the measured ambient, °C; one number or one per output)")

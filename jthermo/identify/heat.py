@@ -15,21 +15,25 @@ recorded inputs cover the recorded temperatures (`models.plausibility.heat_check
   simulation errors.
 - `arx`, `armax`, `oe`, `bj`: the screened candidates are fitted as before and checked; the
   best plausible one by the criterion is kept. Where none is, the family's first-order model at
-  the estimated delay, then the constrained first-order model (`constrained_polynomial`: a
-  positive, uncoupled one-node-per-sensor fit written as the family's polynomials, so stable
-  with non-negative impulse responses by construction). Every step is reported in
+  the estimated delay, then the better fit of two plausible-by-construction models (stable,
+  non-negative impulse responses): the constrained first order (`constrained_polynomial`: a
+  positive, uncoupled one-node-per-sensor fit from rest) and, up to `ALTERNATIVE_MAX_OUTPUTS`
+  sensors, the positive state space of `fit_ss_heat` (coupled nodes, free initial state)
+  written as the family's polynomials (`positive_polynomial`). Every step is reported in
   `extra["physics"]["path"]`.
 - `greybox`: positive by construction (first-order zones, log-parametrised gains); a measured
   signal is its surroundings only when its name says so (`SURROUNDINGS_WORDS`).
 
-Before any family: a logged set point (`w_*target*`, `w_*setpoint*`) is left out (neither an input nor a
-disturbance), so is an input constant over the record (a heater kept off); the remaining
-measured signals (a fan) are disturbances of the plant.
+Before any family: a logged set point (a `w_` column whose name holds `target`, `setpoint` or
+`set_point`, `models.plausibility.SETPOINT_WORDS`) is left out (neither an input nor a
+disturbance), so is an input constant over the record (a heater kept off); the remaining measured
+signals (a fan) are disturbances of the plant.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numpy as np
 
@@ -264,6 +268,92 @@ def constrained_polynomial(data: IOData, family: str) -> FitResult:
                      cost=r.cost, extra={"constrained": True})
 
 
+#: a state space written as polynomials is kept only when their impulse responses agree to
+#: this share of the largest one (a high-order characteristic polynomial loses digits)
+CONVERSION_TOL = 1e-6
+
+
+def positive_polynomial(ss, family: str, horizon: int = 400) -> Polynomial | None:
+    """The discrete state space `ss` (D = 0, u0 = 0: a positive fit) written as `family`'s
+    polynomials, or None where that loses digits (`CONVERSION_TOL`).
+
+    Each output gets the common denominator $a(q^{-1}) = \\det(I - A q^{-1})$
+    (`np.poly` of A: its roots are A's eigenvalues, so stability carries over); with the
+    Markov parameters $h_k = C A^{k-1} B$ the numerators are
+    $n_k = \\sum_{m=0}^{k-1} a_m h_{k-m}$, $k = 1..n$ ($a_0 = 1$), since $a \\cdot H = N$ has
+    degree n in $q^{-1}$. ARX/ARMAX take $A_i = a$, OE/BJ $F_{ij} = a$ (C = D = 1), nk = 1: the
+    impulse responses are the state space's, non-negative when it is positive."""
+    A, B, C = (np.asarray(m, np.float64) for m in (ss.A, ss.B, ss.C))
+    n, ny, nu = A.shape[0], C.shape[0], B.shape[1]
+    a = np.real(np.poly(A))
+    h = np.empty((max(horizon, n) + 1, ny, nu))
+    h[0] = 0.0
+    x = B.copy()
+    for k in range(1, h.shape[0]):
+        h[k] = C @ x
+        x = A @ x
+    num = np.stack([sum(a[m] * h[k - m] for m in range(k)) for k in range(1, n + 1)], axis=-1)
+    kw = dict(b=num, nk=1, ts=ss.ts, u0=np.zeros(nu), y0=np.asarray(ss.y0))
+    if family in ("arx", "armax"):
+        model = Polynomial(a=np.repeat(a[None, 1:], ny, axis=0), **kw)
+    else:
+        model = Polynomial(f=np.broadcast_to(a[1:], (ny, nu, n)).copy(), **kw)
+    got = np.asarray(model.impulse_response(horizon))
+    want = h[:horizon] if got.shape[0] == horizon else h[:got.shape[0]]
+    scale = max(float(np.abs(h).max()), 1e-300)
+    if not np.all(np.isfinite(got)) or np.abs(got - want).max() > CONVERSION_TOL * scale:
+        return None
+    return model
+
+
+def _positive_orders(family: str, n: int) -> dict:
+    return {"arx": {"na": n, "nb": n, "nk": 1}, "armax": {"na": n, "nb": n, "nc": 0, "nk": 1},
+            "oe": {"nb": n, "nf": n, "nk": 1},
+            "bj": {"nb": n, "nc": 0, "nd": 0, "nf": n, "nk": 1}}[family]
+
+
+#: the last record's positive state space: the same for every polynomial family fitted to it
+_POSITIVE_MEMO: dict = {}
+
+
+def _record_key(data: IOData, criterion: str) -> tuple:
+    h = hashlib.sha1(repr((data.u.shape, data.y.shape)).encode())
+    for arr in (data.u, data.y):
+        h.update(np.ascontiguousarray(np.asarray(arr, np.float64)).tobytes())
+    return h.hexdigest(), float(data.ts), criterion
+
+
+def positive_as_polynomial(data: IOData, family: str, criterion: str) -> tuple[FitResult | None,
+                                                                                 list]:
+    """The heat path's positive state space (`fit_ss_heat` without the family's own fit:
+    coupled nodes, free initial state; measured signals left out, as polynomials carry none)
+    written as `family`'s polynomials: `(result or None, path)`; None where no positive fit
+    could be made or written as polynomials, or the record has more than
+    `ALTERNATIVE_MAX_OUTPUTS` sensors."""
+    if data.n_outputs > ALTERNATIVE_MAX_OUTPUTS:
+        return None, [f"{family} from the positive state space: not tried beyond "
+                      f"{ALTERNATIVE_MAX_OUTPUTS} sensors (its fit's cost grows as n^2 columns)"]
+    if data.w.shape[1]:         # polynomials carry no measured signals: fitted without them
+        data = data.replace(w=np.zeros((data.n_samples, 0)), signal_names=())
+    key = _record_key(data, criterion)
+    if key not in _POSITIVE_MEMO:
+        try:
+            _POSITIVE_MEMO.clear()
+            _POSITIVE_MEMO[key] = fit_ss_heat(data, None, criterion)
+        except FitError as exc:
+            return None, [f"{family} from the positive state space: {exc}"]
+    r, path = _POSITIVE_MEMO[key]
+    n = r.model.A.shape[0]
+    model = positive_polynomial(r.model, family)
+    if model is None:
+        return None, [*path, f"{family} from the positive state space n={n}: not written as "
+                      "polynomials (its characteristic polynomial loses digits)"]
+    res = FitResult(model=model, family=family, orders=_positive_orders(family, n),
+                    converged=r.converged, cost=r.cost,
+                    extra={"constrained": True, "positive_state_space": True})
+    return res, path
+
+
 def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: str,
                         **kw) -> tuple[FitResult, list, list | None]:
     """Plausible candidates only (module docstring): `(result, path, order table)`;
@@ -305,7 +395,23 @@ def fit_polynomial_heat(data: IOData, family: str, fitter, screen, criterion: st
     chk = heat_check(r.model, data)
     path.append(f"{family} {_orders_text(r.orders)}: constrained first order (positive "
                 "gains, pole in (0, 1))" + ("" if chk["plausible"] else f", {chk['warnings'][0]}"))
-    return r, path, table
+    pos, sub = positive_as_polynomial(data, family, criterion)
+    if pos is None:
+        path.extend(sub[-1:])
+        return r, path, table
+    pos_chk = heat_check(pos.model, data)
+    path.append(f"{family} {_orders_text(pos.orders)}: the positive state space n="
+                f"{pos.orders['nb']} as polynomials" + ("" if pos_chk["plausible"]
+                                                       else f", {pos_chk['warnings'][0]}"))
+    if not pos_chk["plausible"]:
+        return r, path, table
+    fits = [_mean_fit(m.model.to_statespace(), data) for m in (r, pos)]
+    if chk["plausible"] and fits[0] >= fits[1]:
+        path.append(f"constrained first order kept: fit {fits[0]:.1f} % against {fits[1]:.1f} %")
+        return r, path, table
+    path.append(f"positive state space chosen: fit {fits[1]:.1f} %"
+                + (f" against {fits[0]:.1f} %" if chk["plausible"] else ""))
+    return pos, path, table
 
 
 def greybox_options(data: IOData, kw: dict) -> dict:
@@ -356,4 +462,5 @@ def with_report(res: FitResult, data: IOData, path: list, dropped: dict) -> FitR
 
 
 __all__ = ["PHYSICS", "SURROUNDINGS_WORDS", "constrained_polynomial", "first_order",
-           "fit_greybox_heat", "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data", "rest_before", "with_report"]
+           "fit_greybox_heat", "fit_polynomial_heat", "fit_ss_heat", "greybox_options", "heat_data",
+           "positive_as_polynomial", "positive_polynomial", "rest_before", "with_report"]

@@ -267,3 +267,46 @@ def test_positive_level_bounded_and_slow_surroundings_fitted():
     tau = -1.0 / np.log(np.abs(np.linalg.eigvals(np.asarray(r.model.A))))
     assert tau.max() > 5 * tau.min()            # a fast bed and a slow frame
     assert _mean_fit(r.model, data) > 90.0
+
+
+def _positive_ss(n, ny, nu, seed=0):
+    """A discrete positive state space: non-negative A of spectral radius 0.97 at most, B, C
+    non-negative, sensor i reading node i."""
+    from jthermo.models import StateSpace
+
+    rng = np.random.default_rng(seed)
+    A = np.diag(rng.uniform(0.5, 0.95, n)) + 0.02 * rng.uniform(0, 1, (n, n)) * (1 - np.eye(n))
+    A *= 0.97 / max(np.abs(np.linalg.eigvals(A)).max(), 0.97)
+    C = np.zeros((ny, n))
+    C[np.arange(ny), np.arange(ny)] = 1.0
+    return StateSpace(A, rng.uniform(0, 1, (n, nu)), C, ts=1.0, y0=rng.uniform(20, 30, ny))
+
+
+@pytest.mark.parametrize("family", ["arx", "armax", "oe", "bj"])
+@pytest.mark.parametrize("n,ny,nu", [(1, 1, 1), (2, 2, 2), (4, 2, 2)])
+def test_positive_state_space_as_polynomials_simulates_alike(family, n, ny, nu):
+    from jthermo.identify.heat import positive_polynomial
+
+    ss = _positive_ss(n, ny, nu)
+    m = positive_polynomial(ss, family)
+    u = np.random.default_rng(1).uniform(0, 1, (300, nu))
+    A, B, C = (np.asarray(x) for x in (ss.A, ss.B, ss.C))
+    x, want = np.zeros(n), np.empty((300, ny))
+    for k in range(300):                 # the state recursion from rest, written out
+        want[k] = np.asarray(ss.y0) + C @ x
+        x = A @ x + B @ u[k]
+    np.testing.assert_allclose(np.asarray(m.simulate(u)), want, rtol=0, atol=1e-8)
+    assert _step_ok(m)
+
+
+def test_positive_polynomial_refuses_what_loses_digits_and_many_sensors():
+    """16 nodes: the characteristic polynomial of degree 16 loses digits, so no polynomial is
+    returned (the constrained first order is the fallback); a 16-sensor record does not try."""
+    from jthermo.identify.heat import positive_as_polynomial, positive_polynomial
+
+    assert positive_polynomial(_positive_ss(16, 16, 16), "arx") is None
+    r, path = positive_as_polynomial(drift_record(n=16), "arx", "aic")
+    assert r is None and "not tried beyond" in path[-1]
+    data = coupled_record()
+    r, path = positive_as_polynomial(data, "oe", "aic")
+    assert r is not None and heat_check(r.model, data)["plausible"] and _step_ok(r.model)
