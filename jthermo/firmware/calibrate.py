@@ -20,6 +20,8 @@
    Yardsticks, each under Klipper's law: the gains `PID_CALIBRATE` computes on the same model
    (`pid.pid_calibrate`) and the gains the printer ran with (from the import's summary); the
    model-based controllers (`MODEL_BASED`, designed on the design model) and the lambda PI.
+   With a two-state model, the firmware's own MPC (`mpc_law.FirmwareMPC`: Kalico's law with
+   the exported constants, kind `firmware_mpc`).
 6. **Judgement** on the cross-record plant, on rollouts neither tuned nor selected on: the
    set-point changes' MSE, the time at an input limit, the start-up overshoot, the load
    step's MSE, and what no controller beats, the full-power floor plus the noise
@@ -46,6 +48,7 @@ from ..models.envelope import Envelope, check_reachable, equilibrium_input
 from ..tune.own import limits
 from . import klippy, mpc, settings, tuning
 from . import report as report_mod
+from .mpc_law import FirmwareMPC
 from .pid import KlipperPID, pid_calibrate
 
 #: the model families tried, cheapest first
@@ -316,6 +319,10 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     if cfg.get("control") == "pid" and est.n_outputs == 1:
         ctrls["printer_config"] = KlipperPID(cfg["pid_kp"], cfg["pid_ki"], cfg["pid_kd"], **kw)
         kinds["printer_config"] = "yardstick"
+    if two is not None:
+        ctrls["firmware_mpc"] = FirmwareMPC.from_constants(
+            two["constants"], ts=float(est.ts), max_power=max_power, u_hold=u_hold)
+        kinds["firmware_mpc"] = "firmware_mpc"
     for f in ("pi_lambda", *MODEL_BASED):
         try:
             ctrls[f] = design(f, model, setpoint=r)
@@ -342,7 +349,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     fw_text = {"klipper": lambda: settings.klipper_cfg(final, heaters, note),
                "kalico": lambda: settings.kalico_cfg(final, heaters, consts, note),
                "marlin": lambda: settings.marlin_gcode(final, heaters, note, consts),
-               "c": lambda: settings.c_source(final)}[firmware]()
+               "c": lambda: settings.c_source(final, note=note)}[firmware]()
     fw_path = out / settings.FILE_NAMES[firmware]
     atomic_write_text(fw_path, fw_text)
     ctrl_path = io.save(final, out / "controller.jtm",
