@@ -234,11 +234,12 @@ def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
 def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heater=None,
               setpoint=None, seed: int = 0, steps: int = STEPS, rollouts: int = ROLLOUTS,
               heater_power: float = mpc.HEATER_POWER_W, diagnosis: bool = True,
-              figures: bool = True, command: str = "jthermo calibrate",
+              figures: bool = True, oracle: bool = False, command: str = "jthermo calibrate",
               progress: Callable[[str], None] | None = None) -> dict:
     """Records -> tuned firmware PID, its settings and a report in folder `out` (module
     docstring). `heater_power`: W, the scale of the MPC constants; `diagnosis`, `figures`:
-    run the diagnosis, draw the figures; `command`: named in the report beside them. Returns
+    run the diagnosis, draw the figures; `oracle`: also tune the firmware PID on the judging
+    plant itself (`_oracle`, in `limits`); `command`: named in the report beside them. Returns
     the JSON-ready report (`model`, `setpoints`, `finding`, `verdict`, `controllers`,
     `floor_plus_noise`, `load`, `mpc`, `firmware`, `files`)."""
     say = progress or (lambda s: None)
@@ -275,7 +276,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
                                  val_model, plant_name, heaters, firmware=firmware, seed=seed,
                                  steps=steps, rollouts=rollouts, heater_power=heater_power,
-                                 figures=figures, command=command, say=say, pending=pending)
+                                 figures=figures, oracle=oracle, command=command, say=say,
+                                 pending=pending)
     finally:
         pool.shutdown(wait=True)
     return report
@@ -283,7 +285,7 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
 
 def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
                     plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
-                    figures, command, say, pending) -> dict:
+                    figures, oracle, command, say, pending) -> dict:
     """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
     (the diagnosis `pending` in another thread, collected before the report)."""
     from .. import io
@@ -330,9 +332,14 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
         except JThermoError:
             continue
     say(f"judging {len(ctrls)} controllers on {plant_name}")
-    table, first = _judge(ctrls, val_model, tuning.scenarios(val_model, env, r, duration,
-                                                             seed + 1, rollouts, load))
+    judge_scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
+    table, first = _judge(ctrls, val_model, judge_scs)
     lim = limits(val_model, env, r, duration, seed)
+    if oracle and val_model is not model:
+        lim["pid_oracle"] = _oracle(val_model, env, r, kw, duration=duration, seed=seed,
+                                    rollouts=rollouts, steps=steps, load=load, scs=judge_scs,
+                                    bound=lim["tracking_bound_mse"], max_power=max_power,
+                                    say=say)
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
     why_not = _why_not(agree, table["firmware_pid"])
     if why_not:
@@ -390,6 +397,26 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
     return report
+
+
+def _oracle(val_model, env, r, kw, *, duration, seed, rollouts, steps, load, scs, bound,
+            max_power, say) -> dict:
+    """The same search (`tuning.tune_firmware_pid`) run on the judging plant itself and judged
+    there on the judgement's held-out rollouts `scs`: the best a firmware PID does where the
+    plant is known, the reachable part of the floor + noise. It measures the data, not a
+    tuning to use (it has seen the validation record)."""
+    say("oracle: the firmware PID tuned on the judging plant itself")
+    _, ku, tu = _ultimate(design_point(val_model, setpoint=r), val_model, r,
+                          int(val_model.n_outputs), max_power, lambda s: None)
+    kw = {**kw, "u_hold": equilibrium_input(val_model, r, env.signals(val_model))}
+    t = tuning.tune_firmware_pid(val_model, env, r, ku, tu, duration=duration, seed=seed,
+                                 rollouts=rollouts, steps=steps, kw=kw, load=load)
+    row = tuning.evaluate(t["controller"], val_model, scs)
+    pct = None if not bound else 100.0 * (row["mse"] / bound - 1.0)
+    say(f"oracle: set-point MSE {row['mse']:.3g} °C²"
+        + ("" if pct is None else f", {pct:+.1f} % against the floor + noise"))
+    return {**row, "vs_bound_percent": pct, "factors": t["factors"],
+            "gains": t["controller"].gains()}
 
 
 def _agreement(ku, tu, val_model, model, r, max_power) -> str | None:
