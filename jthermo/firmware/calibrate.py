@@ -33,6 +33,7 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -406,6 +407,7 @@ def _oracle(val_model, env, r, kw, *, duration, seed, rollouts, steps, load, scs
     plant is known, the reachable part of the floor + noise. It measures the data, not a
     tuning to use (it has seen the validation record)."""
     say("oracle: the firmware PID tuned on the judging plant itself")
+    t0 = time.thread_time()
     _, ku, tu = _ultimate(design_point(val_model, setpoint=r), val_model, r,
                           int(val_model.n_outputs), max_power, lambda s: None)
     kw = {**kw, "u_hold": equilibrium_input(val_model, r, env.signals(val_model))}
@@ -416,7 +418,7 @@ def _oracle(val_model, env, r, kw, *, duration, seed, rollouts, steps, load, scs
     say(f"oracle: set-point MSE {row['mse']:.3g} °C²"
         + ("" if pct is None else f", {pct:+.1f} % against the floor + noise"))
     return {**row, "vs_bound_percent": pct, "factors": t["factors"],
-            "gains": t["controller"].gains()}
+            "gains": t["controller"].gains(), "cpu_s": time.thread_time() - t0}
 
 
 def _agreement(ku, tu, val_model, model, r, max_power) -> str | None:
