@@ -39,6 +39,9 @@ def add_parsers(sub) -> None:
     sp.add_argument("--heater-power", type=float, default=None, metavar="W",
                     help="the heater's rated power, W, the scale of the MPC constants "
                     "(default 40, Marlin's MPC_HEATER_POWER)")
+    sp.add_argument("--oracle", action="store_true", help="also tune the firmware PID on the "
+                    "judging plant itself: what a PID reaches where the plant is known (a "
+                    "measure of the data, not a tuning to use)")
     add_common(sp, plot=False)
 
 
@@ -91,6 +94,7 @@ def cmd_calibrate(args: argparse.Namespace) -> dict:
     report = calibrate.calibrate(args.data, out, validation=args.validation,
                                  firmware=args.firmware, heater=args.heater,
                                  setpoint=args.setpoint, seed=args.seed, progress=say,
+                                 oracle=args.oracle,
                                  command=command, **kw)
     report = write_report(args, js, report)
     if not report.get("supported", True):      # said even with --quiet

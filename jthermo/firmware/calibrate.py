@@ -20,6 +20,8 @@
    Yardsticks, each under Klipper's law: the gains `PID_CALIBRATE` computes on the same model
    (`pid.pid_calibrate`) and the gains the printer ran with (from the import's summary); the
    model-based controllers (`MODEL_BASED`, designed on the design model) and the lambda PI.
+   With a two-state model, the firmware's own MPC (`mpc_law.FirmwareMPC`: Kalico's law with
+   the exported constants, kind `firmware_mpc`).
 6. **Judgement** on the cross-record plant, on rollouts neither tuned nor selected on: the
    set-point changes' MSE, the time at an input limit, the start-up overshoot, the load
    step's MSE, and what no controller beats, the full-power floor plus the noise
@@ -31,6 +33,7 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -46,6 +49,7 @@ from ..models.envelope import Envelope, check_reachable, equilibrium_input
 from ..tune.own import limits
 from . import klippy, mpc, settings, tuning
 from . import report as report_mod
+from .mpc_law import FirmwareMPC
 from .pid import KlipperPID, pid_calibrate
 
 #: the model families tried, cheapest first
@@ -231,11 +235,12 @@ def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
 def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heater=None,
               setpoint=None, seed: int = 0, steps: int = STEPS, rollouts: int = ROLLOUTS,
               heater_power: float = mpc.HEATER_POWER_W, diagnosis: bool = True,
-              figures: bool = True, command: str = "jthermo calibrate",
+              figures: bool = True, oracle: bool = False, command: str = "jthermo calibrate",
               progress: Callable[[str], None] | None = None) -> dict:
     """Records -> tuned firmware PID, its settings and a report in folder `out` (module
     docstring). `heater_power`: W, the scale of the MPC constants; `diagnosis`, `figures`:
-    run the diagnosis, draw the figures; `command`: named in the report beside them. Returns
+    run the diagnosis, draw the figures; `oracle`: also tune the firmware PID on the judging
+    plant itself (`_oracle`, in `limits`); `command`: named in the report beside them. Returns
     the JSON-ready report (`model`, `setpoints`, `finding`, `verdict`, `controllers`,
     `floor_plus_noise`, `load`, `mpc`, `firmware`, `files`)."""
     say = progress or (lambda s: None)
@@ -272,7 +277,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
                                  val_model, plant_name, heaters, firmware=firmware, seed=seed,
                                  steps=steps, rollouts=rollouts, heater_power=heater_power,
-                                 figures=figures, command=command, say=say, pending=pending)
+                                 figures=figures, oracle=oracle, command=command, say=say,
+                                 pending=pending)
     finally:
         pool.shutdown(wait=True)
     return report
@@ -280,7 +286,7 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
 
 def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
                     plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
-                    figures, command, say, pending) -> dict:
+                    figures, oracle, command, say, pending) -> dict:
     """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
     (the diagnosis `pending` in another thread, collected before the report)."""
     from .. import io
@@ -316,6 +322,10 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     if cfg.get("control") == "pid" and est.n_outputs == 1:
         ctrls["printer_config"] = KlipperPID(cfg["pid_kp"], cfg["pid_ki"], cfg["pid_kd"], **kw)
         kinds["printer_config"] = "yardstick"
+    if two is not None:
+        ctrls["firmware_mpc"] = FirmwareMPC.from_constants(
+            two["constants"], ts=float(est.ts), max_power=max_power, u_hold=u_hold)
+        kinds["firmware_mpc"] = "firmware_mpc"
     for f in ("pi_lambda", *MODEL_BASED):
         try:
             ctrls[f] = design(f, model, setpoint=r)
@@ -323,9 +333,14 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
         except JThermoError:
             continue
     say(f"judging {len(ctrls)} controllers on {plant_name}")
-    table, first = _judge(ctrls, val_model, tuning.scenarios(val_model, env, r, duration,
-                                                             seed + 1, rollouts, load))
+    judge_scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
+    table, first = _judge(ctrls, val_model, judge_scs)
     lim = limits(val_model, env, r, duration, seed)
+    if oracle and val_model is not model:
+        lim["pid_oracle"] = _oracle(val_model, env, r, kw, duration=duration, seed=seed,
+                                    rollouts=rollouts, steps=steps, load=load, scs=judge_scs,
+                                    bound=lim["tracking_bound_mse"], max_power=max_power,
+                                    say=say)
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
     why_not = _why_not(agree, table["firmware_pid"])
     if why_not:
@@ -342,7 +357,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     fw_text = {"klipper": lambda: settings.klipper_cfg(final, heaters, note),
                "kalico": lambda: settings.kalico_cfg(final, heaters, consts, note),
                "marlin": lambda: settings.marlin_gcode(final, heaters, note, consts),
-               "c": lambda: settings.c_source(final)}[firmware]()
+               "c": lambda: settings.c_source(final, note=note)}[firmware]()
     fw_path = out / settings.FILE_NAMES[firmware]
     atomic_write_text(fw_path, fw_text)
     ctrl_path = io.save(final, out / "controller.jtm",
@@ -383,6 +398,27 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
     return report
+
+
+def _oracle(val_model, env, r, kw, *, duration, seed, rollouts, steps, load, scs, bound,
+            max_power, say) -> dict:
+    """The same search (`tuning.tune_firmware_pid`) run on the judging plant itself and judged
+    there on the judgement's held-out rollouts `scs`: the best a firmware PID does where the
+    plant is known, the reachable part of the floor + noise. It measures the data, not a
+    tuning to use (it has seen the validation record)."""
+    say("oracle: the firmware PID tuned on the judging plant itself")
+    t0 = time.thread_time()
+    _, ku, tu = _ultimate(design_point(val_model, setpoint=r), val_model, r,
+                          int(val_model.n_outputs), max_power, lambda s: None)
+    kw = {**kw, "u_hold": equilibrium_input(val_model, r, env.signals(val_model))}
+    t = tuning.tune_firmware_pid(val_model, env, r, ku, tu, duration=duration, seed=seed,
+                                 rollouts=rollouts, steps=steps, kw=kw, load=load)
+    row = tuning.evaluate(t["controller"], val_model, scs)
+    pct = None if not bound else 100.0 * (row["mse"] / bound - 1.0)
+    say(f"oracle: set-point MSE {row['mse']:.3g} °C²"
+        + ("" if pct is None else f", {pct:+.1f} % against the floor + noise"))
+    return {**row, "vs_bound_percent": pct, "factors": t["factors"],
+            "gains": t["controller"].gains(), "cpu_s": time.thread_time() - t0}
 
 
 def _agreement(ku, tu, val_model, model, r, max_power) -> str | None:

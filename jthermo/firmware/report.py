@@ -14,7 +14,7 @@ from ..plots import plot_closed_loop, plot_compare, plot_step
 FIGURES = {"fit": "fit.png", "step": "step.png", "startup": "closed_loop_startup.png",
            "changes": "closed_loop_changes.png", "comparison": "comparison.png"}
 #: the controllers drawn in the comparison beside the tuned PID, when there
-COMPARED = ("pid_calibrate", "printer_config", "pi_lambda")
+COMPARED = ("pid_calibrate", "printer_config", "firmware_mpc", "pi_lambda")
 
 
 def figures(out: Path, *, val, yhat: dict, fits: dict, models: dict, runs: dict, ts: float,
@@ -76,7 +76,7 @@ def markdown(rep: dict, fw_text: str, figs: dict | None, command: str) -> str:
                 "step": "step responses of the design and the validation models",
                 "startup": "the tuned firmware PID's start-up on the judging plant",
                 "changes": "its set-point changes (and their input)",
-                "comparison": "the start-up of the tuned PID and the yardsticks"}
+                "comparison": "the start-up of the tuned PID, the firmware MPC and the yardsticks"}
         lines += [f"![{caps[k]}]({v})" for k, v in figs.items()] + [""]
     lines += ["## Settings", "", fence, fw_text.rstrip(), fence, ""]
     return "\n".join(lines)

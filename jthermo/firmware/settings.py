@@ -15,7 +15,11 @@
   of the two-state block + sensor model (`mpc.mpc_model`); **Kalico** (`docs/MPC.md`):
   `control: mpc` with `heater_power`, `block_heat_capacity`, `sensor_responsiveness`,
   `ambient_transfer`, `fan_ambient_transfer`.
-- **C**: the same Klipper law as a self-contained C function with the gains compiled in.
+- **C**: the same Klipper law as a self-contained C function with the gains compiled in
+  (`smooth_time` among them).
+
+Every file starts with the calibration's note (a comment), which says first when the result
+is not a tuning to use.
 """
 
 from __future__ import annotations
@@ -65,6 +69,9 @@ def marlin_gcode(ctrl: KlipperPID, heaters, note: str = "", mpc: dict | None = N
     out += [("; Marlin's derivative is filtered by PID_K1 = 0.95 per PID_dT and its PID acts only "
             "within PID_FUNCTIONAL_RANGE of the target; these gains were tuned under Klipper's law "
             "with the same units (PID_MAX = 255).")]
+    taus = ", ".join(f"{h} {g['smooth_time']:g} s" for h, g in zip(heaters, ctrl.gains()))
+    out.append(f"; the tuning's derivative smoothing (Klipper's smooth_time: {taus}) has no M301 / "
+               "M304 setting: Marlin keeps its fixed PID_K1 filter.")
     e = 0
     for h, g in zip(heaters, ctrl.gains()):
         gains = f"P{_f(g['pid_Kp'])} I{_f(g['pid_Ki'])} D{_f(g['pid_Kd'])}"
@@ -123,12 +130,14 @@ def marlin_mpc(constants: dict, e: int = 0) -> str:
             f"F{_g(c.get('fan_ambient_transfer', c['ambient_transfer']))}")
 
 
-def c_source(ctrl: KlipperPID, name: str = "jthermo_heater") -> str:
-    """Klipper's law in C (one state struct per heater, `*_update` once per reading)."""
+def c_source(ctrl: KlipperPID, name: str = "jthermo_heater", note: str = "") -> str:
+    """Klipper's law in C (one state struct per heater, `*_update` once per reading); `note`
+    (e.g. that it is not a tuning to use) heads the file as a comment."""
     g = ctrl.gains()
     n = len(g)
     arr = lambda k: ", ".join(repr(float(x[k])) for x in g)
-    return f"""/* Klipper's heater PID (klippy/extras/heaters.py, ControlPID), tuned by jthermo.
+    head = "".join(f"/* {line.replace('*/', '* /')} */\n" for line in note.splitlines())
+    return head + f"""/* Klipper's heater PID (klippy/extras/heaters.py, ControlPID), tuned by jthermo.
  * Call {name}_update(state, i, dt, temp, target) once per sensor reading; returns the duty. */
 #include <math.h>
 #define {name.upper()}_N {n}

@@ -27,6 +27,7 @@ changes' MSE with a start-up that does not overshoot and a loop that is not bang
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -82,16 +83,43 @@ def padded(ctrls: list, size: int = BATCH) -> list:
     return ctrls + [ctrls[-1]] * ((-n) % size)
 
 
+def merged(scs: dict):
+    """The scenarios of `scs` as one batch of rollouts (their kinds' rollouts one after the
+    other) and each kind's slice of it; None where their shapes differ. On a fitted model a
+    scenario's kind is only a label (the loop starts from `y0` either way), so one compiled
+    program runs them all instead of one per kind."""
+    vals = list(scs.values())
+    first = vals[0]
+    same = lambda a, b: jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b) and all(
+        x.shape == y.shape for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+    plain = [dataclasses.replace(s, kind=first.kind, cold_start=False) for s in vals]
+    if not all(same(plain[0], s) and s.window == first.window and s.ts == first.ts
+               and s.edges == first.edges for s in plain):
+        return None
+    one = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *plain)
+    b = int(first.r.shape[0])
+    return one, {k: slice(i * b, (i + 1) * b) for i, k in enumerate(scs)}
+
+
 def runs(ctrls, plant, scs: dict, size: int = BATCH) -> dict:
     """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated in
     batches of `size` (the last padded; `BATCH`: the tuning's compiled shape): leading axis
-    the controller, then the rollout."""
+    the controller, then the rollout. The scenarios run as one batch where they can
+    (`merged`)."""
+    from ..models._base import AbstractModel
+
     full = padded(list(ctrls), size)
+    both = merged(scs) if isinstance(plant, AbstractModel) else None
     out: dict = {}
     for i in range(0, len(full), size):
         stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *full[i:i + size])
-        for k, s in scs.items():
-            out.setdefault(k, []).append(_runs(plant, stacked, s))
+        if both is None:
+            for k, s in scs.items():
+                out.setdefault(k, []).append(_runs(plant, stacked, s))
+            continue
+        traj = _runs(plant, stacked, both[0])
+        for k, sl in both[1].items():
+            out.setdefault(k, []).append(jax.tree_util.tree_map(lambda x, sl=sl: x[:, sl], traj))
     n = len(ctrls)
     return {k: jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:n], *v)
             for k, v in out.items()}
@@ -220,5 +248,5 @@ def tune_firmware_pid(model, env, r, ku, tu, *, duration: float, seed: int, roll
 
 __all__ = ["ALPHAS", "BATCH", "BETAS", "GAMMAS", "KINDS", "LOAD_WEIGHT", "MAX_OVERSHOOT_C",
            "MAX_SATURATED", "MIN_STEP", "RHOS", "STEP", "compass", "controller", "evaluate",
-           "evaluate_many", "grid", "padded", "rank", "rows", "runs", "scenarios", "score",
+           "evaluate_many", "grid", "merged", "padded", "rank", "rows", "runs", "scenarios", "score",
            "tune_firmware_pid", "ultimate", "violation"]

@@ -1,6 +1,7 @@
 """Independent re-implementations, in plain Python floats, of what the tests compare jthermo
 against: Klipper's heater PID (`klippy/extras/heaters.py`: `ControlPID.temperature_update`
-and `Heater.set_pwm`), a linear plant stepped sample by sample, and a `klippy.log` writer."""
+and `Heater.set_pwm`), Kalico's model-predictive control (`klippy/extras/control_mpc.py`:
+`ControlMPC.temperature_update`), a linear plant stepped sample by sample, and a `klippy.log` writer."""
 
 from __future__ import annotations
 
@@ -67,16 +68,103 @@ class KlipperHeater:
         return self.last_pwm_value
 
 
-def closed_loop(A, B, C, u0, y0, heater, r, x0, ts, noise=None, duty0=None):
-    """Klipper's PID on the plant $x_{k+1} = A x_k + B (u_k - u_0)$, $y_k = y_0 + C x_k$ (one
-    heater), one update per sample: returns the measured temperatures and the duties."""
+class KalicoMPCHeater:
+    """One heater under Kalico's `ControlMPC.temperature_update` (`control_mpc.py`, no fan,
+    no extrusion) and `Heater.set_pwm`, in the firmware's variable names and order."""
+
+    AMBIENT_TEMP = 25.0
+
+    def __init__(self, heater_power, block_heat_capacity, sensor_responsiveness,
+                 ambient_transfer, max_power=1.0, target_reach_time=2.0, smoothing=0.83,
+                 min_ambient_change=1.0, steady_state_rate=0.5, temp=25.0):
+        self.const_heater_power = heater_power
+        self.const_block_heat_capacity = block_heat_capacity
+        self.const_sensor_responsiveness = sensor_responsiveness
+        self.const_ambient_transfer = ambient_transfer
+        self.const_target_reach_time = target_reach_time
+        self.const_smoothing = smoothing
+        self.const_min_ambient_change = min_ambient_change
+        self.const_steady_state_rate = steady_state_rate
+        self.heater_max_power = max_power * heater_power
+        self.state_block_temp = temp
+        self.state_sensor_temp = temp
+        self.state_ambient_temp = self.AMBIENT_TEMP
+        self.last_power = 0.0
+        self.last_temp_time = 0.0
+        self.next_pwm_time = 0.0
+        self.last_pwm_value = 0.0
+        self.target_temp = 0.0
+
+    def settle(self, read_time, temp, duty):
+        """Start as a loop that has been holding `temp` with `duty` (jthermo's settled start)."""
+        self.state_block_temp = self.state_sensor_temp = temp
+        self.last_power = duty * self.const_heater_power
+        self.state_ambient_temp = temp - self.last_power / self.const_ambient_transfer
+        self.last_pwm_value = duty
+        self.last_temp_time = read_time
+        self.next_pwm_time = read_time - 1.0
+
+    def set_pwm(self, read_time, value):
+        if self.target_temp <= 0.0:
+            value = 0.0
+        if ((read_time < self.next_pwm_time or not self.last_pwm_value)
+                and abs(value - self.last_pwm_value) < 0.05):
+            return
+        pwm_time = read_time + PWM_DELAY
+        self.next_pwm_time = pwm_time + MAX_HEAT_TIME - (3.0 * PWM_DELAY + 0.001)
+        self.last_pwm_value = value
+
+    def update(self, read_time, temp, target_temp):
+        self.target_temp = target_temp
+        dt = read_time - self.last_temp_time
+        if self.last_temp_time == 0.0 or dt < 0.0 or dt > 1.0:
+            dt = 0.1
+        ambient_transfer = self.const_ambient_transfer
+        expected_heating = self.last_power
+        block_ambient_delta = self.state_block_temp - self.state_ambient_temp
+        expected_ambient_transfer = block_ambient_delta * ambient_transfer
+        expected_block_dT = ((expected_heating - expected_ambient_transfer) * dt
+                             / self.const_block_heat_capacity)
+        self.state_block_temp += expected_block_dT
+        expected_sensor_dT = ((self.state_block_temp - self.state_sensor_temp)
+                              * self.const_sensor_responsiveness * dt)
+        self.state_sensor_temp += expected_sensor_dT
+        smoothing = 1 - (1 - self.const_smoothing) ** dt
+        adjustment_dT = (temp - self.state_sensor_temp) * smoothing
+        self.state_block_temp += adjustment_dT
+        self.state_sensor_temp += adjustment_dT
+        if (0 < self.last_power < 1.0) or abs(
+                expected_block_dT + adjustment_dT) < self.const_steady_state_rate * dt:
+            if adjustment_dT > 0.0:
+                ambient_delta = max(adjustment_dT, self.const_min_ambient_change * dt)
+            else:
+                ambient_delta = min(adjustment_dT, -self.const_min_ambient_change * dt)
+            self.state_ambient_temp += ambient_delta
+        heating_power = ((target_temp - self.state_block_temp) * self.const_block_heat_capacity
+                         / self.const_target_reach_time)
+        loss_ambient = (self.state_block_temp - self.state_ambient_temp) * ambient_transfer
+        if target_temp != 0.0:
+            power = max(0.0, min(self.heater_max_power, heating_power + loss_ambient))
+        else:
+            power = 0
+        duty = power / self.const_heater_power
+        self.last_power = power
+        self.last_temp_time = read_time
+        self.set_pwm(read_time, duty)
+        return self.last_pwm_value
+
+
+def closed_loop(A, B, C, u0, y0, heater, r, x0, ts, noise=None, duty0=None, t0=0.0):
+    """A heater's controller (`update(read_time, temp, target)`) on the plant
+    $x_{k+1} = A x_k + B (u_k - u_0)$, $y_k = y_0 + C x_k$ (one heater), one update per
+    sample from time `t0`: returns the measured temperatures and the duties."""
     x = np.array(x0, float)
     ys, us = [], []
     for k in range(len(r)):
         y = float(y0 + C @ x) + (0.0 if noise is None else float(noise[k]))
         if k == 0 and duty0 is not None:
-            heater.settle(-ts, y, duty0)
-        u = heater.update(k * ts, y, float(r[k]))
+            heater.settle(t0 - ts, y, duty0)
+        u = heater.update(t0 + k * ts, y, float(r[k]))
         ys.append(y)
         us.append(u)
         x = A @ x + B * (u - u0)

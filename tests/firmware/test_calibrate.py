@@ -35,6 +35,8 @@ def test_firmware_file_and_report(calibrated):
     names = {c["name"]: c for c in rep["controllers"]}
     assert names["firmware_pid"]["kind"] == "firmware_pid"
     assert names["printer_config"]["kind"] == "yardstick"   # the gains the printer ran with
+    assert rep["mpc"] is not None                            # one hot end: the two-state fit
+    assert names["firmware_mpc"]["kind"] == "firmware_mpc"   # and the firmware's MPC judged
     for c in rep["controllers"]:
         assert all(np.isfinite(c[k]) for k in ("mse", "saturated_fraction", "overshoot_C",
                                                "load_mse"))
@@ -71,6 +73,24 @@ def test_marlin_file_has_mpc_line(calibrated):
     m = re.search(r"M306 E0 P50 C([\d.e+-]+) R([\d.e+-]+) A([\d.e+-]+) F", text)
     assert m and float(m.group(1)) == pytest.approx(rep["mpc"]["constants"]["block_heat_capacity"])
     assert float(m.group(2)) > 0 and text.rstrip().endswith("M500")
+    tau = rep["gains"]["firmware_pid"][0]["smooth_time"]
+    assert re.search(rf"^; .*smooth_time: extruder {tau:g} s\) has no M301", text, re.MULTILINE)
+
+
+def test_c_file_carries_the_note(calibrated):
+    """The C export starts with the calibration's note, which says first when the result is
+    not a tuning to use (as the other firmware files do)."""
+    root = calibrated
+    assert main(["calibrate", str(root / "imp" / "extruder_seg01.csv"), "--out", str(root / "c"),
+                 "--firmware", "c", "--steps", "0", "--rollouts", "1", "--json",
+                 str(root / "c.json"), "--quiet"]) == 0
+    rep = json.loads((root / "c.json").read_text())
+    text = (root / "c" / "firmware.c").read_text()
+    head = text.splitlines()[0]
+    assert head.startswith("/* NOT A TUNING TO USE: " if not rep["supported"]
+                           else "/* jthermo calibrate: ")
+    assert ("NOT A TUNING TO USE" in text) == (not rep["supported"])
+    assert "double jthermo_heater_update(" in text
 
 
 def test_bad_heater_exit_2(calibrated, capsys):

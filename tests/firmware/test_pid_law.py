@@ -108,3 +108,10 @@ def test_pid_calibrate_closed_form():
     assert at.pid_kp == pytest.approx(0.6 * at.ku * 255)
     assert at.pid_ki == pytest.approx(at.pid_kp / (0.5 * at.tu))
     assert at.pid_kd == pytest.approx(at.pid_kp * 0.125 * at.tu)
+
+
+def test_c_source_note_header():
+    from jthermo.firmware import settings as st
+
+    text = st.c_source(KlipperPID([20.0], [1.0], [100.0]), note="NOT A TUNING TO USE: why\nmore */")
+    assert text.startswith("/* NOT A TUNING TO USE: why */\n/* more * / */\n/* Klipper's heater PID")

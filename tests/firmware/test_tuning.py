@@ -119,3 +119,25 @@ def test_padded_batches_match_one_by_one():
     for c, row in zip(ctrls, many):
         one = tuning.rows(tuning.runs([c], plant, scs, size=1), scs, 1)[0]
         assert row == pytest.approx(one, rel=1e-6, abs=1e-9)
+
+
+@pytest.mark.parametrize("n", [1, 16])
+def test_merged_scenarios_match_one_kind_at_a_time(n):
+    """The scenarios run as one batch give each kind's own trajectories (and the start-up's
+    start from rest is kept: its figures differ from the set-point changes')."""
+    from jthermo.firmware.tuning import _runs
+
+    plant = hotend(n=n)
+    env = Envelope.from_model(plant)
+    r = np.full(n, 200.0)
+    kw = {"ts": 1.0, "u_hold": equilibrium_input(plant, r, env.signals(plant))}
+    ctrls = [tuning.controller((0.6, 0.5, 0.125, 0.1), np.full(n, 0.1), np.full(n, 40.0), **kw)]
+    scs = tuning.scenarios(plant, env, r, 300.0, 0, 2)
+    assert tuning.merged(scs) is not None
+    got = tuning.runs(ctrls, plant, scs, size=1)
+    stacked = jax.tree_util.tree_map(lambda x: x[None], ctrls[0])
+    for k, s in scs.items():
+        ref = _runs(plant, stacked, s)
+        np.testing.assert_allclose(np.asarray(got[k].y), np.asarray(ref.y), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(got[k].u), np.asarray(ref.u), rtol=0, atol=1e-12)
+    assert np.abs(np.asarray(got["preheat"].y) - np.asarray(got["tracking"].y)).max() > 1.0
