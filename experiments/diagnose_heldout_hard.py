@@ -224,7 +224,9 @@ def simulate(c, u) -> np.ndarray:
         K[e, e + 1] = K[e + 1, e] = kr * 0.5 * (a[e] + a[e + 1])
     Lk = K - np.diag(K.sum(axis=1))
     t1, t2 = c.get("heater_taus", (0.0, 0.0))
-    rise_mean = np.linalg.solve(np.diag(a) - Lk, B @ q.mean(axis=0))
+    # the mean input of the records the plant was drawn for (`q_mean`: a run continued past them
+    # keeps the plant's convection coefficient and start)
+    rise_mean = np.linalg.solve(np.diag(a) - Lk, B @ c.get("q_mean", q.mean(axis=0)))
     conv = np.zeros(n)
     if "conv_share" in c:            # convective share s of the loss at the mean rise: c Δ^{4/3}
         s = c["conv_share"]
