@@ -234,8 +234,8 @@ def write(rows, out, load, before=None):
              (f"Slow body against drift: the designed and PRBS records of these two cases are "
               f"{DESIGN_S.get('body')} s long (a 40-min body"),
              "shows in no 15-min record). The diagnosis orders the two by whether the unmeasured",
-             "surroundings drift the drift model fits follows the input-driven temperature (`decide.input_dependence`),",
-             "tested on every record with at least 8 drift knots (2400 s) and combined (`decide.combined_dependence`):",
+             "surroundings drift the drift model fits follows the input-driven temperature (`bodydrift.input_dependence`),",
+             "tested on every record with at least 8 drift knots (2400 s) and combined (`bodydrift.combined_dependence`):",
              "the 1800-s PRBS estimation record is too short, so as validation only the new record's test counts,",
              "as estimation only its own, twice both.", "",
              "## Counts (top finding = truth, over seeds)", "",
@@ -259,7 +259,7 @@ def write(rows, out, load, before=None):
                           f"{tot('designed_' + a, 'rival_left')}), PRBS of the same length {tot('prbs_' + a)} "
                           f"(rival left {tot('prbs_' + a, 'rival_left')})" for a in arms) + ".", "",
               "## Every run", "",
-              "Input dependence z of the body/drift test (`decide.input_dependence`), estimation / validation",
+              "Input dependence z of the body/drift test (`bodydrift.input_dependence`), estimation / validation",
               "record (0: too short to test, fewer than 8 drift knots), shown for the designed record's arms.", "",
               ("| case | seed | PRBS est/val: top (rivals) | models separated | "
                + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)
