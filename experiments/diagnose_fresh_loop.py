@@ -111,7 +111,8 @@ def score(findings, kind):
 def commit():
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True).stdout
+        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True,
+                               check=False).stdout
         return sha + (" (jthermo/ modified)" if dirty.strip() else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

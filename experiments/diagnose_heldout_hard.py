@@ -497,7 +497,8 @@ def commit() -> str:
 
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True).stdout
+        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True,
+                               check=False).stdout
         return sha + (" (jthermo/ modified)" if dirty.strip() else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
