@@ -224,7 +224,9 @@ def simulate(c, u) -> np.ndarray:
         K[e, e + 1] = K[e + 1, e] = kr * 0.5 * (a[e] + a[e + 1])
     Lk = K - np.diag(K.sum(axis=1))
     t1, t2 = c.get("heater_taus", (0.0, 0.0))
-    rise_mean = np.linalg.solve(np.diag(a) - Lk, B @ q.mean(axis=0))
+    # the mean input of the records the plant was drawn for (`q_mean`: a run continued past them
+    # keeps the plant's convection coefficient and start)
+    rise_mean = np.linalg.solve(np.diag(a) - Lk, B @ c.get("q_mean", q.mean(axis=0)))
     conv = np.zeros(n)
     if "conv_share" in c:            # convective share s of the loss at the mean rise: c Δ^{4/3}
         s = c["conv_share"]
@@ -359,7 +361,7 @@ def write(rows, meta, out):
     atomic_write_text(out / "diagnose_heldout_hard.json",
                       json.dumps({"meta": meta, "summary": summ, "records": rows}, indent=1, default=float))
     lines = ["# Harder held-out diagnosis study", "",
-             f"Made by `python experiments/diagnose_heldout_hard.py {meta['args']}`. The plant is written",
+             f"Made by `python experiments/diagnose_heldout_hard.py {meta['args']}` at commit `{meta.get('commit', 'not recorded')}`. The plant is written",
              "in the script, outside the candidate library's forms (h(T) convection, two-body heaters and",
              "sensors, fractional delays, a warming stored-heat body, unmeasured ambient drift, a saturating",
              "lamp, sweeping recoat drops), N = 1..9, Ts = 0.3-5 s, white + AR(2) noise, own seeds; no",
@@ -489,6 +491,19 @@ def _summ(d):
                                               for r in mech), len(mech)]}
 
 
+def commit() -> str:
+    """The commit the study runs at (marked where `jthermo/` has uncommitted changes)."""
+    import subprocess
+
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True,
+                               check=False).stdout
+        return sha + (" (jthermo/ modified)" if dirty.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def cpu_s():
     t = os.times()
     return t.user + t.system
@@ -530,7 +545,7 @@ def main(argv=None):
         return 0
     meta = {"args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                              if k != "out" and v not in (None, "", 0) and not (k == "max_zones" and v == 9)
-                             and not (k == "cases" and v == len(KINDS)))}
+                             and not (k == "cases" and v == len(KINDS))), "commit": commit()}
     if args.nulls:
         plan = [(100_000 + j, "null") for j in range(args.nulls)]
     else:

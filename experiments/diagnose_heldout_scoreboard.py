@@ -24,7 +24,12 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import re
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnose_heldout_hard import DEVELOPMENT_SETS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
@@ -47,7 +52,7 @@ def score(paths) -> dict:
         sets.append({"tag": tag, "top1": s["top1"], "nulls_quiet": s["nulls_quiet"],
                      "confident_wrong": s["confident_wrong"],
                      "truth_among_top_or_rivals": s["truth_among_top_or_rivals"],
-                     "median_gain": s["median_gain"]})
+                     "median_gain": s["median_gain"], "commit": (d.get("meta") or {}).get("commit")})
         for r in d["records"]:
             if r["kind"] == "null":
                 continue
@@ -68,19 +73,38 @@ def total_line(res: dict) -> str:
     """The sets' top-1 summed, against the goal."""
     hits = sum(s["top1"][0] for s in res["sets"])
     total = sum(s["top1"][1] for s in res["sets"])
-    return f"Top-1 over the sets: {hits}/{total} ({100 * hits / max(total, 1):.0f} %); the goal is 15/16 (94 %)."
+    return f"top-1 over the sets {hits}/{total} ({100 * hits / max(total, 1):.0f} %); the goal is 15/16 (94 %)."
+
+
+def seed_set(tag: str) -> int | None:
+    """The seed set a row's tag names (`set 14`, `fresh14_mz9`), or None."""
+    m = re.search(r"(\d+)", tag)
+    return int(m.group(1)) if m else None
+
+
+def set_role(tag: str) -> str:
+    """`development` where the set fed a constant or rule (`DEVELOPMENT_SETS`), else `scored once`."""
+    return "development" if seed_set(tag) in DEVELOPMENT_SETS else "scored once"
 
 
 def render(res: dict, argv: str) -> str:
-    out = ["# Seed sets scored so far (development sets 14-19 and 21 fed constants or rules)", "",
+    dev = [s for s in res["sets"] if set_role(s["tag"]) == "development"]
+    once = [s for s in res["sets"] if set_role(s["tag"]) != "development"]
+    out = ["# Seed sets scored so far: development sets and sets scored once, kept apart", "",
            f"Made by `python experiments/diagnose_heldout_scoreboard.py{argv}` from the stored JSON of "
            "`diagnose_heldout_hard.py` (each set scored once, with the code of its day, not one code; see the "
-           "script's docstring). Goal: top-1 >= 15/16 per set, nulls 3/3.", "",
-           total_line(res), "",
-           "| set | top-1 | nulls quiet | truth first or a rival | confident wrong names | median gain pts |",
-           "|---|---|---|---|---|---|"]
+           "script's docstring). A development set fed a constant or rule of the diagnosis "
+           f"(`DEVELOPMENT_SETS`: {', '.join(map(str, DEVELOPMENT_SETS[1:]))}): its row is a development score. "
+           "The commit of a set is named where its JSON recorded one. Goal: top-1 >= 15/16 per set, nulls 3/3. "
+           "A set drawn at the final code and scored once with its commit: `diagnose_fresh_loop.md`.", "",
+           "Development sets: " + total_line({"sets": dev}),
+           "Sets scored once (each at the code of its day) and not tuned on: " + total_line({"sets": once}), "",
+           "| set | role | commit | top-1 | nulls quiet | truth first or a rival | confident wrong names | median gain pts |",
+           "|---|---|---|---|---|---|---|---|"]
     for s in res["sets"]:
-        out.append(f"| {s['tag']} | {s['top1'][0]}/{s['top1'][1]} | {s['nulls_quiet'][0]}/{s['nulls_quiet'][1]} | "
+        name = s["tag"] if seed_set(s["tag"]) is None else f"set {seed_set(s['tag'])}"
+        out.append(f"| {name} | {set_role(s['tag'])} | {s.get('commit') or 'not recorded'} | "
+                   f"{s['top1'][0]}/{s['top1'][1]} | {s['nulls_quiet'][0]}/{s['nulls_quiet'][1]} | "
                    f"{s['truth_among_top_or_rivals'][0]}/{s['truth_among_top_or_rivals'][1]} | "
                    f"{s['confident_wrong']} | {s['median_gain']:.2f} |")
     out += ["", "By kind (misses: quiet = nothing named, tie = truth among the named one's rivals, "
@@ -99,8 +123,16 @@ def render(res: dict, argv: str) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("results", nargs="+", help="JSON files written by diagnose_heldout_hard.py")
+    ap.add_argument("results", nargs="*", help="JSON files written by diagnose_heldout_hard.py")
+    ap.add_argument("--render", action="store_true",
+                    help="only render the stored scoreboard JSON again (no JSON of the sets needed)")
     args = ap.parse_args(argv)
+    if args.render:
+        res = json.loads((RESULTS / "diagnose_heldout_scoreboard.json").read_text())
+        (RESULTS / "diagnose_heldout_scoreboard.md").write_text(render(res, " --render"))
+        return
+    if not args.results:
+        ap.error("give the JSON files of the sets, or --render")
     res = score(args.results)
     (RESULTS / "diagnose_heldout_scoreboard.json").write_text(json.dumps(res, indent=1))
     (RESULTS / "diagnose_heldout_scoreboard.md").write_text(render(res, " " + " ".join(args.results)))

@@ -13,6 +13,7 @@ the residual tests (stage 5).
 from __future__ import annotations
 
 import functools
+import importlib
 import sys
 import threading
 import time
@@ -135,7 +136,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
     root = Path(runs_dir) / name
     figs = root / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    st = StageRunner(8, quiet)
+    st = StageRunner(9, quiet)
     t_start = time.perf_counter()
     S: dict[str, Any] = {"name": name, "quick": quick, "seed": seed, "settings": cfg}
     figures: dict[str, list[tuple[Path, str]]] = {}
@@ -391,6 +392,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
                            "status": "skipped", "message": "no controller"})
 
     st.run("diagnose a concealed effect (run beside stages 2-6)", diagnosing)
+    st.run("settle a tie by one designed experiment (one zone)", lambda: S.update(
+        tie=importlib.import_module(".diagnose.tie_demo", __package__).settle_tie(seed)))
 
     # 8 -------------------------------------------------------------- report
     S["stages"] = st.records
@@ -410,7 +413,7 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
 
 def write_demo_report(root: Path, S: dict, figures: dict) -> Path:
-    from .report import Report, markdown_table
+    from .report import Report
 
     rep = Report(f"jthermo demo — {S['name']}")
     rep.para(f"The whole workflow on the built-in virtual printer ({S['settings']['zones']} zones"
@@ -488,9 +491,9 @@ def write_demo_report(root: Path, S: dict, figures: dict) -> Path:
                         "summary": f.get("summary")} for f in d["findings"]])
         if S.get("diagnosis_report"):
             rep.para(f"Full diagnosis report: [{S['diagnosis_report']}]({S['diagnosis_report']}).")
+    importlib.import_module(".diagnose.tie_demo", __package__).report_section(rep, S.get("tie"))
     failed = [r for r in S["stages"] if r["status"] != "ok"]
     if failed:
         rep.heading("Stages that did not complete")
         rep.bullets(f"{r['stage']}: {r['status']} — {r.get('message', '')}" for r in failed)
-    del markdown_table
     return rep.write(root / "report.md")
