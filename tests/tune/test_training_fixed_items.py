@@ -23,7 +23,6 @@ def _case(zones):
     model = printer_model(p)
     start = design("pi_ff", model)
     # taps away from zero, so that a wrongly fixed item would show
-    start = jax.tree_util.tree_map(lambda x: x, start)
     start = type(start)(feedback=start.feedback, h_recoat=start.h_recoat + 0.2,
                         h_laser=start.h_laser + 0.3)
     batch = make_batches([p], KINDS, rollouts=1, duration=60.0, seed=3)
@@ -31,7 +30,7 @@ def _case(zones):
 
 
 def test_only_the_scenario_without_events_is_fixed():
-    p, _, start, batch = _case(1)
+    _, _, start, batch = _case(1)
     assert fixed_items(start, FF_FIELDS, batch[0]).tolist() == [True, False]
     assert fixed_items(start, None, batch[0]) is None                 # feedback tuned too
     assert fixed_items(start.feedback, FF_FIELDS, batch[0]) is None   # no feed-forward
