@@ -289,6 +289,11 @@ def main() -> int:
     for p in stale:   # a subpackage that no longer exists
         p.unlink()
     changed = [name for name, text in pages.items() if write(DOCS / name, text)]
+    nav = (DOCS.parent / "mkdocs.yml").read_text()
+    missing = sorted(name for name in pages if name.startswith("api/") and f" {name}" not in nav)
+    if missing:   # mkdocs only reports a page outside the nav, even with --strict
+        print(f"docs/gen_pages.py: API pages not in mkdocs.yml's nav: {', '.join(missing)}")
+        return 1
     print(f"docs/gen_pages.py: {len(pages)} pages, {len(changed)} rewritten"
           + (f", {len(stale)} removed" if stale else ""))
     return 0

@@ -169,49 +169,8 @@ def figure(rows, arrays, path):
 ARM_LABEL = {"as_validation": "as val", "as_estimation": "as est", "twice": "twice (est + val)"}
 
 
-def figure_counts(rows, before, path):
-    """Named truth per case, before → after: the designed record and the PRBS of the same length,
-    as validation record (before and after) and run twice (after only)."""
-    from matplotlib.figure import Figure
-
-    from jthermo.plots import save_figure
-
-    cases = list(dict.fromkeys(r["case"] for r in rows))
-    bars = [("before", "designed_as_validation", "designed as val, before", "tab:blue", 0.35),
-            ("before", "prbs_as_validation", "PRBS as val, before", "0.45", 0.35),
-            ("after", "designed_as_validation", "designed as val", "tab:blue", 1.0),
-            ("after", "prbs_as_validation", "PRBS as val", "0.45", 1.0),
-            ("after", "designed_twice", "designed twice", "tab:green", 1.0),
-            ("after", "prbs_twice", "PRBS twice", "0.7", 1.0)]
-    fig = Figure(figsize=(10, 3.2), layout="constrained")
-    ax = fig.subplots()
-    w = 0.8 / len(bars)
-    for b, (when, key, label, color, alpha) in enumerate(bars):
-        vals = []
-        for c in cases:
-            rs = [r for r in rows if r["case"] == c]
-            if when == "before":
-                seeds = {r["seed"] for r in rs}
-                rs = [r for r in before if r["case"] == c and r.get("seed", 0) in seeds]
-            vals.append((sum(bool(r[key]["named_truth"]) for r in rs), len(rs)) if rs and key in rs[0]
-                        else (np.nan, 1))
-        x = np.arange(len(cases)) + (b - len(bars) / 2 + 0.5) * w
-        ax.bar(x, [v / m for v, m in vals], w, color=color, alpha=alpha, label=label,
-               hatch="//" if when == "before" else None)
-        for xi, (v, m) in zip(x, vals):
-            if np.isfinite(v):
-                ax.text(xi, v / m + 0.02, f"{v}/{m}", ha="center", fontsize="xx-small")
-    ax.set_xticks(np.arange(len(cases)), cases)
-    ax.set_ylabel("share of seeds named right")
-    ax.set_ylim(0, 1.12)
-    ax.legend(fontsize="x-small", loc="center left", bbox_to_anchor=(1.0, 0.5))
-    ax.set_title("top finding = truth, before (hatched) and after", fontsize="small")
-    save_figure(fig, path)
-
-
-def write(rows, out, load, before=None):
-    """The Markdown table and the JSON of `rows`; `before`: (path, rows) of an earlier run to
-    compare with, case by case."""
+def write(rows, out, load):
+    """The Markdown table and the JSON of `rows`."""
     yes = lambda b: "yes" if b else "no"
     crit = rows[0]["design"].get("criterion", "span")
     arms = [a for a, _, _ in ARMS if f"designed_{a}" in rows[0]]
@@ -234,8 +193,8 @@ def write(rows, out, load, before=None):
              (f"Slow body against drift: the designed and PRBS records of these two cases are "
               f"{DESIGN_S.get('body')} s long (a 40-min body"),
              "shows in no 15-min record). The diagnosis orders the two by whether the unmeasured",
-             "surroundings drift the drift model fits follows the input-driven temperature (`decide.input_dependence`),",
-             "tested on every record with at least 8 drift knots (2400 s) and combined (`decide.combined_dependence`):",
+             "surroundings drift the drift model fits follows the input-driven temperature (`bodydrift.input_dependence`),",
+             "tested on every record with at least 8 drift knots (2400 s) and combined (`bodydrift.combined_dependence`):",
              "the 1800-s PRBS estimation record is too short, so as validation only the new record's test counts,",
              "as estimation only its own, twice both.", "",
              "## Counts (top finding = truth, over seeds)", "",
@@ -259,7 +218,7 @@ def write(rows, out, load, before=None):
                           f"{tot('designed_' + a, 'rival_left')}), PRBS of the same length {tot('prbs_' + a)} "
                           f"(rival left {tot('prbs_' + a, 'rival_left')})" for a in arms) + ".", "",
               "## Every run", "",
-              "Input dependence z of the body/drift test (`decide.input_dependence`), estimation / validation",
+              "Input dependence z of the body/drift test (`bodydrift.input_dependence`), estimation / validation",
               "record (0: too short to test, fewer than 8 drift knots), shown for the designed record's arms.", "",
               ("| case | seed | PRBS est/val: top (rivals) | models separated | "
                + " | ".join(f"new PRBS {ARM_LABEL[a]} | designed {ARM_LABEL[a]}" for a in arms)
@@ -289,32 +248,6 @@ def write(rows, out, load, before=None):
                      f"{r['design']['separation_prbs']:.3g} = {r['design']['separation_ratio']:.2f} | "
                      f"{tests(r['designed_as_validation'])} | {lr(r['designed_as_estimation'])} / "
                      f"{lr(r['prbs_as_estimation'])} |")
-    if before:
-        lines += ["", "## Before → after", "",
-                  f"Before: `{before[0]}` (the committed run of the former code: criterion `nuisance_drift`, every",
-                  "model re-estimating a drift on the new record; new records as long as the validation record;",
-                  "body and drift ordered by the estimation record's input dependence only). Named truth",
-                  "(rival left) over the seeds run in both.", "",
-                  ("| case | new record s before → after | designed as val | PRBS as val | designed as est | "
-                   "PRBS as est | designed twice | PRBS twice |"), "|---|---|---|---|---|---|---|---|"]
-        old = before[1]
-        for c in cases:
-            rs = [r for r in rows if r["case"] == c]
-            seeds = {r["seed"] for r in rs}
-            os_ = [r for r in old if r["case"] == c and r.get("seed", 0) in seeds]
-            if not os_:
-                continue
-
-            def ba(key, old_rows=os_, new_rows=rs):
-                f = lambda rr: (f"{sum(bool(r[key]['named_truth']) for r in rr)}/{len(rr)}"
-                                if key in rr[0] else "-")
-                g = lambda rr: (f"{sum(bool(r[key]['rival_left']) for r in rr)}" if key in rr[0] else "-")
-                return f"{f(old_rows)} ({g(old_rows)}) → {f(new_rows)} ({g(new_rows)})"
-            lines.append(f"| {c} | {os_[0].get('record_s', '-')} → {rs[0].get('record_s', '-')} | "
-                         f"{ba('designed_as_validation')} | {ba('prbs_as_validation')} | "
-                         f"{ba('designed_as_estimation')} | {ba('prbs_as_estimation')} | "
-                         f"{ba('designed_twice')} | {ba('prbs_twice')} |")
-        lines += ["", "![named truth before and after](design_experiment_study_counts.png)"]
     lines += ["", "![inputs and rival prediction gaps](design_experiment_study.png)", ""]
     atomic_write_text(out / "design_experiment_study.md", "\n".join(lines))
     atomic_write_text(out / "design_experiment_study.json", json.dumps(rows, indent=1, default=float))
@@ -331,16 +264,12 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--out", default="experiments/results")
     ap.add_argument("--rewrite", metavar="LOAD", help="only rewrite the Markdown from the JSON in --out")
-    ap.add_argument("--before", metavar="JSON", help="an earlier run's JSON to compare with (before → after)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    before = None if args.before is None else (args.before, json.loads(Path(args.before).read_text()))
     if args.rewrite is not None:
         rows = json.loads((out / "design_experiment_study.json").read_text())
-        write(rows, out, args.rewrite, before)
-        if before is not None:
-            figure_counts(rows, before[1], out / "design_experiment_study_counts.png")
+        write(rows, out, args.rewrite)
         return 0
     rows, arrays = [], {}
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -358,10 +287,8 @@ def main(argv=None):
                   f"x{row['design']['separation_ratio']:.2f}; {got} ({row['seconds']:.0f} s)", flush=True)
             load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
             rows.sort(key=lambda r: (list(CASES).index(r["case"]), r["seed"]))
-            write(rows, out, load, before)
+            write(rows, out, load)
     figure([r for r in rows if r["seed"] == seeds[0]], arrays, out / "design_experiment_study.png")
-    if before is not None:
-        figure_counts(rows, before[1], out / "design_experiment_study_counts.png")
     return 0
 
 

@@ -12,7 +12,7 @@ the loop (settles, not saturated). `--tune` also runs `tune_own_plant` from `pid
 each b of `--b0` at the start (tracking + load [+ start-up with `--startup`], `--steps`, `--rollouts`).
 
 Usage:  python experiments/own_plant_overshoot.py [--tune --b0 1 0.95 --steps 60 --rollouts 4]
-        ->  experiments/results/own_plant_overshoot.md (and .json; with --tune own_plant_overshoot_tuned.*)
+        ->  experiments/results/own_plant_overshoot.md (and .json; with --tune also the tuned table)
 """
 
 from __future__ import annotations
@@ -156,7 +156,7 @@ def main():
     res["load_average"] = os.getloadavg()
     lines += ["", f"{res['seconds']:.0f} s wall on a shared machine (1/5/15-min load average "
               f"at the end {', '.join(f'{x:.1f}' for x in res['load_average'])})."]
-    name = "own_plant_overshoot" + ("_tuned" if args.tune else "")
+    name = "own_plant_overshoot"
     (OUT / f"{name}.md").write_text("\n".join(lines) + "\n")
     (OUT / f"{name}.json").write_text(json.dumps(res, indent=1, default=str))
     print("\n".join(lines))

@@ -34,7 +34,8 @@ from .training import HELD_OUT, make_batches, tune
 #: the set-point weight b a designed PI / PID starts tuning from (b = 1 is a stationary point
 #: of b = sin^2(theta), so the weight would never move): on the Klipper hot-end, tuned from
 #: 0.95 the 200 C start-up overshoot is 1.47 C, from 1 (moved by rounding only) 1.9 C
-#: (`python experiments/own_plant_overshoot.py --tune`, experiments/results/own_plant_overshoot_tuned.md)
+#: (`python experiments/own_plant_overshoot.py --tune --b0 1 0.95 --steps 60 --rollouts 4`,
+#: experiments/results/own_plant_overshoot.md)
 START_SETPOINT_WEIGHT = 0.95
 
 #: the scenarios an own plant is tuned and judged on: set-point changes and loads around the
