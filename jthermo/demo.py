@@ -14,16 +14,13 @@ from __future__ import annotations
 
 import functools
 import importlib
-import sys
-import threading
 import time
-import traceback
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .demo_stages import SETTINGS, StageRunner, demo_settings, in_background  # noqa: F401
 from .errors import JThermoError
 
 #: every model family with the orders the demo fits (MATLAB's order)
@@ -31,80 +28,8 @@ FAMILY_ORDERS: dict[str, tuple[int, ...] | None] = {
     "arx": (2, 2, 1), "armax": (2, 2, 2, 1), "oe": (2, 2, 1), "bj": (2, 1, 1, 2, 1),
     "ss": (4,), "greybox": None}
 
-SETTINGS = {
-    "full": {"zones": 4, "est_s": 3600.0, "val_s": 1800.0, "tune_rollouts": 8, "tune_steps": 40,
-             "tune_lr": 0.1, "eval_rollouts": 4, "scenario_s": 600.0, "diag_est_s": 3600.0,
-             "diag_val_s": 1800.0, "n_starts": 4},
-    "quick": {"zones": 4, "est_s": 1200.0, "val_s": 600.0, "tune_rollouts": 4, "tune_steps": 10,
-              "tune_lr": 0.1, "eval_rollouts": 2, "scenario_s": 300.0, "diag_est_s": 1800.0,
-              "diag_val_s": 900.0, "n_starts": 2},
-}
 ID_EFFECTS = ("lateral_conduction", "radiative_loss", "sensor_noise")
 CONCEALED = ("heater_lag", {"time_constant_s": 25.0})
-
-
-class StageRunner:
-    """Runs guarded stages and remembers their outcome."""
-
-    def __init__(self, total: int, quiet: bool):
-        self.records: list[dict] = []
-        self.total = total
-        self.quiet = quiet
-
-    def say(self, text: str) -> None:
-        if not self.quiet:
-            print(text, file=sys.stderr, flush=True)
-
-    def run(self, name: str, fn: Callable[[], Any]) -> Any:
-        k = len(self.records) + 1
-        self.say(f"[{k}/{self.total}] {name} ...")
-        t0 = time.perf_counter()
-        rec: dict[str, Any] = {"stage": name}
-        out = None
-        try:
-            out = fn()
-            rec["status"] = "ok"
-        except ModuleNotFoundError as exc:
-            rec.update(status="missing", message=f"library piece not available: {exc.name}")
-        except JThermoError as exc:
-            rec.update(status="failed", message=" ".join(str(exc).split()))
-        except Exception as exc:  # noqa: BLE001 - a broken stage must not stop the demo
-            where = traceback.extract_tb(exc.__traceback__)[-1]
-            rec.update(status="failed", message=f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]} "
-                                                 f"({Path(where.filename).name}:{where.lineno})")
-        rec["seconds"] = round(time.perf_counter() - t0, 2)
-        self.records.append(rec)
-        self.say(f"[{k}/{self.total}] {name}: {rec['status']} ({rec['seconds']:.1f} s)"
-                 + (f" — {rec['message']}" if "message" in rec else ""))
-        return out
-
-
-def in_background(fn: Callable[[], Any]) -> Callable[[], Any]:
-    """Start `fn()` in a daemon thread (an interrupted demo does not wait for it); returns the
-    function that waits for it and returns its result or raises its exception. Batched
-    LAPACK calls are lowered one matrix at a time first (`runtime.one_matrix_at_a_time`): two
-    threads' programs must never both wait on XLA's CPU pool."""
-    from .runtime import one_matrix_at_a_time
-
-    one_matrix_at_a_time()
-    box: dict[str, Any] = {}
-
-    def target():
-        try:
-            box["out"] = fn()
-        except BaseException as exc:  # noqa: BLE001 - handed to the waiting stage's guard
-            box["exc"] = exc
-
-    thread = threading.Thread(target=target, name=f"demo-{fn.__name__}", daemon=True)
-    thread.start()
-
-    def result():
-        thread.join()
-        if "exc" in box:
-            raise box["exc"]
-        return box.get("out")
-
-    return result
 
 
 @functools.cache
@@ -127,12 +52,13 @@ def _progress(desc: str, quiet: bool, total: int | None = None):
 
 
 def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir: str = "runs",
-             quiet: bool = False) -> dict:
-    """Run the demo and write `runs_dir/name/report.md`; returns the summary dict."""
+             quiet: bool = False, zones: int | None = None) -> dict:
+    """Run the demo and write `runs_dir/name/report.md`; returns the summary dict. `zones`:
+    the virtual printer's (default `SETTINGS`' 4; `demo_settings`)."""
     from . import io
     from .data import save_csv
 
-    cfg = SETTINGS["quick" if quick else "full"]
+    cfg = demo_settings(quick, zones)
     root = Path(runs_dir) / name
     figs = root / "figures"
     figs.mkdir(parents=True, exist_ok=True)
@@ -200,7 +126,8 @@ def run_demo(name: str = "demo", *, quick: bool = False, seed: int = 0, runs_dir
 
         bar = _progress("tune pi_lambda", True, cfg["tune_steps"])
         try:
-            rep = tune_report("pi_lambda", plant="printer", rollouts=cfg["tune_rollouts"],
+            rep = tune_report("pi_lambda", plant="printer", zones=cfg["zones"],
+                              rollouts=cfg["tune_rollouts"],
                               steps=cfg["tune_steps"], lr=cfg["tune_lr"], seed=seed,
                               duration=cfg["scenario_s"], eval_rollouts=cfg["eval_rollouts"],
                               changed_powder=None, progress=bar)

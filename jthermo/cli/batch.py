@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .common import (
+    MAX_ZONES,
     add_common,
     info,
     input_file,
@@ -36,6 +37,8 @@ def add_parsers(sub) -> None:
     sp.add_argument("--name", default="demo", help="runs/<name>/report.md")
     sp.add_argument("--quick", action="store_true", help="a shorter run")
     sp.add_argument("--runs-dir", default="runs", metavar="DIR")
+    sp.add_argument("--zones", type=positive_int(MAX_ZONES), default=None,
+                    help="zones of the virtual printer (default 4)")
     add_common(sp, plot=False)
 
 
@@ -91,7 +94,7 @@ def cmd_demo(args: argparse.Namespace) -> dict:
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise ConfigError(f"--name: expected a plain directory name, got {args.name!r}")
     report = demo.run_demo(name=args.name, quick=args.quick, seed=args.seed,
-                           runs_dir=args.runs_dir, quiet=args.quiet)
+                           runs_dir=args.runs_dir, quiet=args.quiet, zones=args.zones)
     report = write_report(args, js, report)
     info(args, f"report: {report['report']}")
     return report

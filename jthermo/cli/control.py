@@ -50,6 +50,23 @@ TRAIN_DTYPE = {"pi_lambda": "float32"}
 DEFAULT_STEPS = 150
 #: the virtual printer `simulate` and `tune` use when no --zones / --powder is given
 PRINTER_ZONES, PRINTER_POWDER = 4, "PA12"
+#: from this many zones on (the smallest bed the printer study measures), the families of
+#: `MANY_ZONES_STEPS` take that many Adam iterations at `MANY_ZONES_LR` on the virtual
+#: printer: an iteration's CPU time grows with the zones, and at 16 zones lqg_ff's 150
+#: (about 2.3 CPU s each) no longer fit five minutes cold on two cores; 60 at 0.1 there:
+#: 185 CPU s, 57.1 % below lambda PI, 39.4 % below the best classical design (lqg)
+#: (`python experiments/printer_scale.py --zones 16 --families lqg_ff`)
+MANY_ZONES = 9
+MANY_ZONES_STEPS = {"lqg_ff": 60}
+MANY_ZONES_LR = {"lqg_ff": 0.1}
+
+
+def printer_defaults(family: str, zones: int) -> tuple[int, float | None]:
+    """`(steps, lr)` of `jthermo tune` on the virtual printer with `zones` zones when no
+    `--steps` is given (lr None: `tune_report`'s)."""
+    if zones >= MANY_ZONES and family in MANY_ZONES_STEPS:
+        return MANY_ZONES_STEPS[family], MANY_ZONES_LR.get(family)
+    return SHORT_STEPS.get(family, DEFAULT_STEPS), SHORT_LR.get(family)
 
 
 def add_parsers(sub) -> None:
@@ -99,7 +116,9 @@ def add_parsers(sub) -> None:
     sp.add_argument("--steps", type=positive_int(100000), default=None,
                     help=f"Adam iterations (default {DEFAULT_STEPS}; on the virtual printer "
                          f"{SHORT_STEPS['pi_lambda']} for pi, {SHORT_STEPS['lqg']} at learning "
-                         f"rate {SHORT_LR['lqg']} for lqg)")
+                         f"rate {SHORT_LR['lqg']} for lqg, and from {MANY_ZONES} zones "
+                         + ", ".join(f"{n} at {MANY_ZONES_LR.get(f, 0.05)} for {f}"
+                                     for f, n in MANY_ZONES_STEPS.items()) + ")")
     sp.add_argument("--setpoint", type=setpoints, metavar="T[,T...]",
                     help="set point, °C: one value or one per output (a fitted plant only; "
                          "default: the middle of the recorded range)")
@@ -373,9 +392,10 @@ def cmd_tune(args: argparse.Namespace) -> dict:
         if args.validation_plant is not None:
             input_file(args.validation_plant, "--validation-plant")
             validation = io.load_model(args.validation_plant)
-    short = args.steps is None and not own
+    lr = None
     if args.steps is None:
-        args.steps = DEFAULT_STEPS if own else SHORT_STEPS.get(args.controller, DEFAULT_STEPS)
+        args.steps, lr = (DEFAULT_STEPS, None) if own else \
+            printer_defaults(args.controller, args.zones)
     bar = progress_bar(args, f"tune {args.controller}", total=args.steps)
     t0 = time.perf_counter()
     try:
@@ -385,7 +405,6 @@ def cmd_tune(args: argparse.Namespace) -> dict:
                                       rollouts=args.rollouts, steps=args.steps, seed=args.seed,
                                       progress=bar)
         else:
-            lr = SHORT_LR.get(args.controller) if short else None
             rep = tune.tune_report(args.controller, plant=plant, model=model,
                                    rollouts=args.rollouts, steps=args.steps, seed=args.seed,
                                    zones=args.zones, powder=args.powder or PRINTER_POWDER,

@@ -423,7 +423,8 @@ def tune_report(controller_family: str, *, plant="printer", model=None, rollouts
         # the references on the training set, while this thread compiles the training step
         best = pool.submit(_staged("tune: references on the training set",
                                    lambda: best_reference_terms([start, *refs],
-                                                                drawn.result()[0], weights)))
+                                                                drawn.result()[0], weights,
+                                                                with_first=True)))
         fixed = pool.submit(_staged("tune: classical designs on held-out seeds", _fixed_held_out),
                             model, start, lam_pi, refs, plants, seeds, kw)
         train, val = drawn.result()

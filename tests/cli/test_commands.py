@@ -509,3 +509,37 @@ def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
     assert "--design-experiment OUT.csv" in out
     rc, _, err = _run(["diagnose", est, "--json", js], capsys)
     assert rc == 2 and "--validation" in _one_line_error(err)
+
+
+@pytest.mark.parametrize("zones", [1, 16])
+def test_demo_zones_reach_every_printer_and_the_tuning(tmp_path, monkeypatch, capsys, zones):
+    """`jthermo demo --zones N`: every stage's printer and the tuning get N zones (the stages
+    are stopped at their first printer: the whole demo at 16 zones is measured by
+    `python experiments/printer_scale.py --others demo`)."""
+    import jthermo.printer
+    import jthermo.tune
+    from jthermo import demo
+    from jthermo.errors import ConfigError
+
+    seen = []
+
+    def no_printer(n, *a, **k):
+        seen.append(n)
+        raise ConfigError("stopped here")
+
+    def no_tuning(*a, zones=None, **k):
+        seen.append(("tune", zones))
+        raise ConfigError("stopped here")
+
+    monkeypatch.setattr(jthermo.printer, "make_printer", no_printer)
+    monkeypatch.setattr(jthermo.tune, "tune_report", no_tuning)
+    rc, _, _ = _run(["demo", "--quick", "--zones", str(zones), "--runs-dir", str(tmp_path),
+                     "--quiet", "--json", str(tmp_path / "r.json")], capsys)
+    assert rc == 0
+    assert ("tune", zones) in seen and set(seen) - {("tune", zones)} == {zones}
+    assert len(seen) >= 4               # experiment, diagnosis, design, tuning
+    assert demo.demo_settings(False)["zones"] == 4 and demo.demo_settings(True, zones)["zones"] == zones
+    with pytest.raises(ConfigError, match="positive integer"):
+        demo.demo_settings(True, 0)
+    rc, _, err = _run(["demo", "--zones", "0"], capsys)
+    assert rc == 2 and "--zones" in err

@@ -1,7 +1,8 @@
 """`jthermo tune`'s defaults on the virtual printer: 60 Adam steps at the library's learning
 rate with float32 training rollouts for pi, 30 steps at 0.1 in float64 for lqg
 (`cli.control.SHORT_STEPS`, `SHORT_LR`, `TRAIN_DTYPE`); an explicit `--steps` keeps the
-library's learning rate."""
+library's learning rate. From `MANY_ZONES` zones lqg_ff takes `MANY_ZONES_STEPS` at
+`MANY_ZONES_LR`; at 1 zone and 4 the defaults are those of any other N below it."""
 
 import json
 
@@ -15,6 +16,12 @@ from jthermo.cli.control import SHORT_LR, SHORT_STEPS, TRAIN_DTYPE
     ("pi", [], 60, None, "float32"),
     ("lqg", [], 30, 0.1, None),
     ("lqg", ["--steps", "60"], 60, None, None),
+    ("lqg_ff", [], 150, None, None),
+    ("lqg_ff", ["--zones", "1"], 150, None, None),
+    ("lqg_ff", ["--zones", "8"], 150, None, None),
+    ("lqg_ff", ["--zones", "16"], 60, 0.1, None),
+    ("lqg_ff", ["--zones", "16", "--steps", "150"], 150, None, None),
+    ("pi", ["--zones", "16"], 60, None, "float32"),
 ])
 def test_tune_defaults_per_family(family, argv, steps, lr, dtype, tmp_path, monkeypatch, capsys):
     from jthermo import tune
