@@ -63,7 +63,9 @@ LAYERS: list[tuple[str, ...]] = [
     ("firmware",),
     # Batch runs of fit / validate / tune.
     ("sweep",),
-    # The demo runs the whole tour; the command line may launch it, never the reverse.
+    # The demo's settings and stage runner, then the demo: it runs the whole tour; the command
+    # line may launch it, never the reverse.
+    ("demo_stages",),
     ("demo",),
     ("cli",),
 ]

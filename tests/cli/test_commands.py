@@ -515,7 +515,9 @@ def test_diagnose_wiring(tmp_path, capsys, monkeypatch):
 def test_demo_zones_reach_every_printer_and_the_tuning(tmp_path, monkeypatch, capsys, zones):
     """`jthermo demo --zones N`: every stage's printer and the tuning get N zones (the stages
     are stopped at their first printer: the whole demo at 16 zones is measured by
-    `python experiments/printer_scale.py --others demo`)."""
+    `python experiments/printer_scale.py --others demo`); the tie settled by an experiment is
+    a one-zone case at any `--zones`, stopped before its printer."""
+    import jthermo.diagnose.tie_demo
     import jthermo.printer
     import jthermo.tune
     from jthermo import demo
@@ -532,11 +534,17 @@ def test_demo_zones_reach_every_printer_and_the_tuning(tmp_path, monkeypatch, ca
         raise ConfigError("stopped here")
 
     monkeypatch.setattr(jthermo.printer, "make_printer", no_printer)
+    def no_tie(*a, **k):
+        seen.append("tie")
+        raise ConfigError("stopped here")
+
     monkeypatch.setattr(jthermo.tune, "tune_report", no_tuning)
+    monkeypatch.setattr(jthermo.diagnose.tie_demo, "settle_tie", no_tie)
     rc, _, _ = _run(["demo", "--quick", "--zones", str(zones), "--runs-dir", str(tmp_path),
                      "--quiet", "--json", str(tmp_path / "r.json")], capsys)
     assert rc == 0
-    assert ("tune", zones) in seen and set(seen) - {("tune", zones)} == {zones}
+    assert ("tune", zones) in seen and "tie" in seen
+    assert set(seen) - {("tune", zones), "tie"} == {zones}
     assert len(seen) >= 4               # experiment, diagnosis, design, tuning
     assert demo.demo_settings(False)["zones"] == 4 and demo.demo_settings(True, zones)["zones"] == zones
     with pytest.raises(ConfigError, match="positive integer"):
