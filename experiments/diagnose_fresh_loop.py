@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -108,21 +107,6 @@ def score(findings, kind):
             "rivals": list(findings[0].get("rivals") or []) if named else []}
 
 
-def commit():
-    try:
-        sha = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "jthermo"], capture_output=True, text=True,
-                               check=False).stdout
-        return sha + (" (jthermo/ modified)" if dirty.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def cpu_s():
-    t = os.times()
-    return t.user + t.system
-
-
 def summary(rows):
     mech = [r for r in rows if r["kind"] != "null"]
     nulls = [r for r in rows if r["kind"] == "null"]
@@ -198,17 +182,17 @@ def main(argv=None):
         write(d["records"], d["meta"], out)
         return 0
     meta = {"args": f"--max-zones {args.max_zones} --experiment-s {args.experiment_s:g} --seed-tag {args.seed_tag}",
-            "commit": commit(), "seed_tag": args.seed_tag, "max_zones": args.max_zones,
+            "commit": H.commit(), "seed_tag": args.seed_tag, "max_zones": args.max_zones,
             "experiment_s": args.experiment_s, "planned": args.cases}
     rows = []
-    t0, c0 = time.perf_counter(), cpu_s()
+    t0, c0 = time.perf_counter(), H.cpu_s()
     for i, kind in list(enumerate(PLAN))[:args.cases]:
         c = H.draw_case(i, kind, args.max_zones, seq=case_seed(i, args.seed_tag))
         est, val = H.make_record(c)
         calls = []
         run = plant_runner(c, (est.input_names, est.output_names), calls)
         duration = int(min(round(args.experiment_s / c["ts"]), H.MAX_EST))
-        t1, c1 = time.perf_counter(), cpu_s()
+        t1, c1 = time.perf_counter(), H.cpu_s()
         try:
             loop = diagnose_loop(est, val, run, max_experiments=1, duration=duration)
             first, last = loop["rounds"][0], loop["rounds"][-1]
@@ -223,12 +207,12 @@ def main(argv=None):
         rows.append({"case": f"{i:02d}_{kind}", "kind": kind, "zones": c["zones"], "ts": c["ts"],
                      "physics": H.describe(c), "counted": list(H.COUNTED[kind]), "alone": alone,
                      "with_experiment": withx, "experiment_s": sum(calls) * c["ts"], "settled": settled,
-                     "seconds": time.perf_counter() - t1, "cpu_s": cpu_s() - c1})
+                     "seconds": time.perf_counter() - t1, "cpu_s": H.cpu_s() - c1})
         r = rows[-1]
         print(f"{r['case']} N{c['zones']} Ts{c['ts']:.2f}: alone {alone.get('top')} ({alone['correct']}), "
               f"with {withx.get('top')} ({withx['correct']}), exp {r['experiment_s']:.0f} s, "
               f"{r['cpu_s']:.0f} cpu s, load {os.getloadavg()[0]:.1f}", flush=True)
-        meta.update(wall_s=time.perf_counter() - t0, cpu_s=cpu_s() - c0,
+        meta.update(wall_s=time.perf_counter() - t0, cpu_s=H.cpu_s() - c0,
                     load=" ".join(f"{v:.2f}" for v in os.getloadavg()))
         write(rows, meta, out)
     return 0
