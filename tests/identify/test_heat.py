@@ -83,8 +83,13 @@ def test_positive_parametrisation_is_metzler_hurwitz_and_positive():
         assert np.allclose(Bd, integ, atol=1e-6 * max(1, np.abs(integ).max()))
 
 
-@pytest.mark.parametrize("n_zones", [1, 16])
+@pytest.mark.parametrize("n_zones", [1, 4])
 def test_positive_fit_recovers_gain(n_zones):
+    """Uncoupled nodes, one per sensor, every heater reaching every node: the fit of
+    `constrained_polynomial`. Its branches do not depend on the zone count, so 4 zones take the
+    16-zone bed's path (largest gain error 0.07 % at 4 zones, 0.5 % at 16, against the 5 %
+    asserted) at a sixth of its CPU time; the 16-zone fits of this area: test_guard.py,
+    test_pem_padding.py and the grey-box bound below."""
     data = from_arrays(*_clean(n_zones), ts=1.0)
     r = fit_positive(data, n_zones, coupled=False, free_x0=False)
     g = np.asarray(r.model.dcgain())
