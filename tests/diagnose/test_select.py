@@ -159,10 +159,11 @@ def test_localise_reports_zones_and_common_mode():
 
 
 def test_zone_and_coupled_simulations_agree():
-    n, T = 2, 300
+    # the shape of the lamps-and-walls cases below: one set of compiled programs for all three
+    n, T = 3, 400
     lay = M.make_layout(n, n, M.n_drift_knots(T, 1.0))
     u = _prbs(T, n, 3)
-    Th = np.stack([M.initial_theta(lay, log_a=np.log(0.015), log_b=np.log([0.6, 0.2]), x0=170.0,
+    Th = np.stack([M.initial_theta(lay, log_a=np.log(0.015), log_b=np.log([0.6, 0.2, 0.1]), x0=170.0,
                                    xw0=10.0) for _ in range(n)])
     on = jnp.asarray(M.on_vector(["ambient_variation", "radiative_loss"]))
     Th[:, lay.sl("drift")] = np.linspace(-1, 1, lay.n_drift)
