@@ -122,28 +122,8 @@ def lines_of(r: dict) -> list[str]:
     return out
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--case", type=int, required=True)
-    ap.add_argument("--max-zones", type=int, default=4)
-    ap.add_argument("--experiment-s", type=float, default=3600.0)
-    ap.add_argument("--seed-tag", type=int, default=1)
-    ap.add_argument("--out", default="experiments/results")
-    ap.add_argument("--keep-records", default=None, help="pickle the case's records to this path")
-    args = ap.parse_args(argv)
-    if not 0 <= args.case < len(F.PLAN):
-        print(f"jthermo: error: --case must be 0..{len(F.PLAN) - 1}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "diagnose_fresh_case.json"
-    stored = json.loads(path.read_text()) if path.exists() else {"cases": {}}
-    r = study(args.case, args.max_zones, args.experiment_s, args.seed_tag, args.keep_records)
-    r["commit"] = H.commit()
-    r["args"] = f"--case {args.case} --max-zones {args.max_zones} --experiment-s {args.experiment_s:g} --seed-tag {args.seed_tag}"
-    r["load"] = " ".join(f"{v:.2f}" for v in os.getloadavg())
-    stored["cases"][r["case"]] = r
-    atomic_write_text(path, json.dumps(stored, indent=1, default=float))
+def render(stored: dict, out: Path):
+    """`diagnose_fresh_case.md` from the stored JSON: every case studied, in case order."""
     lines = ["# Development cases of the loop's set in detail", "",
              "The set of `diagnose_fresh_loop.py` (seed tag 1) was scored once; the cases below were then",
              "studied and the diagnosis changed on them, so it is a development set from then on.", ""]
@@ -152,6 +132,36 @@ def main(argv=None):
         lines += [(f"Made by `python experiments/diagnose_fresh_case.py {x['args']}` at commit "
                    f"`{x['commit']}` (load {x['load']}, under `nice -n 10`)."), ""] + lines_of(x)
     atomic_write_text(out / "diagnose_fresh_case.md", "\n".join(lines) + "\n")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--case", type=int, default=None)
+    ap.add_argument("--max-zones", type=int, default=4)
+    ap.add_argument("--experiment-s", type=float, default=3600.0)
+    ap.add_argument("--seed-tag", type=int, default=1)
+    ap.add_argument("--out", default="experiments/results")
+    ap.add_argument("--keep-records", default=None, help="pickle the case's records to this path")
+    ap.add_argument("--render", action="store_true",
+                    help="only write the tables again from the stored JSON (nothing is diagnosed)")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    path = out / "diagnose_fresh_case.json"
+    if args.render:
+        render(json.loads(path.read_text()), out)
+        return 0
+    if args.case is None or not 0 <= args.case < len(F.PLAN):
+        print(f"jthermo: error: --case must be 0..{len(F.PLAN) - 1}", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    r = study(args.case, args.max_zones, args.experiment_s, args.seed_tag, args.keep_records)
+    stored = json.loads(path.read_text()) if path.exists() else {"cases": {}}
+    r["commit"] = H.commit()
+    r["args"] = f"--case {args.case} --max-zones {args.max_zones} --experiment-s {args.experiment_s:g} --seed-tag {args.seed_tag}"
+    r["load"] = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    stored["cases"][r["case"]] = r
+    atomic_write_text(path, json.dumps(stored, indent=1, default=float))
+    render(stored, out)
     print("\n".join(lines_of(r)))
     return 0
 
