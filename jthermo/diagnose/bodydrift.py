@@ -93,14 +93,17 @@ def dependence_testable(T: int, step: int) -> bool:
     return bool(math.ceil(T / max(int(step), 1)) >= MIN_DEPENDENCE_POINTS)
 
 
-def records_dependence(drift: np.ndarray, drive: np.ndarray, lengths, ts: float, step: int) -> tuple[list, list]:
+def records_dependence(drift: np.ndarray, drive: np.ndarray, lengths, ts: float,
+                       step: int) -> tuple[list, list]:
     """`input_dependence` of each record of a concatenation `drift (sum T_r,)`, `drive` (records
     of `lengths` samples) on its own, and whether each is `dependence_testable`: each record's
     surroundings level, drift and body state are its own nuisances (the regression's level,
-    trend and decay per record). Tested on the concatenation, pooled records whose levels and
-    input-driven temperatures both differ (another mean input, another room) show a step in
-    both at the join, which the lag regression reads as the drift following the inputs and
-    which circular shifts of the drive do not reproduce."""
+    trend and decay per record). On the concatenation the regression's level, trend and decay
+    span every record, a body's wall restarts at each join unmodelled, and the circular shifts
+    of the drive cross the joins: the statistic tests no record's hypothesis (two pooled records
+    of an exogenous drift read 1.64 there, where the first alone reads 1.04 and the second is
+    too short to test: a development case of the loop's set,
+    `tests/diagnose/test_pooled_dependence.py`)."""
     edges = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
     zs = [input_dependence(drift[a:b], drive[a:b], ts, step) for a, b in itertools.pairwise(edges)]
     return zs, [dependence_testable(int(T), step) for T in lengths]

@@ -108,9 +108,9 @@ def order_significant(pb: Problem, base: Baseline, locn: Localisation, cands: Ca
         # (baseline-simulated) temperature through a lag only if it is a body (`bodydrift.py`)
         # (and, unmeasured, the drift re-estimated on the validation record follows the baseline's
         # simulation of that record: a designed record can show it). Each record is tested on
-        # its own, with its own level, drift and body state as nuisances: concatenated, the steps
-        # between pooled records' levels and input-driven temperatures read as dependence. The
-        # records' tests are combined, `bodydrift.combined_dependence`
+        # its own, with its own level, drift and body state as nuisances (concatenated, the test
+        # is of no record: `bodydrift.records_dependence`); the records' tests are combined,
+        # `bodydrift.combined_dependence`
         ka = names.index("ambient_variation")
         kstep = round(M.DRIFT_SPACING / ts)
         dr = np.median(cands.theta_own[ka][:, lay.sl("drift")], axis=0)
