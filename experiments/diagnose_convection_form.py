@@ -1,6 +1,7 @@
-"""Why `radiative_loss` misses the held-out h(T) convection cases: its curvature is capped.
+"""Why `radiative_loss` misses the h(T) convection cases of the development sets: its
+curvature is capped.
 
-The held-out generator (`diagnose_heldout_hard.py`) loses heat as $a\\Delta + c\\,\\Delta^{4/3}$
+The harder study's generator (`diagnose_heldout_hard.py`) loses heat as $a\\Delta + c\\,\\Delta^{4/3}$
 ($\\Delta = x - T_\\infty$, natural convection $h \\propto \\Delta^{1/3}$). What a loss nonlinearity
 adds to a linear model, near the operating point, is its curvature relative to its slope,
 $\\kappa = q''(\\Delta)/q'(\\Delta)$. For the total loss with convection

@@ -1,6 +1,6 @@
 """Radiation, lamp exponent and the true convective form, each fitted to its optimum.
 
-On held-out convection cases (`diagnose_heldout_hard.py` kind `convection_hT`: loss
+On development convection cases (`diagnose_heldout_hard.py` kind `convection_hT`: loss
 $a\\Delta + c\\Delta^{4/3}$) the diagnosis named `input_nonlinearity` ($u^p$) instead of
 `radiative_loss`. This script asks, independently of the library's fitting code, how well each
 form *can* predict the validation record: every zone's model of the baseline's class (first
@@ -189,7 +189,7 @@ def main(argv=None):
         raise SystemExit("seed sets >= 12 are kept for scoring")
     cmd = "python experiments/diagnose_convection_oracle.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
-    lines = ["# Each form at its optimum on held-out cases ()", "",
+    lines = ["# Each form at its optimum on development cases ()", "",
              f"Made by `{cmd}` (NumPy/SciPy/JAX, independent of the diagnosis' fitting code).",
              "`z b>a`: Diebold-Mariano z that b predicts the validation record better than a.", "",
              "| case:set | kind | N | val MSE base | val MSE red. rad / conv (oracle) / pow | rad share | conv share | exponent | "

@@ -1,6 +1,6 @@
 """Is natural convection detectable at all? The diagnosis' own tests on the true form.
 
-Held-out convection cases (`diagnose_heldout_hard.py` kind `convection_hT`, loss
+Convection cases of the development sets (`diagnose_heldout_hard.py` kind `convection_hT`, loss
 $a\\Delta + c\\Delta|\\Delta|^{1/3}$) that the diagnosis names nothing: is that the candidate's
 form (or its fit), or the record's power? For each case this script
 

@@ -5,7 +5,9 @@ library's forms, white + AR(2) noise, any sample time), each case drawn from its
 `SeedSequence([i, 2026, 4545, 1])`, used by no other script and by no constant or rule of
 `jthermo.diagnose`: the set is drawn once the code is final and scored once at the commit it
 names. A set whose results feed a constant or a rule is a development set from then on, and
-the next score needs new seeds (`--seed-tag`).
+the next score needs new seeds (`--seed-tag`). Seed tag 1 is such a development set: its
+cases 03, 05 and 08 (confident wrong names) were studied (`diagnose_fresh_case.py`) and the
+pooled records' drift test and forward selection's ties changed on them.
 
 Per case: the estimation and validation records of `diagnose_heldout_hard.make_record` are
 diagnosed (`jthermo.diagnose.diagnose_loop`, its first round: the score *without* an
@@ -46,6 +48,12 @@ import diagnose_heldout_hard as H
 #: the set's kinds: 13 with an effect, 3 nulls
 PLAN = [*H.KINDS[:15], "null"]
 CONFIDENT = 0.95
+#: seed tags whose cases fed a constant or rule of the diagnosis after their score: development sets
+DEVELOPMENT_TAGS = {1: ("its cases 03, 05 and 08 were studied after this score "
+                        "(`python experiments/diagnose_fresh_case.py --case N`) and the diagnosis changed on "
+                        "them (the pooled records' drift test record by record, the ties of forward "
+                        "selection with unfitted additions); the table is the score of the commit named, "
+                        "a score of the code after needs new seeds (`--seed-tag`).")}
 
 
 def case_seed(i: int, tag: int) -> np.random.SeedSequence:
@@ -126,10 +134,13 @@ def write(rows, meta, out):
     atomic_write_text(out / "diagnose_fresh_loop.json",
                       json.dumps({"meta": meta, "summary": s, "records": rows}, indent=1, default=float))
     a, e = s["alone"], s["with_experiment"]
-    lines = ["# A fresh set scored once: the diagnosis alone and with one designed experiment", "",
+    dev = meta["seed_tag"] in DEVELOPMENT_TAGS
+    lines = [(f"# {'A development set' if dev else 'A fresh set'} scored once: the diagnosis alone and with "
+              "one designed experiment"), "",
+             *([f"Development set since: {DEVELOPMENT_TAGS[meta['seed_tag']]}", ""] if dev else []),
              f"Made by `python experiments/diagnose_fresh_loop.py {meta['args']}` at commit `{meta['commit']}`",
-             f"(seeds `SeedSequence([i, 2026, 4545, {meta['seed_tag']}])`, drawn after the code was final and used by",
-             "nothing else; plants of `diagnose_heldout_hard.py`, physics outside the library's forms,",
+             f"(seeds `SeedSequence([i, 2026, 4545, {meta['seed_tag']}])`, drawn after the code of that commit was",
+             "final; plants of `diagnose_heldout_hard.py`, physics outside the library's forms,",
              f"N = 1..{meta['max_zones']}, Ts 0.3-5 s; estimation 40 min (1 h for slow bodies and drifts), validation",
              f"half of it, at most {H.MAX_EST} samples; the experiment at most {meta['experiment_s']:g} s and "
              f"{H.MAX_EST} samples,", "run on the true plant after the first records and pooled with them).",

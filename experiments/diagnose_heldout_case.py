@@ -1,4 +1,4 @@
-"""One case of the harder held-out diagnosis study in detail: every candidate's tests, the
+"""One case of the harder diagnosis study in detail: every candidate's tests, the
 dead-time scan and the periodic search (why a case is missed).
 
     .venv/bin/python experiments/diagnose_heldout_case.py --case 12 --seed-set 5 [--max-zones 3]
@@ -58,7 +58,8 @@ def main(argv=None):
             f"{ds['baseline_cost']:.6f} without")
     cols = ("| candidate | validation z / critical | estimation LR / critical | significant | "
             "validation MSE reduction | fit gain (pts) | parameters |")
-    lines = [f"# Held-out diagnosis case {args.case:02d} ({c['kind']}), seed set {args.seed_set}", "",
+    lines = [(f"# Diagnosis case {args.case:02d} ({c['kind']}) of seed set {args.seed_set} in detail "
+              "(a case studied: development data for what changes on it)"), "",
              head, "", record, f"- verdict {res['verdict']}; named {named}",
              f"- fit {res['baseline']['mean_fit_percent']:.2f} → {res['augmented']['mean_fit_percent']:.2f} %",
              scan, f"- periodic search: {json.dumps(res['localisation']['periodic'])}", "",

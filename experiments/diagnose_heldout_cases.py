@@ -1,5 +1,5 @@
-"""Chosen cases of the harder held-out study, each diagnosed once, one line each: a
-quick A/B of a change on the cases it is meant to move and on those it could break.
+"""Chosen development cases of the harder study (cases a change was checked on), each
+diagnosed once, one line each: a quick A/B of a change on the cases it is meant to move and on those it could break.
 
     .venv/bin/python experiments/diagnose_heldout_cases.py 14:9 9:8 ... [--max-zones 3]
 
@@ -61,7 +61,7 @@ def main(argv=None):
         print(rows[-1], flush=True)
     fmt = lambda v: "-" if v in (None, []) else (", ".join(v) if isinstance(v, list) and v and isinstance(v[0], str)
                                                  else str(v))
-    lines = ["# Held-out cases, one line each", "",
+    lines = ["# Development cases, one line each", "",
              (f"Made by `python experiments/diagnose_heldout_cases.py {' '.join(args.cases)} --max-zones "
              f"{args.max_zones}`: {sum(r['right'] for r in rows)}/{len(rows)} right; "
              f"wall {time.perf_counter() - t0:.0f} s, 1-min load {os.getloadavg()[0]:.1f} at the end."), "",

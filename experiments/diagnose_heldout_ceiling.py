@@ -1,4 +1,4 @@
-"""The validation fit the *true* plant reaches on a held-out record (its noise-free simulation
+"""The validation fit the *true* plant reaches on a development record (its noise-free simulation
 against the noisy record): the ceiling no diagnosis can beat (is a miss at a low
 baseline fit a failure of the diagnosis or a record whose effect is below the noise?).
 
@@ -32,7 +32,7 @@ def main(argv=None):
     ap.add_argument("--max-zones", type=int, default=3)
     ap.add_argument("--out", default="experiments/results")
     args = ap.parse_args(argv)
-    lines = ["# Validation fit of the true plant on held-out records (noise ceiling)", "",
+    lines = ["# Validation fit of the true plant on development records (noise ceiling)", "",
              f"Made by `python experiments/diagnose_heldout_ceiling.py {' '.join(args.cases)} "
              f"--max-zones {args.max_zones}" + "`.", "",
              "| case | set | kind | N | Ts s | true plant's validation fit % (per zone) | mean | noise std °C |",

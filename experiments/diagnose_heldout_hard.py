@@ -530,6 +530,8 @@ def main(argv=None):
                          "its fitted values would then depend on the load)")
     ap.add_argument("--n-iter", type=int, default=None,
                     help="per-zone iteration cap of the diagnosis (default: its N_ITER)")
+    ap.add_argument("--render", action="store_true",
+                    help="only write the tables again from the stored JSON in --out (nothing is diagnosed)")
     args = ap.parse_args(argv)
     global SAMPLE_AT_END
     if args.one_thread:
@@ -542,6 +544,10 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     if args.pooled:
         write_pooled(out, out)
+        return 0
+    if args.render:
+        d = json.loads((out / "diagnose_heldout_hard.json").read_text())
+        write(d["records"], d["meta"], out)
         return 0
     meta = {"args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
                              if k != "out" and v not in (None, "", 0) and not (k == "max_zones" and v == 9)

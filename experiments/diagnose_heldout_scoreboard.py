@@ -96,7 +96,10 @@ def render(res: dict, argv: str) -> str:
            "script's docstring). A development set fed a constant or rule of the diagnosis "
            f"(`DEVELOPMENT_SETS`: {', '.join(map(str, DEVELOPMENT_SETS[1:]))}): its row is a development score. "
            "The commit of a set is named where its JSON recorded one. Goal: top-1 >= 15/16 per set, nulls 3/3. "
-           "A set drawn at the final code and scored once with its commit: `diagnose_fresh_loop.md`.", "",
+           "The loop's set (`diagnose_fresh_loop.md`, seed tag 1) was scored once at its commit; its cases "
+           "03, 05 and 08 then fed rules of the diagnosis (the pooled records' drift test, the ties of forward "
+           "selection: `diagnose_fresh_case.py`), so it is a development set since, and a score of today's code "
+           "needs new seeds (`--seed-tag`).", "",
            "Development sets: " + total_line({"sets": dev}),
            "Sets scored once (each at the code of its day) and not tuned on: " + total_line({"sets": once}), "",
            "| set | role | commit | top-1 | nulls quiet | truth first or a rival | confident wrong names | median gain pts |",

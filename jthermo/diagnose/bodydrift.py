@@ -11,6 +11,7 @@ keeps the other as its rival (`body_drift_tied`, `slow_rival`) with the test's o
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -90,6 +91,22 @@ def dependence_testable(T: int, step: int) -> bool:
     """Whether a record of `T` samples, tested every `step` samples, has the
     `MIN_DEPENDENCE_POINTS` that `input_dependence` needs (below them it returns 0: no evidence)."""
     return bool(math.ceil(T / max(int(step), 1)) >= MIN_DEPENDENCE_POINTS)
+
+
+def records_dependence(drift: np.ndarray, drive: np.ndarray, lengths, ts: float,
+                       step: int) -> tuple[list, list]:
+    """`input_dependence` of each record of a concatenation `drift (sum T_r,)`, `drive` (records
+    of `lengths` samples) on its own, and whether each is `dependence_testable`: each record's
+    surroundings level, drift and body state are its own nuisances (the regression's level,
+    trend and decay per record). On the concatenation the regression's level, trend and decay
+    span every record, a body's wall restarts at each join unmodelled, and the circular shifts
+    of the drive cross the joins: the statistic tests no record's hypothesis (two pooled records
+    of an exogenous drift read 1.64 there, where the first alone reads 1.04 and the second is
+    too short to test: a development case of the loop's set,
+    `tests/diagnose/test_pooled_dependence.py`)."""
+    edges = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
+    zs = [input_dependence(drift[a:b], drive[a:b], ts, step) for a, b in itertools.pairwise(edges)]
+    return zs, [dependence_testable(int(T), step) for T in lengths]
 
 
 def combined_dependence(zs, testable) -> float:
@@ -215,5 +232,5 @@ def slow_rival(top: str, other_fits_estimation: bool, z_input: float) -> bool:
 
 __all__ = ["BODY_TAUS", "MIN_DEPENDENCE_POINTS", "N_SHIFTS", "body_drift_tied", "combined_dependence",
            "confidence_runner", "dependence_testable", "input_dependence", "input_dependent", "lag_filter",
-           "order_body_drift", "prefer_fewer_slow", "prefer_input_driven", "slow_order_confidence",
-           "slow_rival"]
+           "order_body_drift", "prefer_fewer_slow", "prefer_input_driven", "records_dependence",
+           "slow_order_confidence", "slow_rival"]

@@ -107,20 +107,22 @@ def order_significant(pb: Problem, base: Baseline, locn: Localisation, cands: Ca
         # a slow body or a drift: the drift fitted on estimation follows the input-driven
         # (baseline-simulated) temperature through a lag only if it is a body (`bodydrift.py`)
         # (and, unmeasured, the drift re-estimated on the validation record follows the baseline's
-        # simulation of that record: a designed record can show it; the two records' tests are
-        # combined, `bodydrift.combined_dependence`)
+        # simulation of that record: a designed record can show it). Each record is tested on
+        # its own, with its own level, drift and body state as nuisances (concatenated, the test
+        # is of no record: `bodydrift.records_dependence`); the records' tests are combined,
+        # `bodydrift.combined_dependence`
         ka = names.index("ambient_variation")
         kstep = round(M.DRIFT_SPACING / ts)
         dr = np.median(cands.theta_own[ka][:, lay.sl("drift")], axis=0)
-        z_e = BD.input_dependence(pb.rec_e.Phi @ (dr - dr.mean()), base.yhat.mean(axis=1), ts, kstep)
+        z_r, ok_r = BD.records_dependence(pb.rec_e.Phi @ dr, base.yhat.mean(axis=1), pb.lengths or (pb.y.shape[0],),
+                                          ts, kstep)
         n, kv = pb.n, vl.validator.kv
         dv = vl.rec_fit[1 + ka, 2 * n:2 * n + kv]
         z_v = (BD.input_dependence(vl.Phi @ (dv - dv.mean()), vl.yhat[0].mean(axis=1), ts, kstep)
                if not pb.measured_var else 0.0)
-        loc["drift_input_dependence_records_z"] = [z_e, z_v]
+        loc["drift_input_dependence_records_z"] = [*z_r, z_v]
         loc["drift_input_dependence_z"] = BD.combined_dependence(
-            [z_e, z_v], [BD.dependence_testable(max(pb.lengths) if pb.lengths else pb.T, kstep),
-                         BD.dependence_testable(vl.Tv, kstep) and not pb.measured_var])
+            [*z_r, z_v], [*ok_r, BD.dependence_testable(vl.Tv, kstep) and not pb.measured_var])
         sig = BD.order_body_drift(sig, loc["drift_input_dependence_z"])
         # and by parsimony: a drift re-fits the slow part on the validation record (`slowbody.py`)
         sig = order_by_parsimony(sig, e_c, names, vl.validator.k_val, loc)
