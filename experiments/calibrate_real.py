@@ -166,8 +166,13 @@ def markdown(results: list[dict]) -> str:
                   f"≤ 90 s wall: {'yes' if r['ok_time'] else 'no'} (loaded machine)"]
         if not rep.get("supported", True):
             checks.insert(0, f"**calibrate says it is not a tuning to use**: {rep['why_not']}")
+        stages = ", ".join(f"{t['stage']} {t['wall_s']:.0f}"
+                           + ("" if t["compile_s"] is None else f" ({t['compile_s']:.0f} compiling)")
+                           for t in rep["timing"]["stages"] if t["wall_s"] >= 2.0)
         notes += [f"- **{res['name']}**: " + "; ".join(checks) + f". Load step: "
-                  f"{rep['load']['what']}. Diagnosis: {rep['finding']}"]
+                  f"{rep['load']['what']}. Diagnosis: {rep['finding']} Stages, wall s "
+                  f"(the command's `--json` `timing`; the diagnosis runs beside the others): "
+                  f"{stages}."]
         if mpc:
             c = mpc["constants"]
             notes[-1] += (f" Two-state constants (P {c['heater_power']:g} W given): C "

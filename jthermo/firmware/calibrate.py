@@ -51,6 +51,7 @@ from . import klippy, mpc, settings, tuning
 from . import report as report_mod
 from .mpc_law import FirmwareMPC
 from .pid import KlipperPID, pid_calibrate
+from .stages import Laps, timed
 
 #: the model families tried, cheapest first
 FAMILIES = ("arx", "oe")
@@ -116,7 +117,7 @@ def _default_setpoint(r) -> float | None:
     return float(vals[np.argmax(counts)])
 
 
-def _fit_best(est, val, seed, say):
+def _fit_best(est, val, seed, say, lap):
     from ..identify import fit
     from ..validate import compare
 
@@ -127,8 +128,10 @@ def _fit_best(est, val, seed, say):
             score = float(compare(res.model, val)["mean_fit_percent"])
         except JThermoError as exc:
             say(f"fit {fam}: {exc}")
+            lap(f"fit {fam}")
             continue
         say(f"fit {fam}: {score:.1f} % on validation")
+        lap(f"fit {fam}")
         if math.isfinite(score) and (best is None or score > best[2]):
             best = (fam, res, score)
     if best is None:
@@ -244,6 +247,7 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
     the JSON-ready report (`model`, `setpoints`, `finding`, `verdict`, `controllers`,
     `floor_plus_noise`, `load`, `mpc`, `firmware`, `files`)."""
     say = progress or (lambda s: None)
+    lap = Laps()
     if firmware not in settings.FILE_NAMES:
         raise ConfigError(f"--firmware must be one of {', '.join(settings.FILE_NAMES)}")
     if not (isinstance(heater_power, (int, float)) and math.isfinite(heater_power)
@@ -258,7 +262,8 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         est, val = data_mod.split(est, 1.0 - HOLD_BACK)
         say(f"no validation record: the last {HOLD_BACK:.0%} of EST held back")
     heaters = _heater_names(est)
-    fam, res, score = _fit_best(est, val, seed, say)
+    lap("records")
+    fam, res, score = _fit_best(est, val, seed, say, lap)
     model = res.model
     env = res.envelope if getattr(res, "envelope", None) is not None else Envelope.from_model(model)
     r = setpoint if setpoint is not None else _default_setpoint(r_log)
@@ -269,16 +274,17 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         plant_name = "a model fitted to the validation record"
     except JThermoError:
         val_model, plant_name = model, "the design model (the validation record gave no plant)"
+    lap("fit of the validation record")
     say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
     # the diagnosis runs beside the tuning (a second core)
     pool = ThreadPoolExecutor(1)
     try:
-        pending = pool.submit(_diagnosis, est, val, seed, say) if diagnosis else None
+        pending = pool.submit(timed, _diagnosis, est, val, seed, say) if diagnosis else None
         report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
                                  val_model, plant_name, heaters, firmware=firmware, seed=seed,
                                  steps=steps, rollouts=rollouts, heater_power=heater_power,
                                  figures=figures, oracle=oracle, command=command, say=say,
-                                 pending=pending)
+                                 pending=pending, lap=lap)
     finally:
         pool.shutdown(wait=True)
     return report
@@ -286,7 +292,7 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
 
 def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
                     plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
-                    figures, oracle, command, say, pending) -> dict:
+                    figures, oracle, command, say, pending, lap) -> dict:
     """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
     (the diagnosis `pending` in another thread, collected before the report)."""
     from .. import io
@@ -294,6 +300,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
 
     two = _two_state(est, val, float(heater_power), say)
     load, load_what = _load(two, r, env)
+    lap("two-state fit")
 
     cfg = klippy.config_for(est_path) or {}
     max_power = float(cfg.get("max_power", 1.0))
@@ -305,6 +312,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     agree = _agreement(ku, tu, val_model, model, r, max_power)
     if agree:
         say(agree)
+    lap("relay tests")
     duration = model_duration(model)
     n_grid = len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS) * len(tuning.RHOS)
     say(f"tuning the firmware PID (a grid of {n_grid} starts, at most {steps} search "
@@ -312,6 +320,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     tuned = tuning.tune_firmware_pid(model, env, r, ku, tu, duration=duration, seed=seed,
                                      rollouts=rollouts, steps=steps, kw=kw, load=load, say=say)
     final = tuned["controller"]
+    lap("tuning")
 
     ctrls = {"firmware_pid": final}
     kinds = {"firmware_pid": "firmware_pid"}
@@ -332,15 +341,19 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
             kinds[f] = "yardstick" if f == "pi_lambda" else "model_based"
         except JThermoError:
             continue
+    lap("yardstick designs")
     say(f"judging {len(ctrls)} controllers on {plant_name}")
     judge_scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
     table, first = _judge(ctrls, val_model, judge_scs)
+    lap("judgement")
     lim = limits(val_model, env, r, duration, seed)
+    lap("floor + noise")
     if oracle and val_model is not model:
         lim["pid_oracle"] = _oracle(val_model, env, r, kw, duration=duration, seed=seed,
                                     rollouts=rollouts, steps=steps, load=load, scs=judge_scs,
                                     bound=lim["tracking_bound_mse"], max_power=max_power,
                                     say=say)
+        lap("oracle")
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
     why_not = _why_not(agree, table["firmware_pid"])
     if why_not:
@@ -374,13 +387,16 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
         figs = report_mod.figures(out, val=val, yhat=yhat, fits=fits,
                                   models={"design": model, "validation": val_model},
                                   runs=first, ts=float(env.ts), duration=duration)
-    diag = pending.result() if pending is not None else {"finding": "not run",
-                                                          "mechanism": None}
+    lap("files and figures")
+    diag, *took = pending.result() if pending is not None else ({"finding": "not run",
+                                                                 "mechanism": None}, 0.0, 0.0)
+    lap("waiting for the diagnosis")
+    lap.add("diagnosis (its thread)", *took)
     report = {"model": {"family": fam, "orders": dict(getattr(res, "orders", None) or {}),
                         "validation_fit_percent": score},
               "setpoints": np.asarray(r).tolist(), "heaters": heaters, "ts": float(est.ts),
               "finding": diag["finding"], "diagnosis": diag,
-              "verdict": _verdict(table, lim), "judged_on": plant_name,
+              "verdict": report_mod.verdict(table, lim), "judged_on": plant_name,
               "supported": why_not is None, "why_not": why_not,
               "controllers": controllers,
               "floor_plus_noise": lim["tracking_bound_mse"], "limits": lim,
@@ -393,7 +409,8 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
               "tuning": {"steps": int(steps), "rollouts": int(rollouts), "seed": int(seed),
                          "start": tuned["start"], "factors": tuned["factors"],
                          "iterations": tuned["iterations"], "converged": tuned["converged"],
-                         "refined": tuned["refined"], "design_model": tuned["row"]}}
+                         "refined": tuned["refined"], "design_model": tuned["row"]},
+              "timing": lap.report()}
     md = out / "report.md"
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
@@ -457,37 +474,6 @@ def _why_not(agree: str | None, fw: dict) -> str | None:
             parts.append(f"on the judging plant the tuned loop sits at an input limit "
                          f"{100 * sat:.0f} % of the time (at most {100 * ACCEPT_SATURATED:.0f} %)")
     return "; ".join(parts) or None
-
-
-def _verdict(table: dict, lim: dict) -> str:
-    """The acceptance figures in words: the tuned PID against the floor + noise and against
-    the relay PID (or, where that sits at a limit, the lambda PI)."""
-    fw = table["firmware_pid"]
-    bound = lim.get("tracking_bound_mse")
-    parts = [f"tuned firmware PID: set-point-change MSE {fw['mse']:.3g} °C²"]
-    if bound:
-        parts.append(f"{100 * (fw['mse'] / bound - 1):+.0f} % against the floor + noise {bound:.3g}")
-    parts.append(f"start-up overshoot {fw['overshoot_C']:.2f} °C")
-    if fw["saturated_fraction"] > tuning.MAX_SATURATED:
-        parts.append(f"but it sits at an input limit {100 * fw['saturated_fraction']:.0f} % of the "
-                     "set-point changes on the judging plant: not a settled loop, check before use")
-    cal = table.get("pid_calibrate")
-    bar = "pid_calibrate"
-    if cal and cal["saturated_fraction"] >= tuning.MAX_SATURATED:
-        parts.append(f"the PID_CALIBRATE yardstick failed (at a limit "
-                     f"{100 * cal['saturated_fraction']:.0f} % of the time)")
-        bar = "pi_lambda"
-    elif not cal:
-        bar = "pi_lambda"
-    ref = table.get(bar)
-    if ref:
-        pct = 100 * (1 - fw["mse"] / ref["mse"])
-        side = "below" if pct >= 0 else "above"
-        parts.append(f"{abs(pct):.0f} % {side} {bar}'s MSE {ref['mse']:.3g}")
-        if bound and ref["mse"] < 1.25 * bound:
-            parts.append(f"{bar} is itself within {100 * (ref['mse'] / bound - 1):.0f} % of the "
-                         "floor + noise: 20 % below it is below the floor + noise")
-    return "; ".join(parts)
 
 
 __all__ = ["ACCEPT_OVERSHOOT_C", "ACCEPT_SATURATED", "DIAGNOSE_MECHANISMS", "FAMILIES",

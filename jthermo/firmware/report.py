@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..plots import plot_closed_loop, plot_compare, plot_step
+from . import tuning
 
 #: the figures, by the name they are written under in the output folder
 FIGURES = {"fit": "fit.png", "step": "step.png", "startup": "closed_loop_startup.png",
@@ -36,6 +37,37 @@ def figures(out: Path, *, val, yhat: dict, fits: dict, models: dict, runs: dict,
     plot_closed_loop(np.arange(ys.shape[0]) * ts, ys, us, pre[0][2][:, :1], names=names,
                      path=out / FIGURES["comparison"])
     return dict(FIGURES)
+
+
+def verdict(table: dict, lim: dict) -> str:
+    """The acceptance figures in words: the tuned PID against the floor + noise and against
+    the relay PID (or, where that sits at a limit, the lambda PI)."""
+    fw = table["firmware_pid"]
+    bound = lim.get("tracking_bound_mse")
+    parts = [f"tuned firmware PID: set-point-change MSE {fw['mse']:.3g} °C²"]
+    if bound:
+        parts.append(f"{100 * (fw['mse'] / bound - 1):+.0f} % against the floor + noise {bound:.3g}")
+    parts.append(f"start-up overshoot {fw['overshoot_C']:.2f} °C")
+    if fw["saturated_fraction"] > tuning.MAX_SATURATED:
+        parts.append(f"but it sits at an input limit {100 * fw['saturated_fraction']:.0f} % of the "
+                     "set-point changes on the judging plant: not a settled loop, check before use")
+    cal = table.get("pid_calibrate")
+    bar = "pid_calibrate"
+    if cal and cal["saturated_fraction"] >= tuning.MAX_SATURATED:
+        parts.append(f"the PID_CALIBRATE yardstick failed (at a limit "
+                     f"{100 * cal['saturated_fraction']:.0f} % of the time)")
+        bar = "pi_lambda"
+    elif not cal:
+        bar = "pi_lambda"
+    ref = table.get(bar)
+    if ref:
+        pct = 100 * (1 - fw["mse"] / ref["mse"])
+        side = "below" if pct >= 0 else "above"
+        parts.append(f"{abs(pct):.0f} % {side} {bar}'s MSE {ref['mse']:.3g}")
+        if bound and ref["mse"] < 1.25 * bound:
+            parts.append(f"{bar} is itself within {100 * (ref['mse'] / bound - 1):.0f} % of the "
+                         "floor + noise: 20 % below it is below the floor + noise")
+    return "; ".join(parts)
 
 
 def markdown(rep: dict, fw_text: str, figs: dict | None, command: str) -> str:
@@ -82,4 +114,4 @@ def markdown(rep: dict, fw_text: str, figs: dict | None, command: str) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["COMPARED", "FIGURES", "figures", "markdown"]
+__all__ = ["COMPARED", "FIGURES", "figures", "markdown", "verdict"]

@@ -60,6 +60,23 @@ def test_firmware_file_and_report(calibrated):
     assert ("NOT A TUNING TO USE" in cfg) == (not rep["supported"])
 
 
+def test_stage_timing(calibrated):
+    """`--json` times every stage, in the order they ran; the main thread's stages fit in the
+    command's wall time and the diagnosis (its own thread) is timed apart."""
+    t = json.loads((calibrated / "r.json").read_text())["timing"]
+    names = [s["stage"] for s in t["stages"]]
+    assert names == ["records", "fit arx", "fit oe", "fit of the validation record",
+                     "two-state fit", "relay tests", "tuning", "yardstick designs", "judgement",
+                     "floor + noise", "files and figures", "waiting for the diagnosis",
+                     "diagnosis (its thread)"]
+    main_thread = [s for s in t["stages"] if s["cpu_s"] is not None]
+    for s in t["stages"]:
+        assert s["wall_s"] >= 0 and s["thread_cpu_s"] >= 0
+    assert sum(s["wall_s"] for s in main_thread) <= t["total"]["wall_s"] + 1e-2
+    assert sum(s["compile_s"] for s in main_thread) > 0      # a cold or cached run compiles
+    assert t["stages"][-1]["wall_s"] > 0 and t["total"]["cpu_s"] > 0
+
+
 def test_marlin_file_has_mpc_line(calibrated):
     """One heater: the two-state model is fitted and its M306 line is in Marlin's file."""
     root = calibrated
