@@ -237,9 +237,9 @@ def render_others(others: list) -> list[str]:
 def render(rows, ab, load, prof=(), others=()) -> str:
     zones = ", ".join(str(z) for z in sorted({r["zones"] for r in rows})) or "no"
     lines = [f"# `jthermo tune` on the virtual printer at its scale ({zones} zones measured)", "",
-             "Measured on a shared, loaded 2-core machine (other jobs ran meanwhile, every run "
-             "under `nice -n 10`; 1-minute load average at the end of each run in its row, "
-             f"all: {load}): wall times are upper bounds, CPU s (user+sys of the child) the "
+             "Measured on a 2-core machine, shared with other jobs for some rows (a row's load: the "
+             "1-minute load average at the end of its run; a load near 2 or below is a quiet "
+             f"machine; all: {load}): wall times under load are upper bounds, CPU s (user+sys of the child) the "
              "steadier figure. On an idle 2-core machine a run's wall time is at most its CPU "
              "s (some thread of it is always running: it waits on nothing but the CPU, the "
              "cache's files aside) and at least half of it (two cores); CPU s measured under "
