@@ -1,11 +1,12 @@
-"""Wall and CPU seconds of `calibrate`'s stages, for its `--json` report (`stages`).
+"""Wall and CPU seconds of `calibrate`'s stages, for its `--json` report (`timing`).
 
 A lap timer: `lap(name)` closes the stage that ran since the previous lap (or the start) and
 names it. Per stage `wall_s`, `cpu_s` (the process's CPU seconds over the stage: every thread,
 so the diagnosis running beside it counts here too, and XLA's worker threads),
 `thread_cpu_s` (the calling thread's alone) and `compile_s` (the wall seconds in which some
-thread traced, lowered or compiled a program: `runtime.Stopwatch`). `total` has the process's wall and CPU seconds
-since the timer began; a stage run in another thread (the diagnosis) is added with `add`.
+thread traced, lowered or compiled a program: `runtime.Stopwatch`). `total` has the process's
+wall and CPU seconds since the timer began; a stage run in another thread (the diagnosis) is
+added with `add`.
 """
 
 from __future__ import annotations
