@@ -16,7 +16,9 @@ $$\\operatorname{Cov}\\hat\\theta = \\hat\\sigma^2 (J^\\top J)^{-1}, \\qquad
 
 Compilation: the whole solve (all starts, selection, covariance) is one `eqx.filter_jit`
 function. It compiles once per (residual function, shapes, options); pass a module-level
-function (not a fresh lambda per call) as `residual_fn` and put the data in `args`.
+function (not a fresh lambda per call) as `residual_fn` and put the data in `args`. A solve's
+step limit is a traced budget (`_Budgeted`), so the screening of several starts and the best
+start's solve to convergence run through one compiled solver in `batch="map"`, not two.
 
 Record lengths from a small set: the residual's length $T$ is padded up to `bucket(T)` (four
 steps per octave: at most 25 % more samples), every array of `args` whose time axis has $T$
@@ -95,10 +97,41 @@ def _cost(residual_fn, theta, args, n_valid):
     return jnp.sum(r**2) / _count(r, n_valid)
 
 
+class _Budgeted(optx.AbstractLeastSquaresSolver):
+    """`inner` stopped after `options["budget"]` steps, a traced count (at most the solve's
+    static `max_steps`): one compiled solver serves solves of different lengths (the
+    screening's short solves and the best start's long one). A solve stopped by its budget
+    ends as one stopped by `max_steps` (`nonlinear_max_steps_reached`, not successful); a
+    budget of 0 returns its start point."""
+
+    inner: optx.AbstractLeastSquaresSolver
+    rtol: float
+    atol: float
+    norm: Callable
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags), jnp.array(0)
+
+    def step(self, fn, y, args, options, state, tags):
+        y, inner, aux = self.inner.step(fn, y, args, options, state[0], tags)
+        return y, (inner, state[1] + 1), aux
+
+    def terminate(self, fn, y, args, options, state, tags):
+        done, result = self.inner.terminate(fn, y, args, options, state[0], tags)
+        over = state[1] >= options["budget"]
+        result = optx.RESULTS.where(done | ~over, result, optx.RESULTS.nonlinear_max_steps_reached)
+        return done | over, result
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.inner.postprocess(fn, y, aux, args, options, state[0], tags, result)
+
+
 def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, rtol: float,
-               atol: float, learning_rate: float):
+               atol: float, learning_rate: float, budget=None):
     """Minimise from one start point; returns (theta, converged, n_steps). Vmappable.
-    `residual_fn` is already masked to the first `n_valid` rows (`_minimize_impl`)."""
+    `residual_fn` is already masked to the first `n_valid` rows (`_minimize_impl`); `budget`:
+    the steps this start may take (a traced count, at most `max_steps`; default `max_steps`;
+    not for Adam)."""
     if solver == "adam":
         opt = optax.adam(learning_rate)
         loss = lambda th: _cost(residual_fn, th, args, n_valid)  # noqa: E731
@@ -144,9 +177,13 @@ def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, 
                                     linear_solver=lx.Normal(lx.Cholesky()))
     else:
         s = optx.GaussNewton(rtol=rtol, atol=atol)
-    sol = optx.least_squares(scaled, s, theta0 * d, args, max_steps=max_steps, throw=False)
+    s = _Budgeted(s, s.rtol, s.atol, s.norm)
+    budget = jnp.asarray(max_steps if budget is None else budget)
+    sol = optx.least_squares(scaled, s, theta0 * d, args, options={"budget": budget},
+                             max_steps=max_steps, throw=False)
     ok = sol.result == optx.RESULTS.successful
-    return sol.value / d, ok, jnp.asarray(sol.stats["num_steps"])
+    theta = jnp.where(budget > 0, sol.value / d, theta0)     # exactly the start at budget 0
+    return theta, ok, jnp.asarray(sol.stats["num_steps"])
 
 
 def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, atol,
@@ -179,7 +216,25 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
         return jnp.where(finite, costs, jnp.inf)
 
     K = theta0.shape[0]
-    if K > 1 and 0 < screen_steps < max_steps and solver != "adam":
+    if K > 1 and 0 < screen_steps < max_steps and solver != "adam" and batch == "map":
+        # the screening and the best start's solve as two rounds of one mapped solve, each
+        # start with its budget (round 0: `screen_steps` each; round 1: the rest of
+        # `max_steps` for the best, 0 for the others): one solver in the program, not two
+        rest = max_steps - screen_steps
+
+        def round_(i, carry):
+            thetas, oks, steps = carry
+            lead = jnp.argmin(scored(thetas))
+            budgets = jnp.where(i == 0, screen_steps, jnp.where(jnp.arange(K) == lead, rest, 0))
+            th, ok, st = jax.lax.map(
+                lambda x: _solve_one(residual_fn, x[0], args, n_valid, solver, max_steps, rtol,
+                                     atol, learning_rate, x[1]), (thetas, budgets))
+            ran = budgets > 0
+            return jnp.where(ran[:, None], th, thetas), jnp.where(ran, ok, oks), steps + st
+
+        zeros = jnp.zeros(K, jnp.asarray(0).dtype)
+        thetas, oks, steps = jax.lax.fori_loop(0, 2, round_, (theta0, zeros > 0, zeros))
+    elif K > 1 and 0 < screen_steps < max_steps and solver != "adam":
         thetas, oks, steps = solve(theta0, screen_steps)
         lead = jnp.argmin(scored(thetas))
         th, ok, st = _solve_one(residual_fn, thetas[lead], args, n_valid, solver,

@@ -90,6 +90,30 @@ def test_multistart_picks_best():
     assert float(jnp.max(res.start_costs)) > float(res.cost) + 0.1
 
 
+@pytest.mark.parametrize("batch", ["map", "vmap"])
+def test_screening_is_short_solves_then_the_best_continued(batch):
+    """With `screen_steps`, every start is solved for that many steps and the best one is then
+    solved for the rest of `max_steps` from where it stopped: the same as those solves run one
+    by one (the mapped variant runs both rounds through one compiled solver)."""
+    starts = np.array([[-1.2, 1.0], [2.0, 2.0], [0.0, 0.0], [-0.5, 0.5]])
+    S, M = 5, 60
+    res = pem.minimize(_rosen_residual, starts, None, max_steps=M, screen_steps=S,
+                       covariance=False, batch=batch)
+    short = [pem.minimize(_rosen_residual, s, None, max_steps=S, covariance=False) for s in starts]
+    lead = int(np.argmin([float(r.cost) for r in short]))
+    rest = pem.minimize(_rosen_residual, short[lead].theta, None, max_steps=M - S,
+                        covariance=False)
+    np.testing.assert_allclose(res.theta, rest.theta, rtol=0, atol=1e-12)
+    assert int(res.best_start) == lead
+    steps = [int(r.n_steps) for r in short]
+    steps[lead] += int(rest.n_steps)
+    assert [int(n) for n in res.start_steps] == steps
+    assert steps[lead] > S                       # the best start was continued past the screen
+    others = [k for k in range(len(starts)) if k != lead]
+    np.testing.assert_allclose(np.asarray(res.start_costs)[others],
+                               [float(short[k].cost) for k in others], rtol=1e-12, atol=0)
+
+
 def test_rosenbrock_lm():
     res = pem.minimize(_rosen_residual, jnp.array([-1.2, 1.0]), None, max_steps=500)
     np.testing.assert_allclose(res.theta, [1.0, 1.0], atol=1e-6)
