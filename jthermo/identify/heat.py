@@ -336,13 +336,15 @@ def positive_as_polynomial(data: IOData, family: str, criterion: str) -> tuple[F
     if data.w.shape[1]:         # polynomials carry no measured signals: fitted without them
         data = data.replace(w=np.zeros((data.n_samples, 0)), signal_names=())
     key = _record_key(data, criterion)
-    if key not in _POSITIVE_MEMO:
+    hit = _POSITIVE_MEMO.get(key)       # read once: another thread may replace the entry
+    if hit is None:
         try:
-            _POSITIVE_MEMO.clear()
-            _POSITIVE_MEMO[key] = fit_ss_heat(data, None, criterion)
+            hit = fit_ss_heat(data, None, criterion)
         except FitError as exc:
             return None, [f"{family} from the positive state space: {exc}"]
-    r, path = _POSITIVE_MEMO[key]
+        _POSITIVE_MEMO.clear()
+        _POSITIVE_MEMO[key] = hit
+    r, path = hit
     n = r.model.A.shape[0]
     model = positive_polynomial(r.model, family)
     if model is None:
