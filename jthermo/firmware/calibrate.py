@@ -28,11 +28,16 @@
    (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it sits at a
    limit `tuning.MAX_SATURATED` of the set-point changes or more (a failed yardstick: then
    the lambda PI is).
+
+Two cores: the diagnosis (from the first fitted family on) and the cross-record plant's fit
+(once the design family is known) run in threads beside the main thread's fits and tuning; a
+yardstick's judgement is compiled for one run (`tuning.runs(once=True)`).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -117,7 +122,9 @@ def _default_setpoint(r) -> float | None:
     return float(vals[np.argmax(counts)])
 
 
-def _fit_best(est, val, seed, say, lap):
+def _fit_best(est, val, seed, say, lap, first=None):
+    """`(family, result, validation fit %)` of the family of `FAMILIES` that simulates `val`
+    best; `first(result)` is called once, on the first family fitted."""
     from ..identify import fit
     from ..validate import compare
 
@@ -132,6 +139,9 @@ def _fit_best(est, val, seed, say, lap):
             continue
         say(f"fit {fam}: {score:.1f} % on validation")
         lap(f"fit {fam}")
+        if first is not None:
+            first(res)
+            first = None
         if math.isfinite(score) and (best is None or score > best[2]):
             best = (fam, res, score)
     if best is None:
@@ -197,13 +207,24 @@ def _ultimate(dp, model, r, n, max_power, say):
     return None, np.asarray(c.kp, np.float64) / 0.6, 2.0 * np.asarray(c.ti, np.float64)
 
 
-def _diagnosis(est, val, seed, say) -> dict:
-    """The diagnosis' first finding (sentence and mechanism) or why there is none."""
+class _Stopped(Exception):
+    """The command stopped (an error in another stage): the diagnosis ends at its next stage."""
+
+
+def _diagnosis(est, val, seed, say, stop=None) -> dict:
+    """The diagnosis' first finding (sentence and mechanism) or why there is none; it ends at
+    its next stage once `stop` (a `threading.Event`) is set."""
     from ..diagnose import diagnose
+
+    def stage(i, n, info):
+        if stop is not None and stop.is_set():
+            raise _Stopped
 
     say(f"diagnosis ({', '.join(DIAGNOSE_MECHANISMS)})")
     try:
-        res = diagnose(est, val, seed=seed, mechanisms=DIAGNOSE_MECHANISMS)
+        res = diagnose(est, val, seed=seed, mechanisms=DIAGNOSE_MECHANISMS, progress=stage)
+    except _Stopped:
+        return {"finding": "not run: the command stopped", "mechanism": None, "verdict": None}
     except JThermoError as exc:
         return {"finding": f"no diagnosis: {exc}", "mechanism": None, "verdict": None}
     f = res["findings"]
@@ -227,7 +248,7 @@ def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
     for names in groups.values():
         pid = isinstance(ctrls[names[0]], KlipperPID)     # the tuning's compiled batch
         trajs = tuning.runs([ctrls[n] for n in names], plant, scs,
-                            tuning.BATCH if pid else len(names))
+                            tuning.BATCH if pid else len(names), once=not pid)
         for i, (n, row) in enumerate(zip(names, tuning.rows(trajs, scs, len(names)))):
             table[n] = row
             first[n] = {k: tuple(np.asarray(a[i, 0]) for a in (t.y, t.u, t.r))
@@ -263,38 +284,78 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         say(f"no validation record: the last {HOLD_BACK:.0%} of EST held back")
     heaters = _heater_names(est)
     lap("records")
-    fam, res, score = _fit_best(est, val, seed, say, lap)
-    model = res.model
-    env = res.envelope if getattr(res, "envelope", None) is not None else Envelope.from_model(model)
-    r = setpoint if setpoint is not None else _default_setpoint(r_log)
-    r = check_reachable(model, env, env.default_setpoint(model) if r is None else r)
-    try:                     # the design's family, fitted to the validation record
-        val_model = _fit_one(val, fam, seed).model
-        check_reachable(val_model, env, r)
-        plant_name = "a model fitted to the validation record"
-    except JThermoError:
-        val_model, plant_name = model, "the design model (the validation record gave no plant)"
-    lap("fit of the validation record")
-    say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
-    # the diagnosis runs beside the tuning (a second core)
-    pool = ThreadPoolExecutor(1)
+    # beside the main thread (on the other core): the diagnosis once a fitted family reaches
+    # the set point (it needs the records only; an unreachable set point is then an error that
+    # nothing waits for: the design model decides), the judging plant's fit once the
+    # design family is known (the tuning needs the design model only; the judgement waits for
+    # the judging plant). An error stops them at their next stage (`stop`).
+    stop = threading.Event()
+    pool = ThreadPoolExecutor(2)
+    started = []
+
+    def start_diagnosis():
+        if diagnosis and not started:
+            started.append(pool.submit(timed, _diagnosis, est, val, seed, say, stop))
+
+    def first(fitted):
+        try:
+            _setpoint(fitted, setpoint, r_log)
+        except JThermoError:    # the design model decides; the diagnosis waits for it
+            return
+        start_diagnosis()
+
     try:
-        pending = pool.submit(timed, _diagnosis, est, val, seed, say) if diagnosis else None
-        report = _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
-                                 val_model, plant_name, heaters, firmware=firmware, seed=seed,
-                                 steps=steps, rollouts=rollouts, heater_power=heater_power,
-                                 figures=figures, oracle=oracle, command=command, say=say,
-                                 pending=pending, lap=lap)
+        fam, res, score = _fit_best(est, val, seed, say, lap, first)
+        model, env = res.model, _envelope(res)
+        r = _setpoint(res, setpoint, r_log)
+        say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
+        start_diagnosis()
+        judging = pool.submit(timed, _judging_plant, val, fam, seed, model, env, r)
+        pending = started[0] if started else None
+        return _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
+                               heaters, firmware=firmware, seed=seed,
+                               steps=steps, rollouts=rollouts, heater_power=heater_power,
+                               figures=figures, oracle=oracle, command=command, say=say,
+                               judging=judging, pending=pending, lap=lap)
+    except BaseException:
+        stop.set()
+        raise
     finally:
         pool.shutdown(wait=True)
-    return report
 
 
-def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val_model,
-                    plant_name, heaters, *, firmware, seed, steps, rollouts, heater_power,
-                    figures, oracle, command, say, pending, lap) -> dict:
-    """`calibrate` after the fits: the two-state model, the tuning, the judgement, the files
-    (the diagnosis `pending` in another thread, collected before the report)."""
+def _envelope(res) -> Envelope:
+    """The fit's envelope (its record's input and output ranges), or the model's."""
+    env = getattr(res, "envelope", None)
+    return env if env is not None else Envelope.from_model(res.model)
+
+
+def _setpoint(res, setpoint, r_log):
+    """The set point on the fitted model: `setpoint`, else the log's most common target, else
+    the envelope's default; `ControlError` where the model cannot reach it."""
+    env = _envelope(res)
+    r = setpoint if setpoint is not None else _default_setpoint(r_log)
+    return check_reachable(res.model, env, env.default_setpoint(res.model) if r is None else r)
+
+
+def _judging_plant(val, fam, seed, model, env, r) -> tuple:
+    """`(plant, what it is)`: the design's family fitted to the validation record, or the
+    design model itself where that record gives no plant that reaches the set point."""
+    try:
+        val_model = _fit_one(val, fam, seed).model
+        check_reachable(val_model, env, r)
+        return val_model, "a model fitted to the validation record"
+    except JThermoError:
+        return model, "the design model (the validation record gave no plant)"
+
+
+def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, heaters, *,
+                    firmware, seed, steps, rollouts, heater_power, figures, oracle, command,
+                    say, judging, pending, lap) -> dict:
+    """`calibrate` after the design model's fit: the two-state model, the tuning, the
+    judgement, the files (the judging plant's fit `judging` and the diagnosis `pending` run in
+    other threads: the first is collected before the judgement, the second before the
+    report)."""
     from .. import io
     from .._files import atomic_write_text
 
@@ -309,9 +370,6 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
     kw = {"ts": float(est.ts), "max_power": max_power, "smooth_time": smooth, "u_hold": u_hold}
     dp = design_point(model, setpoint=r)
     cal, ku, tu = _ultimate(dp, model, r, est.n_outputs, max_power, say)
-    agree = _agreement(ku, tu, val_model, model, r, max_power)
-    if agree:
-        say(agree)
     lap("relay tests")
     duration = model_duration(model)
     n_grid = len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS) * len(tuning.RHOS)
@@ -342,6 +400,12 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, val
         except JThermoError:
             continue
     lap("yardstick designs")
+    (val_model, plant_name), *took = judging.result()
+    lap("waiting for the judging plant")
+    lap.add("fit of the validation record (its thread)", *took)
+    agree = _agreement(ku, tu, val_model, model, r, max_power)
+    if agree:
+        say(agree)
     say(f"judging {len(ctrls)} controllers on {plant_name}")
     judge_scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
     table, first = _judge(ctrls, val_model, judge_scs)

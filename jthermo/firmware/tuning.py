@@ -28,6 +28,7 @@ changes' MSE with a start-up that does not overshoot and a loop that is not bang
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 
@@ -38,6 +39,7 @@ import numpy as np
 
 from ..closedloop import metrics, model_scenario
 from ..closedloop import rollouts as run_rollouts
+from ..runtime import one_shot, simulate_compile
 from ..tune.own import STARTUP
 from .pid import PID_PARAM_BASE, KlipperPID, from_standard
 
@@ -71,10 +73,18 @@ def scenarios(plant, env, r, duration, seed, rollouts, load=None) -> dict:
                               setpoint=r, load=load if k == "load" else None) for k in KINDS}
 
 
-@eqx.filter_jit
-def _runs(plant, stacked, sc):
+def _runs_fn(plant, stacked, sc):
     """The rollouts of every controller of a stacked batch (leading axis) on one scenario."""
     return eqx.filter_vmap(lambda c: run_rollouts(plant, c, sc))(stacked)
+
+
+@functools.cache
+def _runs_program(once: bool):
+    """`_runs_fn` compiled: for the tuning's batch, run for the grid and every search
+    iteration, with `jthermo simulate`'s options (a shorter compile, no slower run); for a
+    structure simulated once (`once`: a yardstick's judgement) with LLVM at -O0
+    (`runtime.ONE_SHOT`: the shortest compile)."""
+    return eqx.filter_jit(_runs_fn, compiler_options=one_shot() if once else simulate_compile())
 
 
 def padded(ctrls: list, size: int = BATCH) -> list:
@@ -101,13 +111,15 @@ def merged(scs: dict):
     return one, {k: slice(i * b, (i + 1) * b) for i, k in enumerate(scs)}
 
 
-def runs(ctrls, plant, scs: dict, size: int = BATCH) -> dict:
+def runs(ctrls, plant, scs: dict, size: int = BATCH, once: bool = False) -> dict:
     """`{kind: Trajectory}` of controllers of one structure (e.g. the grid) simulated in
     batches of `size` (the last padded; `BATCH`: the tuning's compiled shape): leading axis
     the controller, then the rollout. The scenarios run as one batch where they can
-    (`merged`)."""
+    (`merged`). `once`: a structure simulated once, compiled for a short compile rather than
+    a fast run (`_runs_program`)."""
     from ..models._base import AbstractModel
 
+    run = _runs_program(bool(once))
     full = padded(list(ctrls), size)
     both = merged(scs) if isinstance(plant, AbstractModel) else None
     out: dict = {}
@@ -115,9 +127,9 @@ def runs(ctrls, plant, scs: dict, size: int = BATCH) -> dict:
         stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *full[i:i + size])
         if both is None:
             for k, s in scs.items():
-                out.setdefault(k, []).append(_runs(plant, stacked, s))
+                out.setdefault(k, []).append(run(plant, stacked, s))
             continue
-        traj = _runs(plant, stacked, both[0])
+        traj = run(plant, stacked, both[0])
         for k, sl in both[1].items():
             out.setdefault(k, []).append(jax.tree_util.tree_map(lambda x, sl=sl: x[:, sl], traj))
     n = len(ctrls)

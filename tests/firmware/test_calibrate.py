@@ -62,13 +62,14 @@ def test_firmware_file_and_report(calibrated):
 
 def test_stage_timing(calibrated):
     """`--json` times every stage, in the order they ran; the main thread's stages fit in the
-    command's wall time and the diagnosis (its own thread) is timed apart."""
+    command's wall time and the judging plant's fit and the diagnosis (their own threads) are
+    timed apart."""
     t = json.loads((calibrated / "r.json").read_text())["timing"]
     names = [s["stage"] for s in t["stages"]]
-    assert names == ["records", "fit arx", "fit oe", "fit of the validation record",
-                     "two-state fit", "relay tests", "tuning", "yardstick designs", "judgement",
-                     "floor + noise", "files and figures", "waiting for the diagnosis",
-                     "diagnosis (its thread)"]
+    assert names == ["records", "fit arx", "fit oe", "two-state fit", "relay tests", "tuning",
+                     "yardstick designs", "waiting for the judging plant",
+                     "fit of the validation record (its thread)", "judgement", "floor + noise",
+                     "files and figures", "waiting for the diagnosis", "diagnosis (its thread)"]
     main_thread = [s for s in t["stages"] if s["cpu_s"] is not None]
     for s in t["stages"]:
         assert s["wall_s"] >= 0 and s["thread_cpu_s"] >= 0
@@ -116,6 +117,21 @@ def test_bad_heater_exit_2(calibrated, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "--heater bed" in err
     assert not (calibrated / "bad").exists()
+
+
+def test_unreachable_setpoint_exit_2_before_the_diagnosis(calibrated, capsys, monkeypatch):
+    """A set point no fitted model reaches is one line and exit 2, found before the diagnosis
+    starts beside the fits (nothing waits for it) and before anything is written."""
+    from jthermo.firmware import calibrate as cal
+
+    started = []
+    monkeypatch.setattr(cal, "_diagnosis", lambda *a: started.append(a))
+    rc = main(["calibrate", str(calibrated / "imp" / "extruder_seg01.csv"), "--validation",
+               str(calibrated / "imp" / "extruder_seg02.csv"), "--setpoint", "5000",
+               "--out", str(calibrated / "unreachable"), "--steps", "0", "--rollouts", "1", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "beyond reach" in err
+    assert not (calibrated / "unreachable").exists() and started == []
 
 
 @pytest.mark.parametrize("n", [1, 16])

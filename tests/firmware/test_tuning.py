@@ -124,8 +124,9 @@ def test_padded_batches_match_one_by_one():
 @pytest.mark.parametrize("n", [1, 16])
 def test_merged_scenarios_match_one_kind_at_a_time(n):
     """The scenarios run as one batch give each kind's own trajectories (and the start-up's
-    start from rest is kept: its figures differ from the set-point changes')."""
-    from jthermo.firmware.tuning import _runs
+    start from rest is kept: its figures differ from the set-point changes'); the program
+    compiled for one run (a yardstick's judgement, LLVM at -O0) gives the tuning's figures."""
+    _runs = tuning._runs_program(False)
 
     plant = hotend(n=n)
     env = Envelope.from_model(plant)
@@ -141,3 +142,7 @@ def test_merged_scenarios_match_one_kind_at_a_time(n):
         np.testing.assert_allclose(np.asarray(got[k].y), np.asarray(ref.y), rtol=0, atol=1e-12)
         np.testing.assert_allclose(np.asarray(got[k].u), np.asarray(ref.u), rtol=0, atol=1e-12)
     assert np.abs(np.asarray(got["preheat"].y) - np.asarray(got["tracking"].y)).max() > 1.0
+    once = tuning.runs(ctrls, plant, scs, size=1, once=True)
+    for k in scs:
+        np.testing.assert_allclose(np.asarray(once[k].y), np.asarray(got[k].y), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(once[k].u), np.asarray(got[k].u), rtol=0, atol=1e-9)
