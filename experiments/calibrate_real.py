@@ -84,8 +84,11 @@ def run_case(name: str, tmp: Path) -> dict:
     rep = json.loads((case / "r.json").read_text())
     orc = (rep.get("limits") or {}).get("pid_oracle") or {}
     # the oracle is a measurement of this study, not part of `calibrate`: its CPU time (its
-    # thread's) is taken out of the command's
-    return {"name": name, "hot": hot, "wall_s": wall, "cpu_s": cpu - orc.get("cpu_s", 0.0),
+    # thread's) and its stage's wall time (the main thread's, after the judgement) are taken
+    # out of the command's
+    oracle_wall = sum(t["wall_s"] for t in rep["timing"]["stages"] if t["stage"] == "oracle")
+    return {"name": name, "hot": hot, "wall_s": wall - oracle_wall,
+            "cpu_s": cpu - orc.get("cpu_s", 0.0),
             "oracle_cpu_s": orc.get("cpu_s", 0.0), "load": (load0, os.getloadavg()[0]),
             "rep": rep}
 
@@ -119,9 +122,9 @@ def markdown(results: list[dict]) -> str:
          "--validation VAL --no-cache --oracle` (cold; the Voron case holds back the last 30 % "
          "of EST as VAL), judged on a model fitted to VAL. The oracle PID is the same search "
          "run on the judging model itself (it has seen VAL: the best a firmware PID reaches "
-         "where the plant is known); its CPU time is not in the command's CPU s. "
-         "Times measured on a shared, loaded machine (2 cores, other work running; the load "
-         "average at start and end is given): they are not the unloaded figure."],
+         "where the plant is known); its CPU time and its stage's wall time are not in the "
+         "command's figures. Times on 2 cores; the load average at the start and end of each "
+         "case is given beside them (above 2: other work was running)."],
         ["case", "supported", "model (fit %)", "two-state fit %", "set point °C",
          "tuned MSE °C²", "floor + noise", "vs bound", "oracle PID vs bound",
          "firmware MPC MSE (vs bound)", "PID_CALIBRATE MSE (at a limit)", "bar",
@@ -163,7 +166,7 @@ def markdown(results: list[dict]) -> str:
                   + (f" ({r['bar']} itself {r['bar_vs_bound']:+.1f} % against the bound)"
                      if r["bar_vs_bound"] is not None else ""),
                   f"start-up overshoot ≤ 1 °C: {'yes' if r['ok_overshoot'] else 'no'}",
-                  f"≤ 90 s wall: {'yes' if r['ok_time'] else 'no'} (loaded machine)"]
+                  f"≤ 90 s wall: {'yes' if r['ok_time'] else 'no'}"]
         if not rep.get("supported", True):
             checks.insert(0, f"**calibrate says it is not a tuning to use**: {rep['why_not']}")
         stages = ", ".join(f"{t['stage']} {t['wall_s']:.0f}"
