@@ -22,10 +22,10 @@
    model-based controllers (`MODEL_BASED`, designed on the design model) and the lambda PI.
    With a two-state model, the firmware's own MPC (`mpc_law.FirmwareMPC`: Kalico's law with
    the exported constants, kind `firmware_mpc`).
-6. **Judgement** on the cross-record plant, on rollouts neither tuned nor selected on: the
-   set-point changes' MSE, the time at an input limit, the start-up overshoot, the load
-   step's MSE, and what no controller beats, the full-power floor plus the noise
-   (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it sits at a
+6. **Judgement** (`judging`) on the cross-record plant, on rollouts neither tuned nor
+   selected on: the set-point changes' MSE, the time at an input limit, the start-up
+   overshoot, the load step's MSE, and what no controller beats, the full-power floor plus
+   the noise (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it sits at a
    limit `tuning.MAX_SATURATED` of the set-point changes or more (a failed yardstick: then
    the lambda PI is).
 
@@ -38,12 +38,10 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from .. import data as data_mod
@@ -52,10 +50,11 @@ from ..control.design import design, design_point
 from ..errors import ConfigError, ControlError, JThermoError
 from ..models.envelope import Envelope, check_reachable, equilibrium_input
 from ..tune.own import limits
-from . import klippy, mpc, settings, tuning
+from . import judging, klippy, mpc, settings, tuning
 from . import report as report_mod
+from .judging import ACCEPT_OVERSHOOT_C, ACCEPT_SATURATED, KU_AGREEMENT, TU_AGREEMENT
 from .mpc_law import FirmwareMPC
-from .pid import KlipperPID, pid_calibrate
+from .pid import KlipperPID
 from .stages import Laps, timed
 
 #: the model families tried, cheapest first
@@ -71,13 +70,6 @@ STEPS, ROLLOUTS = 20, 4
 DIAGNOSE_MECHANISMS = ("heater_lag", "radiative_loss", "input_delay")
 #: the fan signal's name in a record (`w_<name>`), matched by this part
 FAN = "fan"
-#: the design and the judging models must agree on the relay test's ultimate gain and period
-#: within these factors: a loop tuned on one is otherwise a guess on the other (the records
-#: do not pin the dynamics near the crossover, e.g. a short closed-loop heat-up)
-KU_AGREEMENT, TU_AGREEMENT = 2.0, 1.5
-#: the start-up overshoot (°C) and the share of the time at an input limit that a tuned loop
-#: may show on the judging plant to be reported as a tuning to use
-ACCEPT_OVERSHOOT_C, ACCEPT_SATURATED = 1.0, 0.25
 
 
 def _heater_names(d: data_mod.IOData) -> list[str]:
@@ -194,19 +186,6 @@ def _load(two: dict | None, r, env) -> tuple:
                   "(no fan in the record: no fan step)")
 
 
-def _ultimate(dp, model, r, n, max_power, say):
-    """PID_CALIBRATE on the model per heater -> (autotunes or None, K_u, T_u); the model's
-    relay design's when the relay test does not oscillate on the model."""
-    try:
-        cal = [pid_calibrate(dp, float(np.asarray(r)[i]), i, max_power=max_power)
-               for i in range(n)]
-        return (cal, *tuning.ultimate(cal))
-    except ControlError as exc:
-        say(f"PID_CALIBRATE on the model: {exc}")
-    c = design("pid_relay", model, setpoint=r)
-    return None, np.asarray(c.kp, np.float64) / 0.6, 2.0 * np.asarray(c.ti, np.float64)
-
-
 class _Stopped(Exception):
     """The command stopped (an error in another stage): the diagnosis ends at its next stage."""
 
@@ -235,25 +214,6 @@ def _diagnosis(est, val, seed, say, stop=None) -> dict:
                 "verdict": res["verdict"]}
     return {"finding": f[0]["summary"], "mechanism": f[0]["mechanism"],
             "confidence": f[0]["confidence"], "verdict": res["verdict"]}
-
-
-def _judge(ctrls: dict, plant, scs: dict) -> tuple[dict, dict]:
-    """Every controller's `tuning.evaluate` figures on `plant`, controllers of one structure
-    (the Klipper PIDs) simulated as one batch; and `{name: {kind: (y, u, r)}}` of the first
-    rollout, for the figures."""
-    groups: dict = {}
-    for n, c in ctrls.items():
-        groups.setdefault(jax.tree_util.tree_structure(c), []).append(n)
-    table, first = {}, {}
-    for names in groups.values():
-        pid = isinstance(ctrls[names[0]], KlipperPID)     # the tuning's compiled batch
-        trajs = tuning.runs([ctrls[n] for n in names], plant, scs,
-                            tuning.BATCH if pid else len(names), once=not pid)
-        for i, (n, row) in enumerate(zip(names, tuning.rows(trajs, scs, len(names)))):
-            table[n] = row
-            first[n] = {k: tuple(np.asarray(a[i, 0]) for a in (t.y, t.u, t.r))
-                        for k, t in trajs.items()}
-    return table, first
 
 
 def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heater=None,
@@ -310,13 +270,13 @@ def calibrate(est_path, out, *, validation=None, firmware: str = "klipper", heat
         r = _setpoint(res, setpoint, r_log)
         say(f"model {fam} ({score:.1f} % on validation); set point {np.round(r, 1).tolist()} °C")
         start_diagnosis()
-        judging = pool.submit(timed, _judging_plant, val, fam, seed, model, env, r)
+        plant_fit = pool.submit(timed, _judging_plant, val, fam, seed, model, env, r)
         pending = started[0] if started else None
         return _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r,
                                heaters, firmware=firmware, seed=seed,
                                steps=steps, rollouts=rollouts, heater_power=heater_power,
                                figures=figures, oracle=oracle, command=command, say=say,
-                               judging=judging, pending=pending, lap=lap)
+                               plant_fit=plant_fit, pending=pending, lap=lap)
     except BaseException:
         stop.set()
         raise
@@ -351,9 +311,9 @@ def _judging_plant(val, fam, seed, model, env, r) -> tuple:
 
 def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, heaters, *,
                     firmware, seed, steps, rollouts, heater_power, figures, oracle, command,
-                    say, judging, pending, lap) -> dict:
+                    say, plant_fit, pending, lap) -> dict:
     """`calibrate` after the design model's fit: the two-state model, the tuning, the
-    judgement, the files (the judging plant's fit `judging` and the diagnosis `pending` run in
+    judgement, the files (the judging plant's fit `plant_fit` and the diagnosis `pending` run in
     other threads: the first is collected before the judgement, the second before the
     report)."""
     from .. import io
@@ -369,7 +329,7 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, hea
     u_hold = equilibrium_input(model, r, env.signals(model))
     kw = {"ts": float(est.ts), "max_power": max_power, "smooth_time": smooth, "u_hold": u_hold}
     dp = design_point(model, setpoint=r)
-    cal, ku, tu = _ultimate(dp, model, r, est.n_outputs, max_power, say)
+    cal, ku, tu = judging.ultimate(dp, model, r, est.n_outputs, max_power, say)
     lap("relay tests")
     duration = model_duration(model)
     n_grid = len(tuning.ALPHAS) * len(tuning.BETAS) * len(tuning.GAMMAS) * len(tuning.RHOS)
@@ -400,26 +360,26 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, hea
         except JThermoError:
             continue
     lap("yardstick designs")
-    (val_model, plant_name), *took = judging.result()
+    (val_model, plant_name), *took = plant_fit.result()
     lap("waiting for the judging plant")
     lap.add("fit of the validation record (its thread)", *took)
-    agree = _agreement(ku, tu, val_model, model, r, max_power)
+    agree = judging.agreement(ku, tu, val_model, model, r, max_power)
     if agree:
         say(agree)
     say(f"judging {len(ctrls)} controllers on {plant_name}")
     judge_scs = tuning.scenarios(val_model, env, r, duration, seed + 1, rollouts, load)
-    table, first = _judge(ctrls, val_model, judge_scs)
+    table, first = judging.judge(ctrls, val_model, judge_scs)
     lap("judgement")
     lim = limits(val_model, env, r, duration, seed)
     lap("floor + noise")
     if oracle and val_model is not model:
-        lim["pid_oracle"] = _oracle(val_model, env, r, kw, duration=duration, seed=seed,
-                                    rollouts=rollouts, steps=steps, load=load, scs=judge_scs,
-                                    bound=lim["tracking_bound_mse"], max_power=max_power,
-                                    say=say)
+        lim["pid_oracle"] = judging.oracle(val_model, env, r, kw, duration=duration, seed=seed,
+                                           rollouts=rollouts, steps=steps, load=load,
+                                           scs=judge_scs, bound=lim["tracking_bound_mse"],
+                                           max_power=max_power, say=say)
         lap("oracle")
     keys = ("mse", "saturated_fraction", "overshoot_C", "load_mse")
-    why_not = _why_not(agree, table["firmware_pid"])
+    why_not = judging.why_not(agree, table["firmware_pid"])
     if why_not:
         say(f"not a tuning to use: {why_not}")
     controllers = [{"name": n, "kind": kinds[n], **{k: table[n][k] for k in keys}} for n in ctrls]
@@ -479,65 +439,6 @@ def _calibrate_rest(est, val, est_path, out, res, fam, score, model, env, r, hea
     atomic_write_text(md, report_mod.markdown(report, fw_text, figs, command))
     report["files"] = [str(fw_path), str(ctrl_path), str(md)]
     return report
-
-
-def _oracle(val_model, env, r, kw, *, duration, seed, rollouts, steps, load, scs, bound,
-            max_power, say) -> dict:
-    """The same search (`tuning.tune_firmware_pid`) run on the judging plant itself and judged
-    there on the judgement's held-out rollouts `scs`: the best a firmware PID does where the
-    plant is known, the reachable part of the floor + noise. It measures the data, not a
-    tuning to use (it has seen the validation record)."""
-    say("oracle: the firmware PID tuned on the judging plant itself")
-    t0 = time.thread_time()
-    _, ku, tu = _ultimate(design_point(val_model, setpoint=r), val_model, r,
-                          int(val_model.n_outputs), max_power, lambda s: None)
-    kw = {**kw, "u_hold": equilibrium_input(val_model, r, env.signals(val_model))}
-    t = tuning.tune_firmware_pid(val_model, env, r, ku, tu, duration=duration, seed=seed,
-                                 rollouts=rollouts, steps=steps, kw=kw, load=load)
-    row = tuning.evaluate(t["controller"], val_model, scs)
-    pct = None if not bound else 100.0 * (row["mse"] / bound - 1.0)
-    say(f"oracle: set-point MSE {row['mse']:.3g} °C²"
-        + ("" if pct is None else f", {pct:+.1f} % against the floor + noise"))
-    return {**row, "vs_bound_percent": pct, "factors": t["factors"],
-            "gains": t["controller"].gains(), "cpu_s": time.thread_time() - t0}
-
-
-def _agreement(ku, tu, val_model, model, r, max_power) -> str | None:
-    """None when the judging model's relay test (`PID_CALIBRATE` on it) gives $K_u$ and $T_u$
-    within `KU_AGREEMENT`, `TU_AGREEMENT` of the design model's, per heater; else the sentence
-    saying how far apart they are."""
-    if val_model is model:
-        return None
-    _, ku_v, tu_v = _ultimate(design_point(val_model, setpoint=r), val_model, r,
-                              len(np.atleast_1d(ku)), max_power, lambda s: None)
-    rk = np.maximum(ku / ku_v, ku_v / ku)
-    rt = np.maximum(tu / tu_v, tu_v / tu)
-    if np.all(rk <= KU_AGREEMENT) and np.all(rt <= TU_AGREEMENT):
-        return None
-    i = int(np.argmax(np.maximum(rk / KU_AGREEMENT, rt / TU_AGREEMENT)))
-    return (f"the estimation and validation records disagree on the loop's dynamics: the relay "
-            f"test on their models gives K_u {ku[i]:.3g} and {ku_v[i]:.3g} duty/°C, T_u "
-            f"{tu[i]:.3g} and {tu_v[i]:.3g} s (heater {i}; at most a factor "
-            f"{KU_AGREEMENT:g} and {TU_AGREEMENT:g} apart for a tuning the data support)")
-
-
-def _why_not(agree: str | None, fw: dict) -> str | None:
-    """Why the tuned PID is not a tuning to use (None when it is): the records disagree
-    (`_agreement`), or on the judging plant it overshoots its start-up by more than
-    `ACCEPT_OVERSHOOT_C` or sits at an input limit more than `ACCEPT_SATURATED` of the
-    set-point changes or the load step."""
-    parts = [agree] if agree else []
-    if not all(math.isfinite(fw[k]) for k in ("mse", "overshoot_C", "saturated_fraction")):
-        parts.append("the tuned loop gives non-finite figures on the judging plant")
-    else:
-        if fw["overshoot_C"] > ACCEPT_OVERSHOOT_C:
-            parts.append(f"on the judging plant the tuned loop overshoots its start-up by "
-                         f"{fw['overshoot_C']:.2f} °C (at most {ACCEPT_OVERSHOOT_C:g})")
-        sat = max(fw["saturated_fraction"], fw.get("load_saturated_fraction", 0.0))
-        if sat > ACCEPT_SATURATED:
-            parts.append(f"on the judging plant the tuned loop sits at an input limit "
-                         f"{100 * sat:.0f} % of the time (at most {100 * ACCEPT_SATURATED:.0f} %)")
-    return "; ".join(parts) or None
 
 
 __all__ = ["ACCEPT_OVERSHOOT_C", "ACCEPT_SATURATED", "DIAGNOSE_MECHANISMS", "FAMILIES",

@@ -139,7 +139,7 @@ def test_disagreeing_records_are_not_a_tuning(n):
     """Design and judging models whose relay tests are far apart in K_u (one with ten times
     the other's): the tuning is said to be unsupported; the same model agrees with itself."""
     from jthermo.control.design import design_point
-    from jthermo.firmware import calibrate as cal
+    from jthermo.firmware import judging
     from jthermo.firmware.pid import pid_calibrate
     from jthermo.firmware.tuning import ultimate
     from jthermo.models import StateSpace
@@ -151,12 +151,12 @@ def test_disagreeing_records_are_not_a_tuning(n):
                    y0=a.y0)                      # the same equilibria, ten times the gain
     r = np.full(n, 200.0)
     ku, tu = ultimate([pid_calibrate(design_point(a, setpoint=r), 200.0, i) for i in range(n)])
-    assert cal._agreement(ku, tu, a, a, r, 1.0) is None
-    text = cal._agreement(ku, tu, b, a, r, 1.0)
+    assert judging.agreement(ku, tu, a, a, r, 1.0) is None
+    text = judging.agreement(ku, tu, b, a, r, 1.0)
     assert text and "disagree" in text
     ok = {"mse": 1.0, "saturated_fraction": 0.1, "overshoot_C": 0.5, "load_mse": 1.0,
           "load_saturated_fraction": 0.0}
-    assert cal._why_not(None, ok) is None
-    assert "overshoots" in cal._why_not(None, {**ok, "overshoot_C": 2.0})
-    assert "input limit" in cal._why_not(None, {**ok, "load_saturated_fraction": 0.5})
-    assert cal._why_not(text, ok).startswith("the estimation and validation records disagree")
+    assert judging.why_not(None, ok) is None
+    assert "overshoots" in judging.why_not(None, {**ok, "overshoot_C": 2.0})
+    assert "input limit" in judging.why_not(None, {**ok, "load_saturated_fraction": 0.5})
+    assert judging.why_not(text, ok).startswith("the estimation and validation records disagree")
