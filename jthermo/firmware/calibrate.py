@@ -25,9 +25,9 @@
 6. **Judgement** (`judging`) on the cross-record plant, on rollouts neither tuned nor
    selected on: the set-point changes' MSE, the time at an input limit, the start-up
    overshoot, the load step's MSE, and what no controller beats, the full-power floor plus
-   the noise (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it sits at a
-   limit `tuning.MAX_SATURATED` of the set-point changes or more (a failed yardstick: then
-   the lambda PI is).
+   the noise (`tune.own.limits`). The relay PID is the bar the tuned one must beat unless it
+   sits at a limit `tuning.MAX_SATURATED` of the set-point changes or more (a failed
+   yardstick: then the lambda PI is).
 
 Two cores: the diagnosis (from the first fitted family on) and the cross-record plant's fit
 (once the design family is known) run in threads beside the main thread's fits and tuning; a

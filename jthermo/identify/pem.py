@@ -105,9 +105,18 @@ class _Budgeted(optx.AbstractLeastSquaresSolver):
     budget of 0 returns its start point."""
 
     inner: optx.AbstractLeastSquaresSolver
-    rtol: float
-    atol: float
-    norm: Callable
+
+    @property
+    def rtol(self):
+        return self.inner.rtol
+
+    @property
+    def atol(self):
+        return self.inner.atol
+
+    @property
+    def norm(self):
+        return self.inner.norm
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags), jnp.array(0)
@@ -177,7 +186,7 @@ def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, 
                                     linear_solver=lx.Normal(lx.Cholesky()))
     else:
         s = optx.GaussNewton(rtol=rtol, atol=atol)
-    s = _Budgeted(s, s.rtol, s.atol, s.norm)
+    s = _Budgeted(s)
     budget = jnp.asarray(max_steps if budget is None else budget)
     sol = optx.least_squares(scaled, s, theta0 * d, args, options={"budget": budget},
                              max_steps=max_steps, throw=False)
@@ -203,12 +212,15 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
     def residual_fn(th, a):
         return masked_residual(raw, th, a, n_valid)
 
-    def solve(th0, steps):
-        one = lambda th: _solve_one(residual_fn, th, args, n_valid, solver, steps,  # noqa: E731
-                                    rtol, atol, learning_rate)
+    def solve(th0, steps, budgets=None):
+        """Every start of `th0` solved for `steps` (or its own of `budgets`, at most `steps`)."""
+        b = jnp.full(th0.shape[0], steps) if budgets is None else budgets
+        one = lambda th, bi: _solve_one(residual_fn, th, args, n_valid, solver,  # noqa: E731
+                                        steps, rtol, atol, learning_rate,
+                                        None if solver == "adam" else bi)
         if batch == "vmap":
-            return jax.vmap(one)(th0)
-        return jax.lax.map(one, th0)
+            return jax.vmap(one)(th0, b)
+        return jax.lax.map(lambda x: one(*x), (th0, b))
 
     def scored(thetas):
         costs = jax.vmap(lambda th: _cost(residual_fn, th, args, n_valid))(thetas)
@@ -226,9 +238,7 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
             thetas, oks, steps = carry
             lead = jnp.argmin(scored(thetas))
             budgets = jnp.where(i == 0, screen_steps, jnp.where(jnp.arange(K) == lead, rest, 0))
-            th, ok, st = jax.lax.map(
-                lambda x: _solve_one(residual_fn, x[0], args, n_valid, solver, max_steps, rtol,
-                                     atol, learning_rate, x[1]), (thetas, budgets))
+            th, ok, st = solve(thetas, max_steps, budgets)
             ran = budgets > 0
             return jnp.where(ran[:, None], th, thetas), jnp.where(ran, ok, oks), steps + st
 
