@@ -105,18 +105,9 @@ class _Budgeted(optx.AbstractLeastSquaresSolver):
     budget of 0 returns its start point."""
 
     inner: optx.AbstractLeastSquaresSolver
-
-    @property
-    def rtol(self):
-        return self.inner.rtol
-
-    @property
-    def atol(self):
-        return self.inner.atol
-
-    @property
-    def norm(self):
-        return self.inner.norm
+    rtol: float
+    atol: float
+    norm: Callable
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags), jnp.array(0)
@@ -186,7 +177,7 @@ def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, 
                                     linear_solver=lx.Normal(lx.Cholesky()))
     else:
         s = optx.GaussNewton(rtol=rtol, atol=atol)
-    s = _Budgeted(s)
+    s = _Budgeted(s, s.rtol, s.atol, s.norm)
     budget = jnp.asarray(max_steps if budget is None else budget)
     sol = optx.least_squares(scaled, s, theta0 * d, args, options={"budget": budget},
                              max_steps=max_steps, throw=False)
@@ -213,7 +204,6 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
         return masked_residual(raw, th, a, n_valid)
 
     def solve(th0, steps, budgets=None):
-        """Every start of `th0` solved for `steps` (or its own of `budgets`, at most `steps`)."""
         b = jnp.full(th0.shape[0], steps) if budgets is None else budgets
         one = lambda th, bi: _solve_one(residual_fn, th, args, n_valid, solver,  # noqa: E731
                                         steps, rtol, atol, learning_rate,
