@@ -113,5 +113,15 @@ def padded(residual_fn, theta0, args, batch_dims: int, pad: bool):
     return pad_time(args, T, bucket(T), batch_dims), T
 
 
-__all__ = ["BUCKET_MANTISSAS", "bucket", "masked_cost", "masked_residual", "pad_time",
+def true_count(r, n_valid):
+    """True residual entries: `n_valid` rows of `r`'s row size."""
+    return jnp.asarray(n_valid * (r.size // r.shape[0]), r.dtype)
+
+
+def true_length(T: int):
+    """The true length as a placed array (a traced argument: one program per bucket)."""
+    return jax.device_put(np.asarray(T, np.int32))
+
+
+__all__ = ["BUCKET_MANTISSAS", "bucket", "masked_cost", "masked_residual", "pad_time", "true_count", "true_length",
            "padded", "residual_length"]

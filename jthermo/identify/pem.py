@@ -45,7 +45,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .. import runtime
 from ..errors import ConfigError, FitError
-from .padding import masked_residual, padded
+from .padding import masked_residual, padded, true_count, true_length
 
 SOLVERS = ("lm", "gn", "adam")
 
@@ -87,14 +87,9 @@ class PEMResult(eqx.Module):
     expected_improvement: Float[Array, ""]
 
 
-def _count(r, n_valid):
-    """True residual entries: `n_valid` rows of `r`'s row size."""
-    return jnp.asarray(n_valid * (r.size // r.shape[0]), r.dtype)
-
-
 def _cost(residual_fn, theta, args, n_valid):
     r = residual_fn(theta, args)
-    return jnp.sum(r**2) / _count(r, n_valid)
+    return jnp.sum(r**2) / true_count(r, n_valid)
 
 
 class _Budgeted(optx.AbstractLeastSquaresSolver):
@@ -155,7 +150,7 @@ def _solve_one(residual_fn, theta0, args, n_valid, solver: str, max_steps: int, 
     def fn(theta, a):
         r = residual_fn(theta, a)
         # scaled so that 0.5 * ||fn||^2 = V / 2: tolerances then do not depend on T
-        return jnp.reshape(r, (-1,)) / jnp.sqrt(_count(r, n_valid))
+        return jnp.reshape(r, (-1,)) / jnp.sqrt(true_count(r, n_valid))
 
     # Jacobi scaling at the start point (Marquardt 1963; MINPACK's `diag`): solve for
     # phi = d * theta with d the column norms of the start's Jacobian, so that every direction
@@ -252,7 +247,7 @@ def _minimize_impl(residual_fn, theta0, args, n_valid, solver, max_steps, rtol, 
     converged = oks[best]
     if covariance:
         r2 = residual_fn(theta, args)
-        n = _count(r2, n_valid)
+        n = true_count(r2, n_valid)
         r = jnp.reshape(r2, (-1,))
         J = jax.jacfwd(lambda th: jnp.reshape(residual_fn(th, args), (-1,)))(theta)
         H_pinv = jnp.linalg.pinv(J.T @ J, hermitian=True)
@@ -290,12 +285,7 @@ def minimize_many_jit(residual_fn, theta0, args, solver, max_steps, rtol, atol, 
     return jax.lax.map(lambda x: one(x[0], eqx.combine(x[1], static)), (theta0, arrays))
 
 
-def _n(T: int):
-    """The true length as a placed array (a traced argument: one program per bucket)."""
-    return jax.device_put(np.asarray(T, np.int32))
-
-
-def _check(theta0, solver, max_steps, batch_dims, batch="vmap"):
+def check_start(theta0, solver, max_steps, batch_dims, batch="vmap"):
     if batch not in ("vmap", "map"):
         raise ConfigError(f"minimize: batch must be 'vmap' or 'map', got {batch!r}")
     if solver not in SOLVERS:
@@ -347,9 +337,9 @@ def minimize(residual_fn: ResidualFn, theta0: Float[Array, "*K p"], args: Any = 
     **Returns:** a `PEMResult`; `start_costs` holds the final cost from each start.
     """
     runtime.guard()
-    theta0 = _check(theta0, solver, max_steps, 0, batch)
+    theta0 = check_start(theta0, solver, max_steps, 0, batch)
     args, T = padded(residual_fn, theta0, args, 0, pad)
-    res = _minimize_jit(residual_fn, theta0, args, _n(T), solver, int(max_steps), float(rtol),
+    res = _minimize_jit(residual_fn, theta0, args, true_length(T), solver, int(max_steps), float(rtol),
                         float(atol), float(learning_rate), bool(covariance), batch,
                         int(screen_steps))
     if throw and not bool(jnp.isfinite(res.cost)):
@@ -373,11 +363,11 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     as in `minimize`). The returned `PEMResult` has a leading `M` axis on every field.
     """
     runtime.guard()
-    theta0 = _check(theta0, solver, max_steps, 1, batch)
+    theta0 = check_start(theta0, solver, max_steps, 1, batch)
     args, T = padded(residual_fn, theta0, args, 1, pad)
     res = minimize_many_jit(residual_fn, theta0, args, solver, int(max_steps), float(rtol),
                             float(atol), float(learning_rate), bool(covariance), batch,
-                            int(screen_steps), _n(T))
+                            int(screen_steps), true_length(T))
     if throw and not bool(jnp.all(jnp.isfinite(res.cost))):
         bad = int(jnp.argmax(~jnp.isfinite(res.cost)))
         raise FitError(f"minimize: problem {bad}: no start point gave a finite cost "
@@ -385,114 +375,4 @@ def minimize_many(residual_fn: ResidualFn, theta0: Float[Array, "M *K p"], args:
     return res
 
 
-
-# ------------------------------------------------------------------ matrix-free Gauss–Newton
-
-
-def _column_norms(f, theta, chunk: int = 32):
-    """Column norms of the Jacobian of `f` at `theta`, `chunk` forward tangents at a time (the
-    memory of `chunk` residual vectors, never the whole Jacobian)."""
-    p = theta.shape[0]
-    n_chunks = -(-p // chunk)
-    eye = jnp.eye(n_chunks * chunk, p, dtype=theta.dtype).reshape(n_chunks, chunk, p)
-
-    def norms(tangents):
-        cols = jax.vmap(lambda v: jax.jvp(f, (theta,), (v,))[1])(tangents)
-        return jnp.sqrt(jnp.sum(cols ** 2, axis=1))
-
-    return jax.lax.map(norms, eye).reshape(-1)[:p]
-
-
-def _mf_impl(residual_fn, theta0, args, n_valid, max_steps: int, cg_steps: int):
-    """Levenberg–Marquardt with the step from conjugate gradients on $J^\\top J + \\lambda I$
-    (Jacobi-scaled), $J v$ and $J^\\top w$ by forward and reverse differentiation (never $J$);
-    the first `n_valid` residual rows count (`minimize`)."""
-    dtype = theta0.dtype
-
-    def f0(th):
-        r2 = masked_residual(residual_fn, th, args, n_valid)
-        return jnp.reshape(r2, (-1,)) / jnp.sqrt(_count(r2, n_valid))
-
-    # Jacobi scaling at the start (as `minimize`): unit column norms, bounded to a 1e4 range
-    d = _column_norms(f0, theta0)
-    d = jnp.where(jnp.isfinite(d) & (d > 0), d, 1.0)
-    d = jnp.maximum(d, 1e-4 * jnp.max(d))
-
-    def f(phi):
-        return f0(phi / d)
-
-    def cost(phi):
-        c = jnp.sum(f(phi) ** 2)
-        return jnp.where(jnp.isfinite(c), c, jnp.inf)
-
-    spec = jax.ShapeDtypeStruct(theta0.shape, dtype)
-
-    def gn_step(phi, lam):
-        r, jvp = jax.linearize(f, phi)
-        vjp = jax.linear_transpose(jvp, phi)
-        g = vjp(r)[0]
-        op = lx.FunctionLinearOperator(lambda v: vjp(jvp(v))[0] + lam * v, spec,
-                                       tags=lx.positive_semidefinite_tag)
-        sol = lx.linear_solve(op, -g, lx.CG(rtol=1e-6, atol=1e-14, max_steps=cg_steps),
-                              throw=False)
-        return jnp.where(jnp.isfinite(sol.value), sol.value, 0.0), g
-
-    def body(carry):
-        phi, c, lam, k, _ = carry
-        delta, _ = gn_step(phi, lam)
-        new = phi + delta
-        c_new = cost(new)
-        better = c_new < c
-        rel = (c - c_new) / jnp.maximum(c, jnp.finfo(dtype).tiny)
-        phi = jnp.where(better, new, phi)
-        lam = jnp.where(better, jnp.maximum(lam / 3.0, 1e-9), lam * 4.0)
-        return phi, jnp.minimum(c_new, c), lam, k + 1, (better & (rel < 1e-10)) | (lam > 1e9)
-
-    def cond(carry):
-        return (carry[3] < max_steps) & ~carry[4]
-
-    phi0 = theta0 * d
-    c0 = cost(phi0)
-    init = (phi0, c0, jnp.asarray(1e-3, dtype), jnp.asarray(0), ~jnp.isfinite(c0))
-    phi, c, _, k, _ = jax.lax.while_loop(cond, body, init)
-    # honest convergence: the (almost) undamped Gauss–Newton step from the result would lower
-    # the cost by less than EXPECTED_IMPROVEMENT_TOL (`minimize`'s rule)
-    # (relative to the start's cost where the residual vanishes)
-    delta, g = gn_step(phi, 1e-9)
-    improvement = -(g @ delta) / jnp.maximum(c, 1e-16 * c0 + jnp.finfo(dtype).tiny)
-    return phi / d, c, k, improvement
-
-
-_mf_jit = eqx.filter_jit(_mf_impl)
-
-
-def minimize_matrix_free(residual_fn: ResidualFn, theta0: Float[Array, " p"], args: Any = None, *,
-                         max_steps: int = 30, cg_steps: int = 40, pad: bool = True) -> PEMResult:
-    """`minimize` for problems whose `(T·ny, p)` Jacobian does not fit in memory.
-
-    Levenberg–Marquardt whose step $\\delta = -(J^\\top J + \\lambda I)^{-1} J^\\top \\varepsilon$
-    is solved by conjugate gradients (lineax `CG`, at most `cg_steps` iterations), each product
-    $J^\\top J v$ one forward (`jax.linearize`) and one reverse (`jax.linear_transpose`) pass:
-    memory is that of a few residual evaluations, not of $J$. A step is taken when it lowers
-    the cost ($\\lambda$ / 3), otherwise $\\lambda$ × 4; at most `max_steps` steps.
-    `converged` is honest: the undamped Gauss–Newton step from the result would lower the cost
-    by less than `EXPECTED_IMPROVEMENT_TOL` (MATLAB pem's rule, as in `minimize`), whatever
-    the step cap. One start point `(p,)`; no covariance (NaN: it needs $(J^\\top J)^{-1}$).
-    Raises `FitError` when the start or the result has no finite cost. `pad` as in `minimize`.
-    """
-    runtime.guard()
-    theta0 = _check(theta0, "lm", max_steps, 0)
-    args, T = padded(residual_fn, theta0, args, 0, pad)
-    th, c, k, improvement = _mf_jit(residual_fn, theta0[0], args, _n(T), int(max_steps),
-                                    int(cg_steps))
-    if not (bool(jnp.isfinite(c)) and bool(jnp.all(jnp.isfinite(th)))):
-        raise FitError("minimize_matrix_free: the start point has no finite cost")
-    p = th.shape[0]
-    nan = jnp.asarray(jnp.nan, th.dtype)
-    return PEMResult(theta=th, cost=c, converged=improvement < EXPECTED_IMPROVEMENT_TOL,
-                     n_steps=k, start_costs=c[None], covariance=jnp.full((p, p), nan),
-                     std=jnp.full((p,), nan), best_start=jnp.asarray(0), start_steps=k[None],
-                     expected_improvement=improvement)
-
-
-__all__ = ["PEMResult", "minimize", "minimize_many", "minimize_matrix_free", "SOLVERS"]
+__all__ = ["PEMResult", "minimize", "minimize_many", "SOLVERS"]

@@ -33,7 +33,7 @@ optimum lies outside it).
 Scale: when the dense Jacobians of all starts (T·ny × p each) would exceed
 `DENSE_JACOBIAN_BYTES` (at N = 16 zones: 96 000 residuals × ~800 parameters), the PEM runs
 from the first N4SID estimate alone with matrix-free Gauss–Newton
-(`jthermo.identify.pem.minimize_matrix_free`, at most `MATRIX_FREE_STEPS` steps; `converged`
+(`jthermo.identify.matrix_free.minimize_matrix_free`, at most `MATRIX_FREE_STEPS` steps; `converged`
 says whether the cap cut it short, and the covariance is NaN).
 """
 
@@ -50,8 +50,9 @@ from jaxtyping import Array, Float
 from ..data import IOData, require_excitation, split
 from ..errors import FitError, JThermoError, ModelError
 from ..models.statespace import InnovationsSS, innovations, pack, unpack
+from .matrix_free import minimize_matrix_free
 from .operating_point import OPERATING_POINTS
-from .pem import PEMResult, minimize, minimize_many, minimize_matrix_free
+from .pem import PEMResult, minimize, minimize_many
 from .result import FitResult, register_fitter
 from .subspace import choose_order, default_horizon, n4sid, n4sid_variants
 

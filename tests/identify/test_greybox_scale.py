@@ -8,7 +8,7 @@ import pytest
 import jthermo.identify.statespace as ss_mod
 from jthermo.data import from_arrays
 from jthermo.errors import FitError
-from jthermo.identify import pem
+from jthermo.identify import matrix_free
 from jthermo.identify.greybox import fit_greybox
 from jthermo.models.greybox import BedModel
 
@@ -97,10 +97,10 @@ def test_matrix_free_honest_flags():
         return (args - jnp.exp(theta[0]) * jnp.arange(5.0) - theta[1])[:, None]
 
     y = 2.0 * jnp.arange(5.0) + 1.0
-    res = pem.minimize_matrix_free(resid, jnp.array([0.0, 0.0]), y, max_steps=50)
+    res = matrix_free.minimize_matrix_free(resid, jnp.array([0.0, 0.0]), y, max_steps=50)
     np.testing.assert_allclose(np.asarray(res.theta), [np.log(2.0), 1.0], atol=1e-6)
     assert bool(res.converged)
-    cut = pem.minimize_matrix_free(resid, jnp.array([3.0, 0.0]), y, max_steps=1)
+    cut = matrix_free.minimize_matrix_free(resid, jnp.array([3.0, 0.0]), y, max_steps=1)
     assert not bool(cut.converged)                        # the step cap is not convergence
     with pytest.raises(FitError):
-        pem.minimize_matrix_free(resid, jnp.array([800.0, 0.0]), y)
+        matrix_free.minimize_matrix_free(resid, jnp.array([800.0, 0.0]), y)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jthermo import runtime
-from jthermo.identify import padding, pem
+from jthermo.identify import matrix_free, padding, pem
 from jthermo.identify.statespace import diagonal_residual
 
 
@@ -105,8 +105,8 @@ def test_padded_fit_equals_unpadded(solver):
 def test_padded_matrix_free_equals_unpadded():
     y, u = _record(300, 1, seed=4)
     args = (jnp.asarray(y), jnp.asarray(u))
-    a = pem.minimize_matrix_free(_oe_residual, np.array([0.5, 0.1]), args)
-    b = pem.minimize_matrix_free(_oe_residual, np.array([0.5, 0.1]), args, pad=False)
+    a = matrix_free.minimize_matrix_free(_oe_residual, np.array([0.5, 0.1]), args)
+    b = matrix_free.minimize_matrix_free(_oe_residual, np.array([0.5, 0.1]), args, pad=False)
     np.testing.assert_allclose(a.theta, b.theta, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(a.cost, b.cost, rtol=1e-9)
 
