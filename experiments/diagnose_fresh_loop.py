@@ -53,7 +53,11 @@ DEVELOPMENT_TAGS = {1: ("its cases 03, 05 and 08 were studied after this score "
                         "(`python experiments/diagnose_fresh_case.py --case N`) and the diagnosis changed on "
                         "them (the pooled records' drift test record by record, the ties of forward "
                         "selection with unfitted additions); the table is the score of the commit named, "
-                        "a score of the code after needs new seeds (`--seed-tag`).")}
+                        "a score of the code after needs new seeds (`--seed-tag`)."),
+                    2: ("its quiet cases 01 and 02 (and its three nulls) were studied after this score and the "
+                        "loop changed on them (`loop.unconfirmed`: a candidate one test passes asks for an "
+                        "experiment); the table is the score of the commit named, a score of the code after "
+                        "needs new seeds (`--seed-tag 3`).")}
 
 
 def case_seed(i: int, tag: int) -> np.random.SeedSequence:

@@ -15,6 +15,17 @@ Diebold–Mariano comparison, `decide.is_rival`): pooled into the estimation rec
 designed record adds to the likelihood ratios but leaves the validation comparison that made
 the tie as it was (on the one-zone lamp case of `tests/diagnose/test_loop.py`, two designed
 records pooled that way left the lag tied with the dead time at confidence 0.65 and 0.76).
+
+A diagnosis that names nothing is settled only when nothing is left open: a candidate that one
+of the two tests finds significant at the family-wise level while the other does not confirm
+it (`unconfirmed`: the estimation likelihood ratio far above its critical value with the
+validation z just under it, or a large validation gain with a likelihood ratio the estimation
+record's excitation leaves small) is evidence the records cannot settle, and an experiment is
+asked for. Under the null each test alone passes at most at the family-wise rate (1 %), so
+an experiment is asked for on at most about 2 % of the records of a plant with nothing missing,
+and the pooled diagnosis after it keeps both tests; a candidate that changes the validation
+error by less than `OPEN_REDUCTION` (a z on a loss differential that is all round-off) opens
+nothing.
 """
 
 from __future__ import annotations
@@ -26,6 +37,30 @@ from ..errors import ConfigError
 from . import experiment as X
 from .checks import as_records
 from .select import diagnose
+
+
+#: the smallest validation MSE reduction of an unconfirmed candidate that asks for an experiment
+OPEN_REDUCTION = 0.01
+
+
+def unconfirmed(result: dict) -> list[dict]:
+    """The candidates one test finds significant at the family-wise level and the other does not
+    confirm, that reduce the validation MSE by at least `OPEN_REDUCTION`, best first (none
+    flagged by the actuator's physics)."""
+    flagged = {f["mechanism"] for f in result.get("flagged") or []}
+    rows = [c for c in result.get("candidates") or []
+            if not c.get("significant") and c["mechanism"] not in flagged and "+" not in c["mechanism"]
+            and c.get("val_reduction", 0.0) >= OPEN_REDUCTION
+            and ((c["validation_z"] >= c["validation_z_critical"])
+                 != (c["estimation_lr"] >= c["estimation_lr_critical"]))]
+    return sorted(rows, key=lambda c: -c["val_reduction"])
+
+
+def _one_test(c: dict) -> str:
+    z = f"validation z {c['validation_z']:.2f} (critical {c['validation_z_critical']:.2f})"
+    lr = f"estimation LR {c['estimation_lr']:.1f} (critical {c['estimation_lr_critical']:.1f})"
+    return (f"`{c['mechanism']}` passes {z}, not {lr}" if c["validation_z"] >= c["validation_z_critical"]
+            else f"`{c['mechanism']}` passes {lr}, not {z}")
 
 
 def open_ties(result: dict) -> list[dict]:
@@ -53,6 +88,10 @@ def next_step(result: dict) -> dict:
         return {"experiment_needed": False, "rivals": [],
                 "why": "no experiment needed: " + ", ".join(f"`{f['mechanism']}`{_confidence(f)}" for f in fs)
                        + " named with no rival"}
+    open_ = unconfirmed(result)
+    if open_:
+        return {"experiment_needed": True, "rivals": [c["mechanism"] for c in open_] + ["baseline"],
+                "why": "nothing confirmed by both tests: " + _one_test(open_[0])}
     return {"experiment_needed": False, "rivals": [],
             "why": "no experiment needed: no candidate improves on the baseline significantly"}
 
@@ -101,4 +140,4 @@ def diagnose_loop(records, val: IOData, run, max_experiments: int = 2, *, durati
             "rounds": rounds, "settled": not step["experiment_needed"]}
 
 
-__all__ = ["diagnose_loop", "next_step", "open_ties"]
+__all__ = ["OPEN_REDUCTION", "diagnose_loop", "next_step", "open_ties", "unconfirmed"]

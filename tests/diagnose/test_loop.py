@@ -28,6 +28,38 @@ def test_next_step_asks_for_an_experiment_only_for_an_open_tie():
     assert next_step({"findings": [sure, _tied(0.999)]})["experiment_needed"]
 
 
+def _cand(m, z, lr, red, zc=2.98, lc=10.2):
+    return {"mechanism": m, "validation_z": z, "validation_z_critical": zc, "estimation_lr": lr,
+            "estimation_lr_critical": lc, "significant": bool(z >= zc and lr >= lc), "val_reduction": red}
+
+
+def test_nothing_named_with_a_candidate_one_test_passes_asks_for_an_experiment():
+    # the figures of a one-zone dead time of 3.4 samples and of a convection loss (seeded
+    # development cases): one test passes at the family-wise level, the other does not confirm
+    delay = {"findings": [], "candidates": [_cand("input_delay", 2.95, 49.1, 0.104),
+                                            _cand("heater_lag", 2.88, 44.7, 0.100),
+                                            _cand("radiative_loss", 0.58, -0.0, 0.0001)]}
+    s = next_step(delay)
+    assert s["experiment_needed"] and s["rivals"] == ["input_delay", "heater_lag", "baseline"]
+    assert "estimation LR 49.1" in s["why"] and "not validation z 2.95" in s["why"]
+    conv = {"findings": [], "candidates": [_cand("ambient_variation", 4.94, 10.1, 0.676, lc=26.9),
+                                           _cand("radiative_loss", 5.15, 2.9, 0.658)]}
+    s = next_step(conv)
+    assert s["experiment_needed"] and s["rivals"] == ["ambient_variation", "radiative_loss", "baseline"]
+    # a null record: a validation z above its critical value on a loss differential of round-off
+    # (the candidate is the baseline), and nothing else: settled, nothing asked for
+    null = {"findings": [], "candidates": [_cand("input_delay", 3.26, -0.0, 0.0),
+                                           _cand("radiative_loss", 3.23, -0.0, 0.0),
+                                           _cand("heat_accumulation", 1.57, -0.0, 0.062, lc=17.7),
+                                           _cand("ambient_variation", 0.18, 14.0, 0.043, lc=26.9)]}
+    assert not next_step(null)["experiment_needed"]
+    # neither test passing, or a candidate the actuator's physics rules out: nothing open
+    assert not next_step({"findings": [], "candidates": [_cand("heater_lag", 2.5, 9.0, 0.2)]})["experiment_needed"]
+    flagged = {"findings": [], "flagged": [{"mechanism": "input_delay"}], "candidates": delay["candidates"][:1]}
+    assert not next_step(flagged)["experiment_needed"]
+    assert L.unconfirmed(delay) == delay["candidates"][:2]
+
+
 def _fake_loop(monkeypatch, settle_at: int):
     """`diagnose` settled once it pools `settle_at` records; designs of 30 samples."""
     calls = {"diagnose": [], "run": 0}
