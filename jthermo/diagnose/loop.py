@@ -22,7 +22,8 @@ it (`unconfirmed`: the estimation likelihood ratio far above its critical value 
 validation z just under it, or a large validation gain with a likelihood ratio the estimation
 record's excitation leaves small) is evidence the records cannot settle, and an experiment is
 asked for. Under the null each test alone passes at most at the family-wise rate (1 %), so
-an experiment is asked for on at most about 2 % of the records of a plant with nothing missing,
+by the union bound an experiment is asked for on at most 2 % of the records of a plant with
+nothing missing (a bound from the tests' levels, not a measured rate),
 and the pooled diagnosis after it keeps both tests; a candidate that changes the validation
 error by less than `OPEN_REDUCTION` (a z on a loss differential that is all round-off) opens
 nothing.
@@ -75,7 +76,9 @@ def _confidence(f: dict) -> str:
 
 def next_step(result: dict) -> dict:
     """What to do after a diagnosis: `experiment_needed` (bool), `why` (one sentence), `rivals`
-    (the explanations an experiment must separate, the unsettled finding first)."""
+    (the explanations an experiment must separate, the unsettled finding first). An experiment
+    is needed for an uncertain or tied finding (`open_ties`) and, when nothing is named, for a
+    candidate only one test passes (`unconfirmed`, its rivals ending with the baseline)."""
     fs = result.get("findings") or []
     ties = open_ties(result)
     if ties:
