@@ -76,8 +76,26 @@ CRITERIA = ("nuisance", "nuisance_drift", "span")
 #: `y_max` tolerated in the final choice (°C)
 OVER_PENALTY = 100.0
 OVER_TOL = 0.5
+#: the smallest validation MSE reduction of an unconfirmed candidate that asks for an experiment
+OPEN_REDUCTION = 0.01
 #: PRBS start, unconstrained: sigmoid(±START) ≈ 0.05 / 0.95 of the actuator range
 START = 3.0
+
+
+def unconfirmed(result: dict) -> list[dict]:
+    """The candidates one test finds significant at the family-wise level and the other does not
+    confirm, that reduce the validation MSE by at least `OPEN_REDUCTION`, best first (none
+    flagged by the actuator's physics): what a diagnosis that names nothing leaves open."""
+    flagged = {f["mechanism"] for f in result.get("flagged") or []}
+
+    def passes(c, test):
+        return bool(c.get(test, np.nan) >= c.get(test + "_critical", np.nan))
+
+    rows = [c for c in result.get("candidates") or []
+            if not c.get("significant") and c["mechanism"] not in flagged and "+" not in c["mechanism"]
+            and c.get("val_reduction", 0.0) >= OPEN_REDUCTION
+            and passes(c, "validation_z") != passes(c, "estimation_lr")]
+    return sorted(rows, key=lambda c: -c["val_reduction"])
 
 
 def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
@@ -87,7 +105,8 @@ def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
     runner-up (the other candidate that reduced the validation error most, its closest
     alternative explanation) and the baseline; with no finding, the two candidates that reduced
     the validation error most and the baseline (the new record must also show the better one
-    significant), or the best one against the baseline when only one reduced it."""
+    significant), or the best one against the baseline when only one reduced it; a candidate
+    the diagnosis leaves open (`unconfirmed`) is always among them, first."""
     fs = result.get("findings") or []
     if fs and fs[0].get("rivals"):
         return (fs[0]["mechanism"], *fs[0]["rivals"][:MAX_RIVALS]), "the top finding and its rivals"
@@ -105,6 +124,14 @@ def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
             raise ConfigError("design_experiment: the diagnosis has no candidate to separate from the baseline")
         return ((max(best, key=lambda c: c["val_reduction"])["mechanism"], "baseline"),
                 "no finding: the best candidate against the baseline")
+    open_ = unconfirmed(result)
+    if open_:
+        first = open_[0]["mechanism"]
+        cands = [next(c for c in cands if c["mechanism"] == first), *(c for c in cands if c["mechanism"] != first)]
+        if len(cands) > 1:
+            return ((first, cands[1]["mechanism"], "baseline"),
+                    "no finding: the candidate one test passes, the best other one and the baseline")
+        return (first, "baseline"), "no finding: the candidate one test passes against the baseline"
     if len(cands) > 1:
         return ((cands[0]["mechanism"], cands[1]["mechanism"], "baseline"),
                 "no finding: the two candidates that reduced the validation error most and the baseline")

@@ -25,7 +25,7 @@ asked for. Under the null each test alone passes at most at the family-wise rate
 by the union bound an experiment is asked for on at most 2 % of the records of a plant with
 nothing missing (a bound from the tests' levels, not a measured rate),
 and the pooled diagnosis after it keeps both tests; a candidate that changes the validation
-error by less than `OPEN_REDUCTION` (a z on a loss differential that is all round-off) opens
+error by less than `experiment.OPEN_REDUCTION` (a z on a loss differential that is all round-off) opens
 nothing.
 """
 
@@ -37,24 +37,8 @@ from ..data import IOData
 from ..errors import ConfigError
 from . import experiment as X
 from .checks import as_records
+from .experiment import OPEN_REDUCTION, unconfirmed
 from .select import diagnose
-
-
-#: the smallest validation MSE reduction of an unconfirmed candidate that asks for an experiment
-OPEN_REDUCTION = 0.01
-
-
-def unconfirmed(result: dict) -> list[dict]:
-    """The candidates one test finds significant at the family-wise level and the other does not
-    confirm, that reduce the validation MSE by at least `OPEN_REDUCTION`, best first (none
-    flagged by the actuator's physics)."""
-    flagged = {f["mechanism"] for f in result.get("flagged") or []}
-    rows = [c for c in result.get("candidates") or []
-            if not c.get("significant") and c["mechanism"] not in flagged and "+" not in c["mechanism"]
-            and c.get("val_reduction", 0.0) >= OPEN_REDUCTION
-            and ((c["validation_z"] >= c["validation_z_critical"])
-                 != (c["estimation_lr"] >= c["estimation_lr_critical"]))]
-    return sorted(rows, key=lambda c: -c["val_reduction"])
 
 
 def _one_test(c: dict) -> str:
@@ -78,7 +62,8 @@ def next_step(result: dict) -> dict:
     """What to do after a diagnosis: `experiment_needed` (bool), `why` (one sentence), `rivals`
     (the explanations an experiment must separate, the unsettled finding first). An experiment
     is needed for an uncertain or tied finding (`open_ties`) and, when nothing is named, for a
-    candidate only one test passes (`unconfirmed`, its rivals ending with the baseline)."""
+    candidate only one test passes (`unconfirmed`; its rivals are the design's,
+    `experiment.rival_set`: that candidate, the best other one, the baseline)."""
     fs = result.get("findings") or []
     ties = open_ties(result)
     if ties:
@@ -93,7 +78,7 @@ def next_step(result: dict) -> dict:
                        + " named with no rival"}
     open_ = unconfirmed(result)
     if open_:
-        return {"experiment_needed": True, "rivals": [c["mechanism"] for c in open_] + ["baseline"],
+        return {"experiment_needed": True, "rivals": list(X.rival_set(result)[0]),
                 "why": "nothing confirmed by both tests: " + _one_test(open_[0])}
     return {"experiment_needed": False, "rivals": [],
             "why": "no experiment needed: no candidate improves on the baseline significantly"}

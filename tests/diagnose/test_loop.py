@@ -60,6 +60,20 @@ def test_nothing_named_with_a_candidate_one_test_passes_asks_for_an_experiment()
     assert L.unconfirmed(delay) == delay["candidates"][:2]
 
 
+def test_the_design_separates_the_open_candidate_even_when_others_reduce_the_error_more():
+    # two candidates neither test passes reduce the validation error more than the open one:
+    # the open one is still the first the design separates, against the best other and the baseline
+    res = {"findings": [], "candidates": [_cand("heat_accumulation", 1.0, 5.0, 0.30),
+                                          _cand("ambient_variation", 1.2, 6.0, 0.25, lc=26.9),
+                                          _cand("input_delay", 2.95, 49.1, 0.10)]}
+    s = next_step(res)
+    assert s["experiment_needed"] and s["rivals"] == ["input_delay", "heat_accumulation", "baseline"]
+    assert L.X.rival_set(res)[0] == tuple(s["rivals"])
+    # alone among the candidates that reduce the error, it is designed against the baseline
+    only = {"findings": [], "candidates": [res["candidates"][2], _cand("heater_lag", 0.1, 0.0, -0.02)]}
+    assert next_step(only)["rivals"] == ["input_delay", "baseline"]
+
+
 def _fake_loop(monkeypatch, settle_at: int):
     """`diagnose` settled once it pools `settle_at` records; designs of 30 samples."""
     calls = {"diagnose": [], "run": 0}
