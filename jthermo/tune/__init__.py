@@ -3,8 +3,9 @@
 The closed-loop cost over B disturbance rollouts of each test scenario, on one plant or on a
 plant ensemble, is differentiated with `eqx.filter_value_and_grad` with respect to every
 inexact array leaf of the controller, and minimised with optax Adam in one jitted `make_step`,
-or with L-BFGS (`optimiser="lbfgs"`: two-loop recursion and a weak-Wolfe line search on one
-compiled value-and-gradient of the fixed batch's cost, `optimiser.minimise`); the loop over
+or with L-BFGS (`optimiser="lbfgs"`: two-loop recursion and a weak-Wolfe line search, an
+optimistix minimiser stepped one compiled evaluation of the fixed batch's cost at a time,
+`lbfgs.WolfeLBFGS`, `optimiser.minimise`); the loop over
 iterations and the progress report stay outside jit.
 
 The rollouts run on a lean path (`rollout_terms`): one `lax.scan` per rollout that accumulates

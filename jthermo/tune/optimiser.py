@@ -3,13 +3,11 @@ leaves in log space, non-finite gradients zeroed, the best finite iterate (and s
 validation guard) kept.
 
 L-BFGS (`method="lbfgs"`) treats the training cost as the deterministic function it is (the
-rollouts are a fixed batch): direction $d = -H g$ by the two-loop recursion over the last
-`memory` pairs $s_k = z_{k+1} - z_k$, $y_k = g_{k+1} - g_k$ with $H_0 = (s^\\top y / y^\\top
-y) I$ (Nocedal & Wright 2006, Alg. 7.4), and a weak-Wolfe bracketing line search
-($f(z + \\alpha d) \\le f + c_1 \\alpha g^\\top d$, $\\nabla f(z + \\alpha d)^\\top d \\ge c_2
-g^\\top d$; Lewis & Overton 2013) on one compiled value-and-gradient, so a run costs tens of
-evaluations where Adam takes hundreds of steps. The first step is scaled so that no parameter
-moves by more than `lr` (relative, in log space).
+rollouts are a fixed batch): `lbfgs.WolfeLBFGS`, an optimistix minimiser (two-loop recursion,
+weak-Wolfe line search), stepped one compiled evaluation at a time so that every accepted
+iterate is kept; a run costs tens of evaluations where Adam takes hundreds of steps. The first
+trial step moves no parameter by more than `lr` (relative, in log space); the search may
+lengthen it.
 """
 
 from __future__ import annotations
@@ -81,92 +79,29 @@ def _finite_tree(tree) -> bool:
 METHODS = ("adam", "lbfgs")
 
 
-def lbfgs_direction(g: np.ndarray, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """$-H g$ by the L-BFGS two-loop recursion over the curvature `pairs` $(s, y)$, oldest
-    first, with $H_0 = (s^\\top y / y^\\top y) I$ from the newest pair ($-g$ without pairs)."""
-    q = np.array(g, np.float64)
-    alphas = []
-    for s, y in reversed(pairs):
-        a = (s @ q) / (y @ s)
-        q -= a * y
-        alphas.append(a)
-    if pairs:
-        s, y = pairs[-1]
-        q *= (s @ y) / (y @ y)
-    for (s, y), a in zip(pairs, reversed(alphas)):
-        q += s * (a - (y @ q) / (y @ s))
-    return -q
+def _lbfgs_iterates(objective, z, batch, steps: int, lr: float):
+    """Yield `(z, cost, evaluations so far)` for the start and each L-BFGS iterate
+    (`lbfgs.WolfeLBFGS`, one compiled step per evaluation), stopping after `steps` accepted
+    iterations or at the solver's own stops."""
+    from .lbfgs import WolfeLBFGS
 
-
-def wolfe_search(vg: Callable[[np.ndarray], tuple[float, np.ndarray]], z: np.ndarray, f0: float,
-                 g0: np.ndarray, d: np.ndarray, *, c1: float = 1e-4, c2: float = 0.9,
-                 max_evals: int = 10):
-    """Weak-Wolfe step along the descent direction `d` from `z` (cost `f0`, gradient `g0`):
-    bisect between a step too long (Armijo fails or the cost is not finite) and one too short
-    (the slope still below $c_2 g_0^\\top d$), doubling while none is too long.
-
-    **Returns:** `(z, f, g, evaluations)` at the accepted step, or at the longest Armijo step
-    seen when the budget runs out; `(None, f0, g0, evaluations)` when no step decreases."""
-    slope = float(g0 @ d)
-    lo, hi, alpha, best = 0.0, np.inf, 1.0, None
-    for n in range(1, max_evals + 1):
-        zt = z + alpha * d
-        f, g = vg(zt)
-        if not np.isfinite(f) or f > f0 + c1 * alpha * slope:
-            hi = alpha
-        else:
-            best = (zt, f, g)
-            if float(g @ d) >= c2 * slope:
-                return zt, f, g, n
-            lo = alpha
-        alpha = 0.5 * (lo + hi) if np.isfinite(hi) else 2.0 * lo
-    return (*best, max_evals) if best is not None else (None, f0, g0, max_evals)
-
-
-def _flat_value_and_grad(objective, z, batch):
-    """`(vg(x) -> (float, ndarray), x0, unravel)`: the objective at the flattened parameters,
-    compiled once, with a non-finite cost read as `inf` and non-finite gradients zeroed."""
     x0, unravel = jax.flatten_util.ravel_pytree(z)
+    solver = WolfeLBFGS(first_move=lr)
 
-    @jax.jit
-    def vg(x, b):
-        v, g = jax.value_and_grad(lambda xx: objective(unravel(xx), b))(x)
-        return v, jnp.where(jnp.isfinite(g), g, 0.0)
+    def fn(x, b):
+        return objective(unravel(x), b), None
 
-    def call(x):
-        v, g = vg(jnp.asarray(x), batch)
-        v = float(v)
-        return (v if np.isfinite(v) else np.inf), np.asarray(g, np.float64)
-
-    return call, np.asarray(x0, np.float64), unravel
-
-
-def _lbfgs_iterates(objective, z, batch, steps: int, lr: float, memory: int = 10,
-                    ftol: float = 1e-9, gtol: float = 1e-8):
-    """Yield `(z, cost, evaluations so far)` for the start and each L-BFGS iterate, stopping
-    after `steps` iterations, when the relative decrease falls below `ftol`, the gradient
-    below `gtol` (max norm) or the line search finds no decrease."""
-    vg, x, unravel = _flat_value_and_grad(objective, z, batch)
-    f, g = vg(x)
-    evals, pairs = 1, []
-    yield unravel(jnp.asarray(x)), f, evals
+    step = eqx.filter_jit(lambda state, b: solver.step(fn, state.x, b, {}, state, frozenset())[1])
+    state = step(solver.init(fn, x0, batch, {}, None, None, frozenset()), batch)       # the start
+    yield unravel(state.x), float(state.f), 1
     for _ in range(steps):
-        if not np.isfinite(f) or np.max(np.abs(g)) < gtol:
+        k = int(state.accepted)
+        while not bool(state.done) and int(state.accepted) == k:
+            state = step(state, batch)
+        if int(state.accepted) == k:             # stopped in the search: no new iterate
             return
-        d = lbfgs_direction(g, pairs)
-        if not pairs:                     # first step: no parameter moves by more than lr
-            d *= lr / max(float(np.max(np.abs(d))), 1e-300)
-        x_new, f_new, g_new, n = wolfe_search(vg, x, f, g, d)
-        evals += n
-        if x_new is None:
-            return
-        s, y = x_new - x, g_new - g
-        if s @ y > 1e-12 * np.sqrt((s @ s) * (y @ y)):
-            pairs = [*pairs, (s, y)][-memory:]
-        done = f - f_new <= ftol * max(abs(f), 1.0)
-        x, f, g = x_new, f_new, g_new
-        yield unravel(jnp.asarray(x)), f, evals
-        if done:
+        yield unravel(state.x), float(state.f), int(state.evals)
+        if bool(state.done):
             return
 
 
@@ -218,7 +153,7 @@ def minimise(loss: Callable[[Any, Any], jax.Array], controller, batches: Sequenc
       dropped), so that they can be computed elsewhere (another thread) meanwhile; L-BFGS
       calls it first.
     - `steps`: iterations (L-BFGS: at most; it stops at convergence). `lr`: Adam's learning
-      rate, L-BFGS's largest first move (both relative for log-space leaves).
+      rate, L-BFGS's largest first trial move (both relative for log-space leaves).
     - `progress`: called as `progress(i, cost)` after each iteration (outside jit).
     - `snapshots`: keep about this many finite iterates along the way (plus the start, the
       best and the last) in `TuneResult.snapshots`, for a validation guard.
