@@ -176,7 +176,8 @@ def write(rows, meta, out):
                      f"{', '.join(r['counted']) or 'nothing'} | {cell(r['alone'])} | {r['experiment_s']:.0f} | "
                      f"{cell(r['with_experiment'])} | {r['settled']} | {r['cpu_s']:.0f} | {r['seconds']:.0f} |")
     lines += ["", (f"Wall {meta['wall_s']:.0f} s, CPU {meta['cpu_s']:.0f} s (user+sys); 1/5/15-min load {meta['load']} "
-                   "at the end, on a shared, loaded 2-core machine (run under `nice -n 10`)."), ""]
+                   "at the end, on a shared, loaded 2-core machine"
+                   + (f" (run at niceness {meta['nice']})." if "nice" in meta else ".")), ""]
     atomic_write_text(out / "diagnose_fresh_loop.md", "\n".join(lines) + "\n")
 
 
@@ -198,7 +199,7 @@ def main(argv=None):
         return 0
     meta = {"args": f"--max-zones {args.max_zones} --experiment-s {args.experiment_s:g} --seed-tag {args.seed_tag}",
             "commit": H.commit(), "seed_tag": args.seed_tag, "max_zones": args.max_zones,
-            "experiment_s": args.experiment_s, "planned": args.cases}
+            "experiment_s": args.experiment_s, "planned": args.cases, "nice": os.nice(0)}
     rows = []
     t0, c0 = time.perf_counter(), H.cpu_s()
     for i, kind in list(enumerate(PLAN))[:args.cases]:
