@@ -79,7 +79,7 @@ WHY = {
             "with the common-drift rule (`--only 'tclab_cace2020 2,tclab_dowling,tclab_apm'`, 139 CPU s, "
             "load 4-5): each zone keeps its own fitted surroundings offset on "
             "validation (9a11b41), and a top finding below confidence 0.95 is reported as uncertain with its "
-            "rivals (3c64345). Rows at ab80a14, the table before this session: CACE 2 heater_lag + "
+            "rivals (3c64345). Rows at ab80a14, the table before those reruns: CACE 2 heater_lag + "
             "lateral_conduction 94.6/95.7 %, SAE 690.5; CACE 1 97.8/97.4 %, 197.2; apm 90.7/67.7 %, 139.4; "
             "dowling 96.5/91.5 %, 451.2.",
     "apm": "tclab_apm_mimo_steps (2/3 split of one run): the regression to 91.2/-36.7 %, SAE 372.1 was "
