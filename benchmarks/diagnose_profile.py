@@ -11,7 +11,6 @@ events (tracing, lowering, backend compile; a cache hit counts as a short load).
 the process's user + system time (all threads): the load-robust figure on a shared machine.
 
     python benchmarks/diagnose_profile.py                 # cold + warm, writes the results
-    python benchmarks/diagnose_profile.py    # ... to diagnose_profile_after.md
     python benchmarks/diagnose_profile.py --cprofile      # + the top functions (cold run)
 
 Writes `benchmarks/results/diagnose_profile.md` and `.json`.
@@ -92,7 +91,7 @@ def _instrument(clock: _Clock, state: dict):
     """Time every compiled fit `select` calls, and each `joint.JointFits.fit` call."""
     import jax
 
-    from jthermo.diagnose import fitting, joint, select
+    from jthermo.diagnose import candidates, commondrift, joint, select, validation
 
     def timed(name, fn):
         def wrapper(*a, **k):
@@ -102,12 +101,11 @@ def _instrument(clock: _Clock, state: dict):
             return out
         return wrapper
 
-    for name in ("sim_zones", "fit_records"):
-        setattr(select, name, timed(name, getattr(select, name)))
-    # the candidates' fits: `fit_zones` itself, or as `select` names it
-    host = select if hasattr(select, "fit_zones") else fitting
-    host.fit_zones = timed("fit_zones", host.fit_zones)
-    joint.fit_joint = timed("fit_joint", joint.fit_joint)
+    # each compiled fit as the stage modules import it (`diagnose.fitting`'s functions)
+    for mod in (select, candidates, validation, joint, commondrift):
+        for name in ("fit_zones", "sim_zones", "fit_joint", "fit_records"):
+            if hasattr(mod, name):
+                setattr(mod, name, timed(name, getattr(mod, name)))
     jf = joint.JointFits.fit
 
     def joint_fit(self, models, validate, **kw):
