@@ -12,6 +12,7 @@ the process's user + system time (all threads): the load-robust figure on a shar
 
     python benchmarks/diagnose_profile.py                 # cold + warm, writes the results
     python benchmarks/diagnose_profile.py --cprofile      # + the top functions (cold run)
+    python benchmarks/diagnose_profile.py --zones 16 --phases cold   # the printer's scale
 
 Writes `benchmarks/results/diagnose_profile.md` and `.json`.
 """
@@ -34,17 +35,18 @@ from common import cpu_seconds, load1  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
-#: the latency benchmark's record (benchmarks/latency.py RECORD)
-RECORD = ["--experiment", "prbs", "--zones", "4", "--effects",
+#: the latency benchmark's record (benchmarks/latency.py RECORD) but its zone count, `--zones`
+RECORD = ["--experiment", "prbs", "--effects",
           "lateral_conduction,radiative_loss,heater_lag"]
 
 
-def write_record(tmp: Path) -> tuple[Path, Path]:
-    """The latency record (`RECORD`: 1 h estimation, seed 1; 30 min validation, seed 2) written
-    by `jthermo generate` to `tmp/est.csv`, `tmp/val.csv`; returns the two paths."""
+def write_record(tmp: Path, zones: int = 4) -> tuple[Path, Path]:
+    """The latency record (`RECORD`: 1 h estimation, seed 1; 30 min validation, seed 2), at
+    `zones` zones, written by `jthermo generate` to `tmp/est.csv`, `tmp/val.csv`; returns the
+    two paths."""
     env = dict(os.environ, JTHERMO_NO_CACHE="1")
     for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-        subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--duration", dur,
+        subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--zones", str(zones), "--duration", dur,
                         "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
     return tmp / "est.csv", tmp / "val.csv"
 
@@ -218,12 +220,12 @@ def _table(run: dict) -> list[str]:
     return lines
 
 
-def write(runs: list[dict], cmdline: str) -> Path:
+def write(runs: list[dict], cmdline: str, zones: int = 4) -> Path:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "diagnose_profile.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
     w = runs[-1]
     lines = ["# `jthermo diagnose` profile", "",
-             f"`{cmdline}`: the latency record (1 h, 4 zones; 30 min validation), diagnosed "
+             f"`{cmdline}`: the latency record (1 h, {zones} zones; 30 min validation), diagnosed "
              "in-process, cold (empty compilation cache) then warm (second process). Stages are "
              "the diagnosis's progress ticks; `stage: call` rows are the compiled fits inside a "
              "stage (blocked until ready); stage rows include them. CPU s = user + system of the "
@@ -243,6 +245,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cprofile", action="store_true", help="cProfile the cold run's diagnose()")
     ap.add_argument("--phases", default="cold,warm")
+    ap.add_argument("--zones", type=int, default=4, help="the record's zones (the latency record: 4)")
     ap.add_argument("--one-thread", action="store_true",
                     help="JAX's CPU backend with one intra-op thread (runtime.one_thread_backend)")
     ap.add_argument("--child", nargs=3, metavar=("EST", "VAL", "OUT"), help=argparse.SUPPRESS)
@@ -254,15 +257,16 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory(prefix="jthermo-diagprof-") as d:
         tmp = Path(d)
-        write_record(tmp)
+        write_record(tmp, args.zones)
         runs = []
         for phase in args.phases.split(","):
             cp = RESULTS / "diagnose_profile.cprofile.txt" if args.cprofile and phase == "cold" else None
             runs.append(_subprocess(phase, tmp / "est.csv", tmp / "val.csv", tmp / "cache",
                                     tmp / f"{phase}.json", cp, args.one_thread))
-    cmd = "python benchmarks/diagnose_profile.py" + \
+    cmd = "python benchmarks/diagnose_profile.py" + (f" --zones {args.zones}" if args.zones != 4 else "") + \
+        (f" --phases {args.phases}" if args.phases != "cold,warm" else "") + \
         (" --cprofile" if args.cprofile else "") + (" --one-thread" if args.one_thread else "")
-    print(write(runs, cmd).read_text())
+    print(write(runs, cmd, args.zones).read_text())
 
 
 if __name__ == "__main__":

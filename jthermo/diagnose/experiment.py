@@ -127,9 +127,9 @@ def rival_set(result: dict) -> tuple[tuple[str, ...], str]:
     open_ = unconfirmed(result)
     if open_:
         first = open_[0]["mechanism"]
-        cands = [next(c for c in cands if c["mechanism"] == first), *(c for c in cands if c["mechanism"] != first)]
-        if len(cands) > 1:
-            return ((first, cands[1]["mechanism"], "baseline"),
+        others = [c["mechanism"] for c in cands if c["mechanism"] != first]
+        if others:
+            return ((first, others[0], "baseline"),
                     "no finding: the candidate one test passes, the best other one and the baseline")
         return (first, "baseline"), "no finding: the candidate one test passes against the baseline"
     if len(cands) > 1:

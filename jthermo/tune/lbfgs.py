@@ -1,12 +1,12 @@
 """L-BFGS with a weak-Wolfe line search as an optimistix minimiser (`WolfeLBFGS`).
 
-The tuning's cost is a closed loop's: kinked where an actuator saturates, so a search that
-only backtracks (optimistix's `LBFGS`, Armijo) keeps too short steps and curvature pairs that
-say little; on the 16-zone bed of `tests/control/loop.py` it ended at a higher cost in more
-evaluations than this search. A weak-Wolfe search also lengthens a step: it bisects between a
-step too long (the Armijo condition fails or the cost is not finite) and one too short (the
-slope still below $c_2 g^\\top d$), doubling while none is too long (Lewis & Overton 2013),
-so every accepted pair has $s^\\top y > 0$.
+A weak-Wolfe search, not optimistix's `LBFGS`, whose search only backtracks (Armijo; its search
+sees no gradient at a trial point, so it cannot ask for curvature): the tuning's cost is kinked
+where an actuator saturates, and this is the search the tuning has used, so its iterates stay
+the same (`tests/tune/test_optimiser_lbfgs.py` checks them against a NumPy L-BFGS). It bisects
+between a step too long (the Armijo condition fails or the cost is not finite) and one too short
+(the slope still below $c_2 g^\\top d$), doubling while none is too long (Lewis & Overton
+2013), so every step it accepts within its budget has $s^\\top y > 0$.
 
 Direction $d = -H g$ by the two-loop recursion over the last `memory` pairs $s_k = x_{k+1} -
 x_k$, $y_k = g_{k+1} - g_k$, oldest first, with $H_0 = (s^\\top y / y^\\top y) I$ from the
