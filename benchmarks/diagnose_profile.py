@@ -231,7 +231,7 @@ def write(runs: list[dict], cmdline: str, zones: int = 4) -> Path:
              "stage (blocked until ready); stage rows include them. CPU s = user + system of the "
              "process (all threads), the load-robust figure; wall s is inflated by the load "
              "(2 shared cores).", "",
-             f"Result (warm): {w['verdict']}, findings {', '.join(w['findings'])}; augmented "
+             f"Result ({w['phase']}): {w['verdict']}, findings {', '.join(w['findings'])}; augmented "
              f"{' + '.join(w['augmented'])}: mean validation fit {w['baseline_fit']:.2f} → "
              f"{w['augmented_fit']:.2f} % (zones {', '.join(f'{v:.2f}' for v in w['augmented_fit_per_zone'])}).", ""]
     for run in runs:
