@@ -21,11 +21,12 @@ from jaxtyping import Array, Float
 
 from .. import runtime
 from ..errors import FitError
+from .marquardt import LAMBDA0, next_damping
 from .padding import masked_residual, padded, true_count, true_length
 from .pem import EXPECTED_IMPROVEMENT_TOL, PEMResult, ResidualFn, check_start
 
-#: the damping's start; a taken step divides it by 3, a refused one multiplies it by 4
-LAMBDA0, LAMBDA_DOWN, LAMBDA_UP = 1e-3, 3.0, 4.0
+#: the least damping of a taken step (`marquardt.next_damping`)
+LAMBDA_FLOOR = 1e-9
 #: a taken step that lowers the cost by less than this fraction ends the solve
 STALL_RTOL = 1e-10
 
@@ -69,7 +70,8 @@ class _State(eqx.Module):
 
 class MatrixFreeLM(optx.AbstractLeastSquaresSolver):
     """Levenberg–Marquardt with the CG step of `gauss_newton_step` on the cost $\\|r\\|^2$: a step
-    is taken when it lowers the cost ($\\lambda / 3$), otherwise $\\lambda \\times 4$; the solve
+    is taken when it lowers the cost ($\\lambda / 3$), otherwise $\\lambda \\times 4$ (Marquardt's
+    rule, `marquardt.next_damping`, which the NumPy polynomial solver runs too); the solve
     ends when a taken step lowers the cost by less than `STALL_RTOL` of itself or $\\lambda$
     exceeds $10^9$ (and at `max_steps`). `atol` and `norm` are optimistix's interface, unused."""
 
@@ -89,7 +91,7 @@ class MatrixFreeLM(optx.AbstractLeastSquaresSolver):
         c_new = _sum_squares(f(new))
         better = c_new < state.cost
         rel = (state.cost - c_new) / jnp.maximum(state.cost, jnp.finfo(y.dtype).tiny)
-        lam = jnp.where(better, jnp.maximum(state.lam / LAMBDA_DOWN, 1e-9), state.lam * LAMBDA_UP)
+        lam = next_damping(state.lam, better, LAMBDA_FLOOR, jnp)
         state = _State(cost=jnp.minimum(c_new, state.cost), lam=lam,
                        done=(better & (rel < self.rtol)) | (lam > 1e9))
         return jnp.where(better, new, y), state, None

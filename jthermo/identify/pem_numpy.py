@@ -24,10 +24,11 @@ tracing even with the persistent cache warm; measured by
 
 The solver is Levenberg–Marquardt with Marquardt's scaling $\\lambda\\,\\mathrm{diag}(J^\\top J)$
 (floored at $10^{-4}$ of its largest entry, the 100× range of `pem.minimize`'s Jacobi scaling):
-a step that lowers the cost is kept and $\\lambda$ / 3, otherwise $\\lambda$ × 4. It stops when
-the undamped Gauss–Newton step would lower the cost by less than `POLISH_TOL` of itself (far
-below MATLAB pem's 0.01 %, since steps are cheap), when $\\lambda$ exceeds $10^{10}$, or at
-`max_steps`; `converged` is `pem.minimize`'s rule (that improvement < 0.01 %).
+a step that lowers the cost is kept and $\\lambda$ / 3, otherwise $\\lambda$ × 4 (Marquardt's rule,
+`marquardt.next_damping`, which the matrix-free solver runs too). It stops when the undamped
+Gauss–Newton step would lower the cost by less than `POLISH_TOL` of itself (far below MATLAB
+pem's 0.01 %, since steps are cheap), when $\\lambda$ exceeds $10^{10}$, or at `max_steps`;
+`converged` is `pem.minimize`'s rule (that improvement < 0.01 %).
 """
 
 from __future__ import annotations
@@ -35,10 +36,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
+from .marquardt import LAMBDA0, next_damping
 from .pem import EXPECTED_IMPROVEMENT_TOL, PEMResult
 
 #: the solve continues until the Gauss–Newton step would gain less than this fraction of the cost
 POLISH_TOL = 1e-12
+#: the least damping of a taken step (`marquardt.next_damping`)
+LAMBDA_FLOOR = 1e-12
 #: `extend_rows`: further rounds of `max_steps` steps for a row stopped at its step cap while its
 #: Gauss–Newton step would still gain at least `EXPECTED_IMPROVEMENT_TOL` (default of `fit_polynomial`)
 EXTEND_ROUNDS = 4
@@ -206,7 +210,7 @@ def lm_row(theta0: np.ndarray, y, u, nk, s, max_steps: int):
     cost = float(np.mean(eps ** 2))
     if not np.isfinite(cost):
         return th, np.inf, 0
-    lam, steps, fresh = 1e-3, 0, True
+    lam, steps, fresh = LAMBDA0, 0, True
     while steps < max_steps and lam < 1e10:
         if fresh:
             g, H, _, gain = _gn_quantities(eps, J)
@@ -217,8 +221,7 @@ def lm_row(theta0: np.ndarray, y, u, nk, s, max_steps: int):
         try:
             delta = -np.linalg.solve(H + lam * np.diag(scale), g)
         except np.linalg.LinAlgError:
-            lam *= 4.0
-            fresh = False
+            lam, fresh = float(next_damping(lam, False, LAMBDA_FLOOR)), False
             continue
         new = th + delta
         e_new = row_residual(new, y, u, nk, s, jacobian=False)
@@ -227,9 +230,7 @@ def lm_row(theta0: np.ndarray, y, u, nk, s, max_steps: int):
         if fresh:
             th, cost = new, c_new
             eps, J = row_residual(th, y, u, nk, s)
-            lam = max(lam / 3.0, 1e-12)
-        else:
-            lam *= 4.0
+        lam = float(next_damping(lam, fresh, LAMBDA_FLOOR))
     return th, cost, steps
 
 
