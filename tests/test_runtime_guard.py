@@ -120,3 +120,25 @@ def test_diagnose_runs_the_guard_between_its_stages(monkeypatch):
     assert [i for i, _ in seen] == [1, 2, 3, 4, 5, 6]
     assert [c for _, c in seen] == sorted(c for _, c in seen) and seen[0][1] >= 2
     assert all(b > a for (_, a), (_, b) in zip(seen, seen[1:]))
+
+
+COUNT_CHILD = """
+import sys, jax, jax.numpy as jnp
+from jthermo import runtime
+runtime.enable_cache(sys.argv[1])
+runtime.count_compiles()
+f = jax.jit(lambda x: jnp.sin(x) * 3.0 + x ** 2)
+f(jnp.arange(5.0)).block_until_ready()
+print(runtime.compiled_programs())
+"""
+
+
+def test_a_program_read_from_the_persistent_cache_counts_once(tmp_path):
+    """A program is counted when it is made, compiled (first process) or read from the
+    persistent cache (second process): once each, not once more for the read."""
+    import subprocess
+    import sys
+
+    runs = [subprocess.run([sys.executable, "-c", COUNT_CHILD, str(tmp_path)], capture_output=True,
+                           text=True, check=True).stdout.split() for _ in range(2)]
+    assert runs[0] == runs[1] and int(runs[0][-1]) >= 1
