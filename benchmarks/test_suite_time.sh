@@ -17,7 +17,7 @@ for run in $runs; do
   rm -f "$out/timeline_$run.jsonl"
   la0=$(cut -d' ' -f1-3 /proc/loadavg)
   s=$(date +%s.%N)
-  { time JTHERMO_CACHE_DIR=$cache JTHERMO_TIMELINE="$out/timeline_$run.jsonl" PYTHONPATH=benchmarks \
+  { time JTHERMO_CACHE_DIR=$cache JTHERMO_TIMELINE="$out/timeline_$run.jsonl" PYTHONPATH=benchmarks${PYTHONPATH:+:$PYTHONPATH} \
       .venv/bin/python -m pytest -n 2 --dist loadfile -m "not slow" -p no:cacheprovider \
       -p test_timeline --durations=40 > "$out/pytest_$run.log" 2>&1 ; } 2> "$out/time_$run.txt"
   e=$(date +%s.%N)

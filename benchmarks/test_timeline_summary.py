@@ -3,8 +3,12 @@
     python benchmarks/test_timeline_summary.py out.jsonl [--top 40] [--cpu]
 A file's time runs from its first test's start to its last test's end (module fixtures and
 the compiled-code release between modules fall inside or between them); a worker's idle tail
-is the time from its last test's end to the last test's end on any worker."""
+is the time from its last test's end to the last test's end on any worker. Where the timeline
+has JAX's program-making seconds (`test_timeline.py`), their sums, the backend compiles by
+duration, the tests' time outside program making, and per file the seconds of tracing,
+lowering and compiling (a persistent-cache read included)."""
 import argparse
+import itertools
 import json
 from collections import defaultdict
 
@@ -40,10 +44,48 @@ def summarise(rows, top, by_cpu=False):
     key = (lambda kv: -kv[1][4]) if by_cpu else (lambda kv: kv[1][0] - kv[1][1])
     for name, (s, e, n, w, c) in sorted(files.items(), key=key)[:top]:
         out.append(f"| {name} | {w} | {n} | {e - s:.1f} | {c:.1f} | {s - t0:.1f} | {e - t0:.1f} |")
+    out += ["", *jax_phases(rows, files_order=[n for n, _ in sorted(files.items(), key=key)[:top]])]
     out += ["", "last files to start:"]
     for name, (s, e, n, w, _) in sorted(files.items(), key=lambda kv: kv[1][0])[-6:]:
         out.append(f"  {name} ({w}) {s - t0:.1f} -> {e - t0:.1f}")
     return "\n".join(out)
+
+
+#: bounds (s) of the backend-compile duration classes
+BINS = (0.05, 0.5, 5.0)
+
+
+def jax_phases(rows, files_order) -> list[str]:
+    """JAX's program making summed over the tests (empty where the timeline has none)."""
+    rows = [r for r in rows if "jax" in r]
+    if not rows:
+        return []
+    names = ("trace", "lower", "compile", "cache_read")
+    tot = {k: [sum(r["jax"][k][0] for r in rows), sum(r["jax"][k][1] for r in rows)] for k in names}
+    busy = sum(r["end"] - r["start"] for r in rows)
+    making = tot["trace"][0] + tot["lower"][0] + tot["compile"][0]
+    out = ["JAX's program making in the workers (a subprocess's not seen):", "",
+           "| phase | s | events |", "|---|---|---|"]
+    out += [f"| {k} | {tot[k][0]:.1f} | {tot[k][1]} |" for k in names]
+    out += ["", (f"busy s of the tests: {busy:.1f}; of it tracing + lowering + backend compile "
+                 f"(cache reads included): {making:.1f}; the rest (running, Python, subprocesses): "
+                 f"{busy - making:.1f}"), "", "| backend compile of one program | programs | s |",
+            "|---|---|---|"]
+    durations = [d for r in rows for d in r.get("compiles", [])]
+    edges = (0.0, *BINS, float("inf"))
+    for lo, hi in itertools.pairwise(edges):
+        ds = [d for d in durations if lo <= d < hi]
+        out.append(f"| {lo:g} to {hi:g} s | {len(ds)} | {sum(ds):.1f} |")
+    per = defaultdict(lambda: [0.0, 0.0, 0.0, 0])
+    for r in rows:
+        f = per[r["test"].split("::")[0]]
+        for i, k in enumerate(("trace", "lower", "compile")):
+            f[i] += r["jax"][k][0]
+        f[3] += r["jax"]["compile"][1]
+    out += ["", "| file | trace s | lower s | compile s | programs |", "|---|---|---|---|---|"]
+    out += [f"| {n} | {per[n][0]:.1f} | {per[n][1]:.1f} | {per[n][2]:.1f} | {per[n][3]} |"
+            for n in files_order if n in per]
+    return out
 
 
 if __name__ == "__main__":
