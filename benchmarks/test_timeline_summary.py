@@ -88,10 +88,30 @@ def jax_phases(rows, files_order) -> list[str]:
     return out
 
 
+#: the header of `headline_row`'s table
+HEADLINE = ("| run | wall of the tests s | busy s (both workers) | programs made | of them read from "
+            "the cache | tracing + lowering s | backend compile s (reads included) | the rest s |\n"
+            "|---|---|---|---|---|---|---|---|")
+
+
+def headline_row(rows, label: str) -> str:
+    """One row of `HEADLINE`: the run's span, its busy seconds and JAX's program making."""
+    if any(r["worker"] != "main" for r in rows):
+        rows = [r for r in rows if r["worker"] != "main"]
+    span = max(r["end"] for r in rows) - min(r["start"] for r in rows)
+    busy = sum(r["end"] - r["start"] for r in rows)
+    jx = [r["jax"] for r in rows if "jax" in r]
+    tot = {k: [sum(j[k][0] for j in jx), sum(j[k][1] for j in jx)] for k in ("trace", "lower", "compile", "cache_read")}
+    tl = tot["trace"][0] + tot["lower"][0]
+    return (f"| {label} | {span:.0f} | {busy:.0f} | {tot['compile'][1]} | {tot['cache_read'][1]} | {tl:.0f} | "
+            f"{tot['compile'][0]:.0f} | {busy - tl - tot['compile'][0]:.0f} |")
+
+
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
     p.add_argument("path")
     p.add_argument("--top", type=int, default=40)
     p.add_argument("--cpu", action="store_true", help="rank files by CPU s, not wall s")
+    p.add_argument("--row", metavar="LABEL", help="only the run's row of the headline table")
     a = p.parse_args()
-    print(summarise(load(a.path), a.top, a.cpu))
+    print(headline_row(load(a.path), a.row) if a.row else summarise(load(a.path), a.top, a.cpu))
