@@ -46,8 +46,9 @@ def write_record(tmp: Path, zones: int = 4) -> tuple[Path, Path]:
     two paths."""
     env = dict(os.environ, JTHERMO_NO_CACHE="1")
     for name, dur, seed in (("est.csv", "3600", "1"), ("val.csv", "1800", "2")):
-        subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--zones", str(zones), "--duration", dur,
-                        "--seed", seed, "--out", str(tmp / name), "--quiet"], check=True, env=env)
+        subprocess.run([sys.executable, "-m", "jthermo.cli", "generate", *RECORD, "--zones", str(zones),
+                        "--duration", dur, "--seed", seed, "--out", str(tmp / name), "--quiet"],
+                       check=True, env=env)
     return tmp / "est.csv", tmp / "val.csv"
 
 

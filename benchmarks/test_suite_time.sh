@@ -38,8 +38,7 @@ summary=benchmarks/test_timeline_summary.py
   echo
   echo "\`bash benchmarks/test_suite_time.sh $mode\`: make test's command on a compilation cache of its own (cold: empty). Seconds of the xdist workers; \"programs made\" are JAX's backend compiles, a read from the persistent cache included; \"the rest\" is running the tests (Python, XLA, their subprocesses)."
   echo
-  .venv/bin/python -c "import sys; sys.path.insert(0, 'benchmarks'); import test_timeline_summary as s; print(s.HEADLINE)"
-  for run in $runs; do .venv/bin/python $summary "$out/timeline_$run.jsonl" --row "$run"; done
+  .venv/bin/python $summary --headline $(for run in $runs; do echo "$run=$out/timeline_$run.jsonl"; done)
   echo
   echo "One line per run (wall s, load before and after, time, pytest's summary):"
   echo

@@ -1,6 +1,7 @@
 """Per-file wall time and per-worker balance of a test run recorded by `test_timeline.py`.
 
     python benchmarks/test_timeline_summary.py out.jsonl [--top 40] [--cpu]
+    python benchmarks/test_timeline_summary.py --headline cold=cold.jsonl warm=warm.jsonl
 A file's time runs from its first test's start to its last test's end (module fixtures and
 the compiled-code release between modules fall inside or between them); a worker's idle tail
 is the time from its last test's end to the last test's end on any worker. Where the timeline
@@ -18,9 +19,25 @@ def load(path):
         return [json.loads(line) for line in f if line.strip()]
 
 
+def worker_rows(rows):
+    """The workers' rows: the xdist controller (`main`) echoes its workers' tests."""
+    if any(r["worker"] != "main" for r in rows):
+        return [r for r in rows if r["worker"] != "main"]
+    return rows
+
+
+#: JAX's program-making phases of a timeline row (`test_timeline.EVENTS`)
+PHASES = ("trace", "lower", "compile", "cache_read")
+
+
+def jax_totals(rows) -> dict:
+    """{phase: [seconds, events]} summed over the rows that have JAX's figures."""
+    jx = [r["jax"] for r in rows if "jax" in r]
+    return {k: [sum(j[k][0] for j in jx), sum(j[k][1] for j in jx)] for k in PHASES}
+
+
 def summarise(rows, top, by_cpu=False):
-    if any(r["worker"] != "main" for r in rows):     # the xdist controller echoes its workers' tests
-        rows = [r for r in rows if r["worker"] != "main"]
+    rows = worker_rows(rows)
     t0 = min(r["start"] for r in rows)
     t_end = max(r["end"] for r in rows)
     files = defaultdict(lambda: [float("inf"), 0.0, 0, None, 0.0])
@@ -60,13 +77,12 @@ def jax_phases(rows, files_order) -> list[str]:
     rows = [r for r in rows if "jax" in r]
     if not rows:
         return []
-    names = ("trace", "lower", "compile", "cache_read")
-    tot = {k: [sum(r["jax"][k][0] for r in rows), sum(r["jax"][k][1] for r in rows)] for k in names}
+    tot = jax_totals(rows)
     busy = sum(r["end"] - r["start"] for r in rows)
     making = tot["trace"][0] + tot["lower"][0] + tot["compile"][0]
     out = ["JAX's program making in the workers (a subprocess's not seen):", "",
            "| phase | s | events |", "|---|---|---|"]
-    out += [f"| {k} | {tot[k][0]:.1f} | {tot[k][1]} |" for k in names]
+    out += [f"| {k} | {tot[k][0]:.1f} | {tot[k][1]} |" for k in PHASES]
     out += ["", (f"busy s of the tests: {busy:.1f}; of it tracing + lowering + backend compile "
                  f"(cache reads included): {making:.1f}; the rest (running, Python, subprocesses): "
                  f"{busy - making:.1f}"), "", "| backend compile of one program | programs | s |",
@@ -96,12 +112,10 @@ HEADLINE = ("| run | wall of the tests s | busy s (both workers) | programs made
 
 def headline_row(rows, label: str) -> str:
     """One row of `HEADLINE`: the run's span, its busy seconds and JAX's program making."""
-    if any(r["worker"] != "main" for r in rows):
-        rows = [r for r in rows if r["worker"] != "main"]
+    rows = worker_rows(rows)
     span = max(r["end"] for r in rows) - min(r["start"] for r in rows)
     busy = sum(r["end"] - r["start"] for r in rows)
-    jx = [r["jax"] for r in rows if "jax" in r]
-    tot = {k: [sum(j[k][0] for j in jx), sum(j[k][1] for j in jx)] for k in ("trace", "lower", "compile", "cache_read")}
+    tot = jax_totals(rows)
     tl = tot["trace"][0] + tot["lower"][0]
     return (f"| {label} | {span:.0f} | {busy:.0f} | {tot['compile'][1]} | {tot['cache_read'][1]} | {tl:.0f} | "
             f"{tot['compile'][0]:.0f} | {busy - tl - tot['compile'][0]:.0f} |")
@@ -109,9 +123,13 @@ def headline_row(rows, label: str) -> str:
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
-    p.add_argument("path")
+    p.add_argument("paths", nargs="+", help="a timeline; with --headline, LABEL=PATH for each run")
     p.add_argument("--top", type=int, default=40)
     p.add_argument("--cpu", action="store_true", help="rank files by CPU s, not wall s")
-    p.add_argument("--row", metavar="LABEL", help="only the run's row of the headline table")
+    p.add_argument("--headline", action="store_true", help="only the headline table, a row a run")
     a = p.parse_args()
-    print(headline_row(load(a.path), a.row) if a.row else summarise(load(a.path), a.top, a.cpu))
+    if a.headline:
+        print("\n".join([HEADLINE, *(headline_row(load(path), label)
+                                     for label, path in (x.split("=", 1) for x in a.paths))]))
+    else:
+        print(summarise(load(a.paths[0]), a.top, a.cpu))
